@@ -1,0 +1,307 @@
+"""Spring topology: structural, shear and bending springs derived from a polygon mesh.
+
+Everything is built on *welded* positions (vertices at identical coordinates merged, as OBJ
+files split vertices at UV seams) so the cloth does not fall apart at seams. All steps are
+vectorised NumPy; the one per-vertex search (straightest continuation for bending springs)
+is a Numba kernel.
+
+Definitions (DESIGN.md section 2):
+- structural: every unique edge of the polygons (and of polylines);
+- shear: every diagonal of polygons with 4 or more corners, and for two triangles sharing
+  an interior manifold edge the pair of vertices opposite that edge;
+- bending: for a vertex v whose structural neighbours a and b continue each other most
+  straightly (each is the other's best continuation through v, angle >= 150 degrees at rest),
+  the spring a-b, unless a-b already is a structural or shear spring.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numba as nb
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from meshdeform.arrays import argsort_int, isin_int, run_lengths, unique_int
+from meshdeform.mesh import Mesh
+
+
+class SpringKind(IntEnum):
+    """The three kinds of spring; the value is stored in `SpringModel.kinds`."""
+
+    STRUCTURAL = 0
+    SHEAR = 1
+    BENDING = 2
+
+
+KIND_NAMES: tuple[str, ...] = ("structural", "shear", "bending")
+
+#: cosine of the smallest rest angle a-v-b that still counts as a straight continuation (150 degrees)
+STRAIGHT_COS = float(np.cos(np.deg2rad(150.0)))
+
+
+@dataclass(frozen=True, eq=False)
+class Welding:
+    """Input vertices merged by identical position.
+
+    vertex_map: (V,) input vertex -> welded vertex; welded vertices are numbered in order of
+    their first input occurrence, so a mesh without duplicates maps to itself.
+    representative: (W,) the first input vertex of each welded vertex.
+    """
+
+    vertex_map: np.ndarray
+    representative: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.representative.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class Springs:
+    """Springs over welded vertices: pairs (S, 2) int32 sorted (a < b), kind (S,) int8."""
+
+    pairs: np.ndarray
+    kinds: np.ndarray
+
+    def count(self, kind: SpringKind) -> int:
+        return int(np.count_nonzero(self.kinds == kind))
+
+    def counts(self) -> dict[str, int]:
+        return {name: self.count(SpringKind(i)) for i, name in enumerate(KIND_NAMES)}
+
+
+def weld(positions: np.ndarray) -> Welding:
+    """Merge vertices with bit-identical coordinates (-0.0 equals 0.0), keeping first-seen order."""
+    pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64) + 0.0)
+    if pos.shape[0] == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return Welding(empty, empty)
+    rows = pos.view(np.dtype((np.void, pos.dtype.itemsize * 3))).ravel()
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    # renumber unique rows by first occurrence so welded order follows input order
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.shape[0])
+    return Welding(vertex_map=rank[inverse.ravel()].astype(np.int64), representative=first[order].astype(np.int64))
+
+
+def _unique_pairs(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """Unique unordered pairs (a, b) with a != b, as (K, 2) int64 sorted by (min, max)."""
+    lo = np.minimum(a, b).astype(np.int64)
+    hi = np.maximum(a, b).astype(np.int64)
+    keep = lo != hi
+    keys = unique_int(lo[keep] * n + hi[keep])
+    return np.stack([keys // n, keys % n], axis=1)
+
+
+def _pair_keys(pairs: np.ndarray, n: int) -> np.ndarray:
+    return pairs[:, 0].astype(np.int64) * n + pairs[:, 1].astype(np.int64)
+
+
+def polygon_edges(mesh: Mesh, vertex_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directed edge of every polygon corner on welded indices: (start, end), each (C,)."""
+    start = vertex_map[mesh.face_indices]
+    end = vertex_map[mesh.face_indices[mesh.corner_next]]
+    return start, end
+
+
+def line_edges(mesh: Mesh, vertex_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Consecutive vertex pairs of every polyline on welded indices."""
+    if mesh.line_count == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty
+    idx = mesh.line_indices
+    last = np.zeros(idx.shape[0], dtype=bool)
+    last[mesh.line_offsets[1:] - 1] = True
+    starts = np.flatnonzero(~last)
+    return vertex_map[idx[starts]], vertex_map[idx[starts + 1]]
+
+
+def structural_pairs(mesh: Mesh, vertex_map: np.ndarray, n: int) -> np.ndarray:
+    s, e = polygon_edges(mesh, vertex_map)
+    ls, le = line_edges(mesh, vertex_map)
+    return _unique_pairs(np.concatenate([s, ls]), np.concatenate([e, le]), n)
+
+
+def _polygon_diagonals(mesh: Mesh, vertex_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All diagonals of polygons with 4+ corners, grouped by polygon size (few distinct sizes)."""
+    sizes = mesh.face_sizes
+    out_a: list[np.ndarray] = []
+    out_b: list[np.ndarray] = []
+    for k in np.unique(sizes[sizes >= 4]).tolist():
+        polys = np.flatnonzero(sizes == k)
+        corners = mesh.face_offsets[polys][:, None] + np.arange(k)[None, :]
+        verts = vertex_map[mesh.face_indices[corners]]  # (P, k)
+        i, j = np.triu_indices(k, 1)
+        diag = (j - i != 1) & (j - i != k - 1)
+        out_a.append(verts[:, i[diag]].ravel())
+        out_b.append(verts[:, j[diag]].ravel())
+    if not out_a:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty
+    return np.concatenate(out_a), np.concatenate(out_b)
+
+
+def _triangle_opposites(mesh: Mesh, vertex_map: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """For triangles sharing a manifold edge (exactly two triangles), their opposite vertices."""
+    tri_polys = np.flatnonzero(mesh.face_sizes == 3)
+    if tri_polys.shape[0] < 2:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty
+    base = mesh.face_offsets[tri_polys]
+    t = vertex_map[mesh.face_indices[base[:, None] + np.arange(3)[None, :]]]  # (T, 3)
+    # edge (t[k], t[k+1]) is opposite t[k+2]
+    ea = np.concatenate([t[:, 0], t[:, 1], t[:, 2]])
+    eb = np.concatenate([t[:, 1], t[:, 2], t[:, 0]])
+    opp = np.concatenate([t[:, 2], t[:, 0], t[:, 1]])
+    keys = np.minimum(ea, eb) * n + np.maximum(ea, eb)
+    order = argsort_int(keys)
+    start, counts = run_lengths(keys[order])
+    twice = start[counts == 2]
+    return opp[order[twice]], opp[order[twice + 1]]
+
+
+def shear_pairs(mesh: Mesh, vertex_map: np.ndarray, n: int, structural: np.ndarray) -> np.ndarray:
+    da, db = _polygon_diagonals(mesh, vertex_map)
+    ta, tb = _triangle_opposites(mesh, vertex_map, n)
+    pairs = _unique_pairs(np.concatenate([da, ta]), np.concatenate([db, tb]), n)
+    return pairs[~isin_int(_pair_keys(pairs, n), _pair_keys(structural, n))]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _straightest_continuations(
+    positions: np.ndarray, indptr: np.ndarray, neighbours: np.ndarray, straight_cos: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each vertex v and each neighbour a, the neighbour b of v most opposite to a.
+
+    Returns (v, a, b) triples where b is a's best continuation through v, a is b's best
+    continuation too (mutual) and the rest angle a-v-b is at least the straightness threshold;
+    each accepted pair is reported once (a < b).
+    """
+    total = indptr[-1]
+    best = np.full(total, -1, dtype=np.int64)  # best[slot of a around v] = slot of b
+    for v in range(positions.shape[0]):
+        lo = indptr[v]
+        hi = indptr[v + 1]
+        for sa in range(lo, hi):
+            a = neighbours[sa]
+            ax = positions[a, 0] - positions[v, 0]
+            ay = positions[a, 1] - positions[v, 1]
+            az = positions[a, 2] - positions[v, 2]
+            la = np.sqrt(ax * ax + ay * ay + az * az)
+            best_cos = straight_cos
+            best_slot = -1
+            for sb in range(lo, hi):
+                if sb == sa:
+                    continue
+                b = neighbours[sb]
+                bx = positions[b, 0] - positions[v, 0]
+                by = positions[b, 1] - positions[v, 1]
+                bz = positions[b, 2] - positions[v, 2]
+                lb = np.sqrt(bx * bx + by * by + bz * bz)
+                denom = la * lb
+                if denom <= 0.0:
+                    continue
+                c = (ax * bx + ay * by + az * bz) / denom
+                if c <= best_cos:
+                    best_cos = c
+                    best_slot = sb
+            best[sa] = best_slot
+    count = 0
+    for v in range(positions.shape[0]):
+        for sa in range(indptr[v], indptr[v + 1]):
+            sb = best[sa]
+            if sb >= 0 and best[sb] == sa and neighbours[sa] < neighbours[sb]:
+                count += 1
+    out_v = np.empty(count, dtype=np.int64)
+    out_a = np.empty(count, dtype=np.int64)
+    out_b = np.empty(count, dtype=np.int64)
+    k = 0
+    for v in range(positions.shape[0]):
+        for sa in range(indptr[v], indptr[v + 1]):
+            sb = best[sa]
+            if sb >= 0 and best[sb] == sa and neighbours[sa] < neighbours[sb]:
+                out_v[k] = v
+                out_a[k] = neighbours[sa]
+                out_b[k] = neighbours[sb]
+                k += 1
+    return out_v, out_a, out_b
+
+
+def adjacency(pairs: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """CSR adjacency (indptr, neighbours) of an undirected pair list, neighbours sorted."""
+    src = np.concatenate([pairs[:, 0], pairs[:, 1]]).astype(np.int64)
+    dst = np.concatenate([pairs[:, 1], pairs[:, 0]]).astype(np.int64)
+    order = argsort_int(src * n + dst)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(src, minlength=n), out=indptr[1:])
+    return indptr, dst[order]
+
+
+def bending_pairs(positions: np.ndarray, structural: np.ndarray, existing: np.ndarray, n: int) -> np.ndarray:
+    indptr, neighbours = adjacency(structural, n)
+    points = np.ascontiguousarray(positions, dtype=np.float64)
+    _, a, b = _straightest_continuations(points, indptr, neighbours, STRAIGHT_COS)
+    pairs = _unique_pairs(a, b, n)
+    return pairs[~isin_int(_pair_keys(pairs, n), _pair_keys(existing, n))]
+
+
+def build_springs(mesh: Mesh, welding: Welding | None = None) -> tuple[Welding, Springs]:
+    """Weld the mesh and derive its structural, shear and bending springs (welded indices)."""
+    welding = welding or weld(mesh.positions)
+    n = max(welding.count, 1)
+    vmap = welding.vertex_map
+    welded_positions = mesh.positions[welding.representative]
+    structural = structural_pairs(mesh, vmap, n)
+    shear = shear_pairs(mesh, vmap, n, structural)
+    bending = bending_pairs(welded_positions, structural, np.concatenate([structural, shear]), n)
+    pairs = np.concatenate([structural, shear, bending]).astype(np.int32)
+    kinds = np.concatenate(
+        [
+            np.full(structural.shape[0], SpringKind.STRUCTURAL, np.int8),
+            np.full(shear.shape[0], SpringKind.SHEAR, np.int8),
+            np.full(bending.shape[0], SpringKind.BENDING, np.int8),
+        ]
+    )
+    return welding, Springs(pairs=pairs.reshape(-1, 2), kinds=kinds)
+
+
+@dataclass(frozen=True)
+class TopologyStats:
+    """Counts `meshdeform inspect` reports."""
+
+    welded_vertices: int
+    referenced_vertices: int
+    pieces: int
+    boundary_edges: int
+    non_manifold_edges: int
+
+
+def topology_stats(mesh: Mesh, welding: Welding, springs: Springs) -> TopologyStats:
+    """Edge-incidence and connectivity figures over welded vertices."""
+    n = max(welding.count, 1)
+    s, e = polygon_edges(mesh, welding.vertex_map)
+    keep = s != e
+    keys = np.minimum(s[keep], e[keep]) * n + np.maximum(s[keep], e[keep])
+    _, per_edge = run_lengths(np.sort(keys))
+    # an edge used twice by the same polygon direction still counts per incidence
+    referenced = np.zeros(welding.count, dtype=bool)
+    referenced[welding.vertex_map[mesh.face_indices]] = True
+    if mesh.line_count:
+        referenced[welding.vertex_map[mesh.line_indices]] = True
+    structural = springs.pairs[springs.kinds == SpringKind.STRUCTURAL]
+    graph = coo_matrix(
+        (np.ones(structural.shape[0]), (structural[:, 0], structural[:, 1])), shape=(welding.count, welding.count)
+    )
+    _, labels = connected_components(graph, directed=False)
+    pieces = int(unique_int(labels[referenced]).shape[0]) if referenced.any() else 0
+    return TopologyStats(
+        welded_vertices=welding.count,
+        referenced_vertices=int(referenced.sum()),
+        pieces=pieces,
+        boundary_edges=int(np.count_nonzero(per_edge == 1)),
+        non_manifold_edges=int(np.count_nonzero(per_edge > 2)),
+    )

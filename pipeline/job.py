@@ -1,0 +1,214 @@
+"""One job: one mesh through one recipe into one output folder.
+
+load -> build (model, scene, settings) -> simulate -> exporters (streamed, frame by frame)
+-> previews -> report.json. Everything is written into a staging folder beside the target and
+renamed into place only when the whole job succeeded, so a failed or interrupted job never
+leaves an output folder that looks complete.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import shutil
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from meshdeform.atomic import write_text_atomic
+from meshdeform.errors import MeshdeformError
+from meshdeform.mesh import Mesh
+from pipeline import __version__
+from pipeline.recipe import Recipe, recipe_hash
+
+#: report keys that hold wall-clock timings (the only ones allowed to differ between identical runs)
+TIMING_KEYS = ("seconds", "setup_seconds", "export_seconds", "preview_seconds", "total_seconds", "frames_per_second")
+
+#: called after each frame with (frame number, frame count)
+FrameCallback = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class JobResult:
+    """Where a finished job wrote, and its report."""
+
+    out_dir: Path
+    report: dict[str, Any]
+    outputs: list[Path]
+
+
+def file_sha256(path: Path) -> str:
+    """Hex sha256 of a file's bytes, read in chunks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+@contextlib.contextmanager
+def staged_directory(target: Path) -> Iterator[Path]:
+    """Yield an empty staging folder; on success it replaces `target`, on failure it is removed."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    token = uuid.uuid4().hex[:8]
+    stage = target.parent / f".{target.name}.partial-{token}"
+    stage.mkdir()
+    try:
+        yield stage
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    old = target.parent / f".{target.name}.old-{token}"
+    if target.exists():
+        os.replace(target, old)
+    os.replace(stage, target)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _point_data(model: Any, strain: Any, frame: Any) -> dict[str, np.ndarray]:
+    """Per-vertex data in the input layout for exporters that carry it (VTK)."""
+    welded_strain = strain(frame.welded_positions)
+    return {
+        "strain": welded_strain[model.vertex_map],
+        "displacement": np.linalg.norm(frame.welded_positions - model.rest_positions, axis=1)[model.vertex_map],
+        "pinned": model.pinned[model.vertex_map].astype(np.uint8),
+    }
+
+
+def run_job(
+    mesh_path: Path,
+    recipe: Recipe,
+    out_dir: Path,
+    *,
+    on_frame: FrameCallback | None = None,
+    mesh: Mesh | None = None,
+) -> JobResult:
+    """Simulate one mesh with a recipe and write every requested output into `out_dir`.
+
+    Raises the engine's typed errors (MeshLoadError, RecipeError, SimulationDiverged,
+    ExportError); nothing is left in `out_dir` when it does.
+    """
+    from meshdeform.export import ExportContext, FrameData, make_exporter
+    from meshdeform.io import load
+    from meshdeform.simulate import simulate
+    from meshdeform.strain import VertexStrain
+    from pipeline.build import build_simulation
+
+    started = time.perf_counter()
+    mesh_path = Path(mesh_path)
+    mesh = mesh if mesh is not None else load(mesh_path)
+    built = build_simulation(recipe, mesh)
+    model, settings = built.model, built.settings
+    formats = list(dict.fromkeys(recipe.output.formats or ["obj"]))
+    exporters = [make_exporter(name) for name in formats]
+    strain = VertexStrain(model)
+    setup_seconds = time.perf_counter() - started
+
+    max_stretch: list[float] = []
+    max_speed: list[float] = []
+    rest_frame: int | None = None
+    sim_seconds = 0.0
+    export_seconds = 0.0
+    with staged_directory(out_dir) as stage:
+        context = ExportContext(
+            mesh=mesh,
+            out_dir=stage,
+            fps=settings.fps,
+            start_frame=recipe.simulation.start_frame,
+            up_axis=recipe.output.up_axis,
+            frame_count=settings.frames,
+        )
+        opened = []
+        try:
+            for exporter in exporters:
+                exporter.open(context)
+                opened.append(exporter)
+            tick = time.perf_counter()
+            for frame in simulate(model, built.scene, settings):
+                sim_seconds += time.perf_counter() - tick
+                max_stretch.append(round(frame.max_stretch, 9))
+                max_speed.append(round(frame.max_speed, 9))
+                if rest_frame is None and getattr(frame, "at_rest", False):
+                    rest_frame = frame.index
+                tick = time.perf_counter()
+                data = FrameData(
+                    index=frame.index,
+                    time=frame.time,
+                    positions=frame.positions,
+                    point_data=_point_data(model, strain, frame),
+                )
+                for exporter in opened:
+                    exporter.write(data)
+                export_seconds += time.perf_counter() - tick
+                if on_frame is not None:
+                    on_frame(frame.index, settings.frames)
+                tick = time.perf_counter()
+            tick = time.perf_counter()
+            outputs: list[Path] = []
+            for exporter in opened:
+                outputs += exporter.close()
+            export_seconds += time.perf_counter() - tick
+        except BaseException:
+            for exporter in opened:
+                with contextlib.suppress(Exception):
+                    exporter.abort()
+            raise
+        preview_seconds = 0.0
+        if recipe.output.preview:
+            tick = time.perf_counter()
+            outputs += render_job_previews(mesh, model, stage, recipe)
+            preview_seconds = time.perf_counter() - tick
+        relative = sorted({str(Path(p).resolve().relative_to(stage.resolve())) for p in outputs})
+        report = {
+            "tool": "meshdeform",
+            "version": __version__,
+            "input": str(mesh_path),
+            "input_sha256": file_sha256(mesh_path) if mesh_path.is_file() else None,
+            "recipe": str(recipe.source) if recipe.source else None,
+            "recipe_sha256": recipe_hash(recipe),
+            "solver": settings.solver,
+            "fps": settings.fps,
+            "substeps": settings.substeps,
+            "iterations": settings.options.iterations,
+            "frames": len(max_stretch),
+            "vertices": mesh.vertex_count,
+            "welded_vertices": model.vertex_count,
+            "faces": mesh.face_count,
+            "springs": model.spring_counts(),
+            "pinned_vertices": int(np.count_nonzero(model.pinned_input_mask())),
+            "selections": built.selections,
+            "max_stretch": max_stretch,
+            "max_speed": max_speed,
+            "rest_frame": rest_frame,
+            "formats": formats,
+            "outputs": [*relative, "report.json"],
+            "warnings": list(mesh.warnings),
+            "seconds": round(sim_seconds, 4),
+            "frames_per_second": round(len(max_stretch) / sim_seconds, 3) if sim_seconds > 0 else None,
+            "setup_seconds": round(setup_seconds, 4),
+            "export_seconds": round(export_seconds, 4),
+            "preview_seconds": round(preview_seconds, 4),
+            "total_seconds": round(time.perf_counter() - started, 4),
+        }
+        write_text_atomic(stage / "report.json", json.dumps(report, indent=2) + "\n")
+    return JobResult(out_dir=Path(out_dir), report=report, outputs=[Path(out_dir) / r for r in report["outputs"]])
+
+
+def render_job_previews(mesh: Mesh, model: Any, stage: Path, recipe: Recipe) -> list[Path]:
+    """Render the recipe's previews from the frames just written into the staging folder."""
+    from meshdeform.preview import render_result_previews
+
+    try:
+        return list(render_result_previews(stage, recipe.output.preview, mesh=mesh, model=model))
+    except MeshdeformError:
+        raise
+    except Exception as exc:  # a rendering backend failure is an export error, not a crash
+        raise MeshdeformError(f"{stage.name}: preview rendering failed: {exc}") from exc

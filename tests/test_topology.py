@@ -1,0 +1,154 @@
+"""Spring topology against the closed-form counts of DESIGN.md section 2 and independent references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
+from meshdeform.topology import SpringKind, build_springs, topology_stats, weld
+
+
+def expected_grid_counts(n: int, m: int) -> dict[str, int]:
+    return {
+        "structural": n * (m - 1) + m * (n - 1),
+        "shear": 2 * (n - 1) * (m - 1),
+        "bending": n * max(m - 2, 0) + m * max(n - 2, 0),
+    }
+
+
+@pytest.mark.parametrize(("n", "m"), [(2, 2), (2, 5), (3, 3), (7, 4), (17, 11), (64, 64)])
+def test_quad_grid_spring_counts_match_formulas(n: int, m: int) -> None:
+    _, springs = build_springs(grid_mesh(n, m))
+    assert springs.counts() == expected_grid_counts(n, m)
+
+
+def test_springs_are_unique_and_never_self_loops() -> None:
+    _, springs = build_springs(grid_mesh(9, 6))
+    pairs = springs.pairs
+    assert (pairs[:, 0] < pairs[:, 1]).all()
+    keys = pairs[:, 0].astype(np.int64) * 1000 + pairs[:, 1]
+    assert np.unique(keys).size == keys.size
+
+
+def test_grid_spring_geometry_by_kind() -> None:
+    """Structural springs are grid edges, shear the quad diagonals, bending span two edges in a line."""
+    n, m = 6, 5
+    mesh = grid_mesh(n, m, size=(n - 1.0, m - 1.0))  # unit spacing
+    welding, springs = build_springs(mesh)
+    p = mesh.positions[welding.representative]
+    length = np.linalg.norm(p[springs.pairs[:, 1]] - p[springs.pairs[:, 0]], axis=1)
+    np.testing.assert_allclose(length[springs.kinds == SpringKind.STRUCTURAL], 1.0)
+    np.testing.assert_allclose(length[springs.kinds == SpringKind.SHEAR], np.sqrt(2.0))
+    np.testing.assert_allclose(length[springs.kinds == SpringKind.BENDING], 2.0)
+
+
+def test_curved_grid_keeps_bending_springs() -> None:
+    """A grid rolled into a half cylinder still has its straightest continuations."""
+    n, m = 24, 6
+    mesh = grid_mesh(n, m)
+    angle = mesh.positions[:, 0] * np.pi
+    curved = np.stack([np.cos(angle), mesh.positions[:, 1], np.sin(angle)], axis=1)
+    _, springs = build_springs(mesh.with_positions(curved))
+    assert springs.counts() == expected_grid_counts(n, m)
+
+
+def test_uv_seam_copies_share_springs() -> None:
+    """Splitting a grid's middle column into two copies (a UV seam) changes no spring."""
+    n, m = 6, 4
+    mesh = grid_mesh(n, m)
+    seam_col = 3
+    copies = np.arange(m) * n + seam_col
+    new_index = mesh.vertex_count + np.arange(m)
+    positions = np.concatenate([mesh.positions, mesh.positions[copies]])
+    faces = mesh.face_indices.reshape(-1, 4).copy()
+    # quads right of the seam use the copies
+    remap = np.arange(mesh.vertex_count)
+    quad_left_col = np.arange(faces.shape[0]) % (n - 1)
+    right = quad_left_col >= seam_col
+    lookup = dict(zip(copies.tolist(), new_index.tolist(), strict=True))
+    remap_right = remap.copy()
+    remap_right[copies] = [lookup[c] for c in copies.tolist()]
+    faces[right] = remap_right[faces[right]]
+    split = Mesh(positions=positions, face_indices=faces.ravel(), face_offsets=mesh.face_offsets)
+    welding, springs = build_springs(split)
+    assert welding.count == n * m
+    np.testing.assert_array_equal(welding.vertex_map[new_index], welding.vertex_map[copies])
+    assert springs.counts() == expected_grid_counts(n, m)
+
+
+def test_weld_keeps_first_seen_order_and_treats_negative_zero_as_zero() -> None:
+    positions = np.array([[1.0, 0, 0], [0.0, 0, 0], [1.0, 0, 0], [-0.0, 0, 0], [2.0, 0, 0]])
+    welding = weld(positions)
+    np.testing.assert_array_equal(welding.vertex_map, [0, 1, 0, 1, 2])
+    np.testing.assert_array_equal(welding.representative, [0, 1, 4])
+
+
+def test_triangulated_grid_shear_pairs_cross_every_interior_edge() -> None:
+    n, m = 8, 5
+    quads = grid_mesh(n, m)
+    q = quads.face_indices.reshape(-1, 4)
+    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    flat, offsets = polygons_to_csr(list(tris))
+    mesh = Mesh(positions=quads.positions, face_indices=flat, face_offsets=offsets)
+    _, springs = build_springs(mesh)
+    edges = n * (m - 1) + m * (n - 1) + (n - 1) * (m - 1)
+    boundary = 2 * (n - 1) + 2 * (m - 1)
+    counts = springs.counts()
+    assert counts["structural"] == edges
+    assert counts["shear"] == edges - boundary
+    # straight rows and columns survive triangulation, and the diagonals are straight lines too
+    assert counts["bending"] == expected_grid_counts(n, m)["bending"] + (n - 2) * (m - 2)
+
+
+def test_polyline_rope_gets_structural_and_bending_springs() -> None:
+    k = 12
+    positions = np.zeros((k, 3))
+    positions[:, 0] = np.linspace(0, 1, k)
+    mesh = Mesh(
+        positions=positions,
+        face_indices=np.zeros(0, np.int64),
+        face_offsets=np.zeros(1, np.int64),
+        line_indices=np.arange(k, dtype=np.int64),
+        line_offsets=np.array([0, k], dtype=np.int64),
+    )
+    _, springs = build_springs(mesh)
+    assert springs.counts() == {"structural": k - 1, "shear": 0, "bending": k - 2}
+
+
+def test_ngon_diagonals_are_shear_springs() -> None:
+    """A hexagon has 6 edges and 6*3/2 = 9 diagonals; its two long diagonals through no vertex stay shear."""
+    t = np.linspace(0, 2 * np.pi, 7)[:-1]
+    positions = np.stack([np.cos(t), np.sin(t), np.zeros(6)], axis=1)
+    mesh = Mesh(positions=positions, face_indices=np.arange(6, dtype=np.int64), face_offsets=np.array([0, 6]))
+    _, springs = build_springs(mesh)
+    assert springs.counts()["structural"] == 6
+    assert springs.counts()["shear"] == 9
+
+
+def test_topology_stats_on_cube_with_extra_triangle() -> None:
+    """A closed cube has no boundary; a triangle laid over one of its faces makes non-manifold edges."""
+    corners = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], dtype=float)
+    quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+    flat, offsets = polygons_to_csr(quads)
+    cube = Mesh(positions=corners, face_indices=flat, face_offsets=offsets)
+    welding, springs = build_springs(cube)
+    stats = topology_stats(cube, welding, springs)
+    assert (stats.boundary_edges, stats.non_manifold_edges, stats.pieces) == (0, 0, 1)
+    flat2, offsets2 = polygons_to_csr([*quads, [4, 5, 7]])
+    extra = Mesh(positions=corners, face_indices=flat2, face_offsets=offsets2)
+    w2, s2 = build_springs(extra)
+    stats2 = topology_stats(extra, w2, s2)
+    assert stats2.non_manifold_edges == 2  # 4-5 and 5-7 lie on the quad and the triangle, 4-7 is new
+    assert stats2.boundary_edges == 1
+
+
+def test_two_pieces_are_counted() -> None:
+    a = grid_mesh(3, 3)
+    shifted = a.positions + [5.0, 0, 0]
+    positions = np.concatenate([a.positions, shifted])
+    faces = np.concatenate([a.face_indices, a.face_indices + a.vertex_count])
+    offsets = np.concatenate([a.face_offsets, a.face_offsets[1:] + a.face_indices.size])
+    mesh = Mesh(positions=positions, face_indices=faces, face_offsets=offsets)
+    welding, springs = build_springs(mesh)
+    assert topology_stats(mesh, welding, springs).pieces == 2
