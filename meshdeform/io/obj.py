@@ -1,0 +1,816 @@
+"""Wavefront OBJ reading and writing: polygons, UV seams, authored normals and groups kept.
+
+Reading works on the bytes with NumPy: lines are sorted by keyword from their first bytes, the
+lines of each keyword are cut out in one go, and their numbers parsed in one C call (all `v`
+lines at once; all faces at once when every corner has the same `v/vt/vn` pattern, which is
+checked per corner). Only unusual lines (statements, leading whitespace) go through Python. A
+slow line-by-line path takes over when the fast one does not apply; it is also what names the line
+of an error. Broken input raises `MeshLoadError` with one line `"<path>: line <n>: <what>"`;
+repairable oddities (degenerate polygons, dangling normal or UV references) are repaired and
+reported in `Mesh.warnings`.
+
+Writing precomputes everything that does not change between frames (faces, `vt`, statements),
+so a frame costs only the formatting of `v` (and recomputed `vn`) lines.
+"""
+
+from __future__ import annotations
+
+import codecs
+import os
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from meshdeform.atomic import atomic_open
+from meshdeform.errors import ExportError, MeshLoadError
+from meshdeform.geometry import PolygonCleanup, clean_polygons, corner_normals
+from meshdeform.mesh import Mesh
+
+__all__ = ["ObjWriter", "read_mesh_bytes", "read_obj", "write_obj"]
+
+PathLike = str | os.PathLike[str]
+
+# statements replayed by the writer (grouping and material state between faces)
+_KEPT_STATEMENTS = frozenset({"g", "o", "s", "usemtl", "mtllib"})
+# valid OBJ statements we do not use (free-form geometry, display attributes, points)
+_IGNORED_STATEMENTS = frozenset(
+    {
+        "p", "vp", "cstype", "deg", "bmat", "step", "curv", "curv2", "surf", "parm", "trim", "hole",
+        "scrv", "sp", "end", "con", "mg", "bevel", "c_interp", "d_interp", "lod", "usemap", "maplib",
+        "shadow_obj", "trace_obj", "ctech", "stech", "call", "csh",
+    }
+)  # fmt: skip
+_KIND = {"v": 1, "vt": 2, "vn": 3, "f": 4}
+_MSVC_NONFINITE = re.compile(r"^[-+]?\d*\.?\d*#(IND|INF|QNAN|SNAN)\w*$", re.IGNORECASE)
+_CONTROL_BYTES = bytes([*range(0x00, 0x09), *range(0x0E, 0x1A), *range(0x1B, 0x20)])
+_NOT_CONTROL = bytes(sorted(set(range(256)) - set(_CONTROL_BYTES)))
+_MISSING = np.iinfo(np.int64).min  # a corner without a vt / vn reference
+_HUGE = 2**62  # indices are clamped to +-_HUGE: far out of range, and no int64 overflow
+# a comment starts with '#' at the start of a token; MSVC's "1.#IND" is a (non-finite) number
+_COMMENT = re.compile(r"(?:^|\s)#.*")
+# put in place of the keyword of each line, so one bulk parse also gives the line lengths; NaN
+# parses fastest, and data that holds NaN itself fails the count check and takes the slow path
+_SENTINEL = b" nan "
+# bytes.translate tables: whitespace -> 1 (else 0); 'f' and '/' -> space (else unchanged)
+_IS_SPACE = bytes(1 if c in b" \t\n" else 0 for c in range(256))
+_FACE_DIGITS = bytes.maketrans(b"f/", b"  ")
+
+
+# --------------------------------------------------------------------------- shared helpers
+
+
+def read_mesh_bytes(path: PathLike) -> bytes:
+    """The bytes of a mesh file, or a one-line MeshLoadError naming the file."""
+    p = Path(path)
+    try:
+        return p.read_bytes()
+    except FileNotFoundError:
+        raise MeshLoadError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise MeshLoadError(f"{path}: is a directory, not a mesh file") from None
+    except PermissionError:
+        raise MeshLoadError(f"{path}: permission denied") from None
+    except OSError as exc:
+        raise MeshLoadError(f"{path}: cannot read: {exc.strerror or exc}") from None
+
+
+def _short(text: str, limit: int = 40) -> str:
+    """A snippet of a line for an error message."""
+    text = text.strip()
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _parse_all(data: bytes, dtype: type) -> np.ndarray | None:
+    """Parse whitespace-separated numbers in C (NumPy), or None if any token is not a number.
+
+    Callers check the count (NumPy reads whitespace-only text as one 0).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            return np.fromstring(data, dtype=dtype, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+
+
+def _utf8(data: bytes, path: PathLike, notes: list[str]) -> bytes:
+    """The file as UTF-8 bytes without BOM: BOM-marked UTF-8 / UTF-16 / UTF-32, UTF-16 without
+    BOM (every other byte zero), else UTF-8, else Latin-1 (with a note)."""
+    for bom, encoding in (
+        (codecs.BOM_UTF32_LE, "utf-32-le"),
+        (codecs.BOM_UTF32_BE, "utf-32-be"),
+        (codecs.BOM_UTF8, "utf-8"),
+        (codecs.BOM_UTF16_LE, "utf-16-le"),
+        (codecs.BOM_UTF16_BE, "utf-16-be"),
+    ):
+        if data.startswith(bom):
+            body = data[len(bom) :]
+            try:
+                text = body.decode(encoding)
+            except UnicodeDecodeError as exc:
+                line = body[: exc.start].decode(encoding, "replace").count("\n") + 1
+                raise MeshLoadError(f"{path}: line {line}: invalid {encoding.upper()} text") from None
+            return body if encoding == "utf-8" else text.encode("utf-8")
+    if data.isascii() and b"\x00" not in data[:4096]:
+        return data
+    head = data[:4096]
+    if len(head) >= 4 and head.count(0) * 2 >= len(head) - 1:
+        for encoding, zeros in (("utf-16-le", head[1::2]), ("utf-16-be", head[0::2])):
+            if not zeros.strip(b"\x00"):
+                try:
+                    return data.decode(encoding).encode("utf-8")
+                except UnicodeDecodeError:
+                    break
+    try:
+        data.decode("utf-8")
+        return data
+    except UnicodeDecodeError:
+        notes.append("the file is not valid UTF-8; it was read as Latin-1")
+        return data.decode("latin-1").encode("utf-8")
+
+
+class _Lines:
+    """The lines of one keyword: their bytes joined (each ending in a newline) for bulk parsing,
+    their 1-based line numbers, and their text on demand (slow paths and messages)."""
+
+    def __init__(self, data: bytes, numbers: np.ndarray) -> None:
+        self.data = data
+        self.numbers = numbers
+        self._text: list[str] | None = None
+
+    def __len__(self) -> int:
+        return int(self.numbers.shape[0])
+
+    def text(self) -> list[str]:
+        if self._text is None:
+            self._text = self.data.decode("utf-8", "replace").split("\n")[: len(self)]
+        return self._text
+
+
+# --------------------------------------------------------------------------- reader
+
+
+class _Reader:
+    """State of one OBJ read; `read()` returns the Mesh."""
+
+    def __init__(self, path: PathLike) -> None:
+        self.path = path
+        self.warnings: list[str] = []
+
+    def fail(self, line: int | None, what: str) -> MeshLoadError:
+        where = f"line {line}: " if line is not None else ""
+        return MeshLoadError(f"{self.path}: {where}{what}")
+
+    def read(self) -> Mesh:
+        data = read_mesh_bytes(self.path)
+        if not data or data.isspace():
+            raise self.fail(None, "empty file" if not data else "the file holds only whitespace")
+        buf = _utf8(data, self.path, self.warnings).rstrip(b"\x1a")  # DOS end-of-file mark
+        controls = buf.translate(None, _NOT_CONTROL)
+        if controls:
+            line = buf.count(b"\n", 0, buf.find(controls[:1])) + 1
+            raise self.fail(line, "binary data (control bytes), not an OBJ text file")
+        if b"\r" in buf:
+            buf = buf.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        if b"\\" in buf:
+            buf = self._join_continuations(buf)
+        if not buf.endswith(b"\n"):
+            buf += b"\n"
+        return self._build(buf)
+
+    @staticmethod
+    def _join_continuations(buf: bytes) -> bytes:
+        """Join lines ending in a backslash with the next; the joined text stays at the first
+        line and the others become empty, so line numbers stay true."""
+        lines = buf.split(b"\n")
+        i = 0
+        n = len(lines)
+        while i < n:
+            start = i
+            while lines[start].rstrip().endswith(b"\\") and i + 1 < n:
+                lines[start] = lines[start].rstrip()[:-1] + b" " + lines[i + 1]
+                lines[i + 1] = b""
+                i += 1
+            if lines[start].rstrip().endswith(b"\\"):
+                lines[start] = lines[start].rstrip()[:-1]
+            i += 1
+        return b"\n".join(lines)
+
+    # ---- pass 1: sort lines by keyword
+    def _build(self, buf: bytes) -> Mesh:
+        arr = np.frombuffer(buf, dtype=np.uint8)
+        ends = np.flatnonzero(arr == 10)
+        n_lines = ends.shape[0]
+        starts = np.zeros(n_lines, dtype=np.int64)
+        starts[1:] = ends[:-1] + 1
+        last = arr.shape[0] - 1
+        c0 = arr[starts]
+        c1 = arr[np.minimum(starts + 1, last)]
+        c2 = arr[np.minimum(starts + 2, last)]
+        ws1 = (c1 == 32) | (c1 == 9)
+        ws2 = (c2 == 32) | (c2 == 9)
+        kinds = np.zeros(n_lines, dtype=np.uint8)  # 1 v, 2 vt, 3 vn, 4 f, 5 l
+        is_v = c0 == 118
+        kinds[is_v & ws1] = 1
+        kinds[is_v & (c1 == 116) & ws2] = 2
+        kinds[is_v & (c1 == 110) & ws2] = 3
+        kinds[(c0 == 102) & ws1] = 4
+        other = np.flatnonzero((kinds == 0) & (c0 != 10) & (c0 != 35))
+
+        # the rest (statements, lines with leading whitespace, odd keywords) line by line
+        l_items: list[tuple[int, str]] = []
+        statements: list[tuple[int, str]] = []
+        group_runs: list[tuple[int, tuple[str, ...]]] = []
+        group_names: dict[str, None] = {}
+        current_g: tuple[str, ...] = ()
+        current_o: tuple[str, ...] = ()
+        ignored: dict[str, int] = {}
+        first_ignored = 0
+        unknown = 0
+        first_unknown: tuple[int, str] | None = None
+        for i, a, b in zip(other.tolist(), starts[other].tolist(), ends[other].tolist(), strict=True):
+            stripped = buf[a:b].decode("utf-8", "replace").strip()
+            if not stripped or stripped[0] == "#":
+                continue
+            if "#" in stripped:
+                stripped = _COMMENT.sub("", stripped).rstrip()
+                if not stripped:
+                    continue
+            parts = stripped.split()
+            key = parts[0]
+            if key in _KIND:
+                kinds[i] = _KIND[key]
+            elif key == "l":
+                kinds[i] = 5
+                l_items.append((i, " ".join(parts[1:])))
+            elif key in _KEPT_STATEMENTS:
+                statements.append((i, stripped))
+                if key == "g" or key == "o":
+                    rest = " ".join(parts[1:])
+                    names = tuple(parts[1:]) if key == "g" else ((rest,) if rest else ())
+                    if key == "g":
+                        current_g = names
+                    else:
+                        current_o = names
+                    for name in names:
+                        group_names.setdefault(name)
+                    group_runs.append((i, tuple(dict.fromkeys(current_g + current_o))))
+            elif key in _IGNORED_STATEMENTS:
+                ignored[key] = ignored.get(key, 0) + 1
+                first_ignored = first_ignored or i + 1
+            else:
+                unknown += 1
+                if first_unknown is None:
+                    first_unknown = (i + 1, stripped)
+
+        counts = np.bincount(kinds, minlength=6)
+        if not counts[1] and not counts[4] and not counts[5]:
+            if first_unknown is not None:
+                raise self.fail(
+                    first_unknown[0],
+                    f"not an OBJ file: no vertices, and the first unknown statement is '{_short(first_unknown[1])}'",
+                )
+            raise self.fail(None, "no vertices, faces or lines: nothing to load")
+        if ignored:
+            listed = ", ".join(f"{k} ({n})" for k, n in ignored.items())
+            self.warnings.append(
+                f"ignored {sum(ignored.values())} unsupported OBJ statements: {listed} (first at line {first_ignored})"
+            )
+        if first_unknown is not None:
+            self.warnings.append(
+                f"ignored {unknown} lines with unknown statements (first at line {first_unknown[0]}: "
+                f"'{_short(first_unknown[1])}')"
+            )
+
+        # the bytes of each keyword's lines, cut out as runs of consecutive lines of one kind
+        change = np.flatnonzero(kinds[1:] != kinds[:-1]) + 1
+        run_first = np.concatenate([[0], change])
+        run_last = np.concatenate([change - 1, [n_lines - 1]])
+        run_kind = kinds[run_first]
+        byte_kind = None if run_first.shape[0] < 4096 else np.repeat(kinds, ends - starts + 1)
+
+        def cut(k: int) -> _Lines:
+            numbers = np.flatnonzero(kinds == k) + 1
+            if not numbers.shape[0]:
+                return _Lines(b"", numbers)
+            if byte_kind is not None:
+                return _Lines(arr[byte_kind == k].tobytes(), numbers)
+            sel = run_kind == k
+            spans = zip(starts[run_first[sel]].tolist(), (ends[run_last[sel]] + 1).tolist(), strict=True)
+            return _Lines(b"".join(buf[a:b] for a, b in spans), numbers)
+
+        positions, colors = self._parse_vertices(cut(1))
+        uvs = self._parse_uvs(cut(2)) if counts[2] else None
+        normals = self._parse_normals(cut(3)) if counts[3] else None
+        f_lines = cut(4)
+
+        # how many v / vt / vn / f come before each line, for relative indices and statements
+        face_rows = f_lines.numbers - 1
+        cum = {k: np.cumsum(kinds == k, dtype=np.int64) for k in (1, 2, 3, 4)}
+        before = {k: cum[k][face_rows] for k in (1, 2, 3)}
+        sizes, v_raw, vt_raw, vn_raw = self._parse_faces(f_lines)
+        n_faces = sizes.shape[0]
+        offsets = np.zeros(n_faces + 1, dtype=np.int64)
+        np.cumsum(sizes, out=offsets[1:])
+        corner_face = np.repeat(np.arange(n_faces, dtype=np.int64), sizes)
+        face_lines = f_lines.numbers
+
+        n_v = positions.shape[0]
+        face_indices = self._resolve_vertices(v_raw, before[1][corner_face], n_v, face_lines[corner_face], "face")
+        face_uv = self._resolve_optional(
+            vt_raw, before[2], corner_face, face_lines, 0 if uvs is None else len(uvs), "UV"
+        )
+        face_nrm = self._resolve_optional(
+            vn_raw, before[3], corner_face, face_lines, 0 if normals is None else len(normals), "normal"
+        )
+        line_indices, line_offsets = self._parse_lines(l_items, cum[1], n_v)
+
+        cleanup = clean_polygons(face_indices, offsets)
+        if not cleanup.face_keep.all() or cleanup.repaired.any():
+            self._report_cleanup(cleanup, face_lines)
+            keep_c = cleanup.corner_keep
+            face_indices = face_indices[keep_c]
+            face_uv = None if face_uv is None else face_uv[keep_c]
+            face_nrm = None if face_nrm is None else face_nrm[keep_c]
+            new_sizes = np.bincount(corner_face[keep_c], minlength=n_faces)[cleanup.face_keep]
+            offsets = np.zeros(new_sizes.shape[0] + 1, dtype=np.int64)
+            np.cumsum(new_sizes, out=offsets[1:])
+        kept_before = np.zeros(n_faces + 1, dtype=np.int64)
+        np.cumsum(cleanup.face_keep, out=kept_before[1:])
+
+        face_count_at = cum[4]
+        runs = [(int(face_count_at[i]), members) for i, members in group_runs]
+        groups = self._groups(group_names, runs, n_faces, cleanup.face_keep, kept_before)
+        statements_out = tuple((int(kept_before[face_count_at[i]]), text) for i, text in statements)
+
+        if offsets.shape[0] == 1 and line_offsets.shape[0] == 1:
+            self.warnings.append("the file has no polygons or lines, only vertices")
+        vertex_properties: dict[str, np.ndarray] = {}
+        if colors is not None:
+            vertex_properties["color"] = colors
+        return Mesh(
+            positions=positions,
+            face_indices=face_indices,
+            face_offsets=offsets,
+            uvs=uvs if face_uv is not None else None,
+            face_uv_indices=face_uv,
+            normals=normals if face_nrm is not None else None,
+            face_normal_indices=face_nrm,
+            line_indices=line_indices,
+            line_offsets=line_offsets,
+            statements=statements_out,
+            groups=groups,
+            vertex_properties=vertex_properties,
+            source=Path(self.path),
+            warnings=tuple(self.warnings),
+        )
+
+    # ---- numbers
+    def _rows(self, lines: _Lines, prefix: bytes, what: str) -> tuple[np.ndarray, np.ndarray]:
+        """All numbers of the lines of one keyword, flat, and how many each line has.
+
+        Fast path: the keyword of each line is replaced by a sentinel number and everything is
+        parsed in one C call; the sentinels give the count per line. Slow path (comments,
+        MSVC `1.#IND`, errors): line by line, naming the line of an unparsable number.
+        """
+        if not len(lines):
+            return np.zeros(0), np.zeros(0, dtype=np.int64)
+        if b"#" not in lines.data:
+            values = _parse_all(lines.data.replace(prefix, _SENTINEL), np.float64)
+            if values is not None:
+                marks = np.flatnonzero(np.isnan(values))
+                if marks.shape[0] == len(lines) and marks[0] == 0:
+                    counts = np.diff(np.append(marks, values.shape[0])) - 1
+                    keep = np.ones(values.shape[0], dtype=bool)
+                    keep[marks] = False
+                    return values[keep], counts
+        flat: list[float] = []
+        counts = np.zeros(len(lines), dtype=np.int64)
+        for j, line in enumerate(lines.text()):
+            tokens = _COMMENT.sub("", line).split()[1:]
+            counts[j] = len(tokens)
+            for token in tokens:
+                try:
+                    flat.append(float(token))
+                except ValueError:
+                    if _MSVC_NONFINITE.match(token):  # MSVC's printf of NaN / infinity
+                        flat.append(float("nan"))
+                        continue
+                    raise self.fail(
+                        int(lines.numbers[j]), f"cannot parse '{_short(token, 24)}' as a number ({what})"
+                    ) from None
+        return np.array(flat, dtype=np.float64), counts
+
+    def _parse_vertices(self, lines: _Lines) -> tuple[np.ndarray, np.ndarray | None]:
+        values, counts = self._rows(lines, b"v", "vertex coordinate")
+        numbers = lines.numbers
+        bad = np.flatnonzero(counts < 3)
+        if bad.size:
+            j = int(bad[0])
+            raise self.fail(int(numbers[j]), f"a vertex needs 3 coordinates, this one has {int(counts[j])}")
+        colors = None
+        if np.all(counts == 3):
+            table = values.reshape(-1, 3)
+        else:
+            starts = np.zeros(counts.shape[0], dtype=np.int64)
+            np.cumsum(counts[:-1], out=starts[1:])
+            table = values[starts[:, None] + np.arange(3)]
+            has_color = counts >= 6
+            if np.any(has_color):
+                colors = np.full((counts.shape[0], 3), np.nan)
+                colors[has_color] = values[starts[has_color, None] + 3 + np.arange(3)]
+                if not np.all(has_color):
+                    self.warnings.append(
+                        f"{int((~has_color).sum())} of {counts.shape[0]} vertices have no colour; their colour is NaN"
+                    )
+            odd = np.flatnonzero((counts == 5) | (counts > 7))
+            if odd.size:
+                j = int(odd[0])
+                self.warnings.append(
+                    f"{odd.size} vertex lines have an unusual number of values; values after x y z ignored "
+                    f"(first at line {int(numbers[j])}: {int(counts[j])} values)"
+                )
+        finite = np.isfinite(table).all(axis=1)
+        if not finite.all():
+            j = int(np.flatnonzero(~finite)[0])
+            raise self.fail(int(numbers[j]), f"non-finite vertex position '{_short(lines.text()[j])}'")
+        return np.ascontiguousarray(table, dtype=np.float64), colors
+
+    def _parse_uvs(self, lines: _Lines) -> np.ndarray:
+        values, counts = self._rows(lines, b"vt", "texture coordinate")
+        bad = np.flatnonzero(counts < 1)
+        if bad.size:
+            raise self.fail(int(lines.numbers[int(bad[0])]), "a texture coordinate (vt) needs at least 1 value")
+        for width in (2, 3):
+            if np.all(counts == width):
+                return values.reshape(-1, width)
+        width = 3 if np.any(counts >= 3) else 2
+        out = np.zeros((counts.shape[0], width))
+        starts = np.zeros(counts.shape[0], dtype=np.int64)
+        np.cumsum(counts[:-1], out=starts[1:])
+        for k in range(width):
+            has = counts > k
+            out[has, k] = values[starts[has] + k]
+        return out
+
+    def _parse_normals(self, lines: _Lines) -> np.ndarray:
+        values, counts = self._rows(lines, b"vn", "normal")
+        bad = np.flatnonzero(counts != 3)
+        if bad.size:
+            j = int(bad[0])
+            raise self.fail(int(lines.numbers[j]), f"a normal (vn) needs 3 values, this one has {int(counts[j])}")
+        return values.reshape(-1, 3)
+
+    # ---- faces
+    def _parse_faces(self, lines: _Lines) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Per-face corner counts and the raw (1-based or negative) v / vt / vn indices per
+        corner; vt / vn are None when no corner has them, `_MISSING` where a corner lacks one."""
+        if not len(lines):
+            empty = np.zeros(0, dtype=np.int64)
+            return empty, empty, None, None
+        fast = self._faces_fast(lines)
+        if fast is not None:
+            return fast
+        return self._faces_slow(lines)
+
+    @staticmethod
+    def _faces_fast(lines: _Lines) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None] | None:
+        """All faces in one parse, when every corner has the pattern of the first corner.
+
+        Tokens are found on the bytes with NumPy; each corner's slash count (and `//`) is
+        checked against the first corner's, and the number count against corners x slots, so
+        an empty slot or a stray token sends the file to the slow path.
+        """
+        if b"#" in lines.data:  # trailing comments
+            return None
+        fb = np.frombuffer(lines.data, dtype=np.uint8)
+        space = np.frombuffer(lines.data.translate(_IS_SPACE), dtype=np.bool_)
+        start = ~space
+        start[1:] &= space[:-1]
+        tok = np.flatnonzero(start)
+        kw = fb[tok] == 102  # the 'f' keyword
+        n_lines = len(lines)
+        if int(kw.sum()) != n_lines or not np.all(space[np.minimum(tok[kw] + 1, fb.shape[0] - 1)]):
+            return None
+        corner_tok = ~kw
+        n_corners = int(corner_tok.sum())
+        sizes = np.bincount((np.cumsum(kw) - 1)[corner_tok], minlength=n_lines)
+        if n_corners == 0:
+            empty = np.zeros(0, dtype=np.int64)
+            return sizes, empty, None, None
+        slash = np.flatnonzero(fb == 47)
+        per_tok = np.bincount(np.searchsorted(tok, slash, side="right") - 1, minlength=tok.shape[0])[corner_tok]
+        slashes = int(per_tok[0])
+        if slashes > 2 or not np.all(per_tok == slashes):
+            return None
+        pairs = slash[:-1][np.diff(slash) == 1]  # '//'
+        double = False
+        if slashes == 2 and pairs.shape[0]:
+            per_pair = np.bincount(np.searchsorted(tok, pairs, side="right") - 1, minlength=tok.shape[0])[corner_tok]
+            double = bool(per_pair[0])
+            if not np.all(per_pair == int(double)):
+                return None
+        elif pairs.shape[0]:
+            return None
+        slots = 1 if slashes == 0 else (2 if slashes == 1 or double else 3)
+        values = _parse_all(lines.data.translate(_FACE_DIGITS), np.int64)
+        if values is None or values.shape[0] != slots * n_corners:
+            return None
+        table = np.clip(values, -_HUGE, _HUGE).reshape(n_corners, slots)
+        vt = table[:, 1] if slots == 3 or (slots == 2 and not double) else None
+        vn = table[:, -1] if slashes == 2 else None
+        return sizes, table[:, 0], vt, vn
+
+    def _faces_slow(self, lines: _Lines) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        sizes = np.zeros(len(lines), dtype=np.int64)
+        v: list[int] = []
+        vt: list[int] = []
+        vn: list[int] = []
+        missing = int(_MISSING)
+        for j, line in enumerate(lines.text()):
+            tokens = _COMMENT.sub("", line).split()[1:]
+            sizes[j] = len(tokens)
+            for token in tokens:
+                parts = token.split("/")
+                if len(parts) > 3 or not parts[0]:
+                    raise self.fail(int(lines.numbers[j]), f"malformed face corner '{_short(token, 24)}'")
+                try:
+                    v.append(max(-_HUGE, min(_HUGE, int(parts[0]))))
+                    vt.append(max(-_HUGE, min(_HUGE, int(parts[1]))) if len(parts) > 1 and parts[1] else missing)
+                    vn.append(max(-_HUGE, min(_HUGE, int(parts[2]))) if len(parts) > 2 and parts[2] else missing)
+                except ValueError:
+                    raise self.fail(
+                        int(lines.numbers[j]),
+                        f"cannot parse face corner '{_short(token, 24)}' (expected v, v/vt, v//vn or v/vt/vn)",
+                    ) from None
+        vt_arr = np.array(vt, dtype=np.int64)
+        vn_arr = np.array(vn, dtype=np.int64)
+        return (
+            sizes,
+            np.array(v, dtype=np.int64),
+            None if np.all(vt_arr == missing) else vt_arr,
+            None if np.all(vn_arr == missing) else vn_arr,
+        )
+
+    def _resolve_vertices(
+        self, raw: np.ndarray, before: np.ndarray, count: int, lines: np.ndarray, element: str
+    ) -> np.ndarray:
+        """1-based / negative vertex references to 0-based; index 0 or out of range is an error."""
+        idx = np.where(raw > 0, raw - 1, before + raw)
+        bad = (raw == 0) | (idx < 0) | (idx >= count)
+        if np.any(bad):
+            j = int(np.flatnonzero(bad)[0])
+            r = int(raw[j])
+            shown = str(r) if abs(r) < _HUGE else "beyond 64 bits"
+            if r == 0:
+                raise self.fail(int(lines[j]), f"{element} index 0 (OBJ indices start at 1)")
+            if r < 0:
+                raise self.fail(
+                    int(lines[j]),
+                    f"{element} index {shown} out of range (relative index, {int(before[j])} vertices defined "
+                    "before it)",
+                )
+            raise self.fail(int(lines[j]), f"{element} index {shown} out of range ({count} vertices)")
+        return idx
+
+    def _resolve_optional(
+        self,
+        raw: np.ndarray | None,
+        before_face: np.ndarray,
+        corner_face: np.ndarray,
+        face_lines: np.ndarray,
+        count: int,
+        what: str,
+    ) -> np.ndarray | None:
+        """vt / vn references; if any corner lacks one or points nowhere, all of them are dropped
+        (with a warning) and the mesh loads without UVs / normals."""
+        if raw is None:
+            return None
+        missing = raw == _MISSING
+        before = before_face[corner_face]
+        idx = np.where(raw > 0, raw - 1, before + raw)
+        bad = ~missing & ((raw == 0) | (idx < 0) | (idx >= count))
+        total = raw.shape[0]
+        plural = "UVs" if what == "UV" else "normals"
+        if np.any(bad):
+            j = int(np.flatnonzero(bad)[0])
+            self.warnings.append(
+                f"dropped all {what} references: {int(bad.sum())} of {total} face corners refer to {plural} that do "
+                f"not exist (first at line {int(face_lines[corner_face[j]])}: index {int(raw[j])}, {count} defined)"
+            )
+            return None
+        if np.any(missing):
+            j = int(np.flatnonzero(missing)[0])
+            self.warnings.append(
+                f"dropped all {what} references: {int(missing.sum())} of {total} face corners have no {what} "
+                f"index (first at line {int(face_lines[corner_face[j]])})"
+            )
+            return None
+        return idx
+
+    def _parse_lines(
+        self, items: list[tuple[int, str]], v_before: np.ndarray, n_v: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """`l` polylines (few, so line by line); v/vt corners keep only the vertex."""
+        if not items:
+            return np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)
+        polylines: list[np.ndarray] = []
+        dropped = 0
+        first_dropped = 0
+        for i, text in items:
+            try:
+                raw = np.array([max(-_HUGE, min(_HUGE, int(t.split("/")[0]))) for t in text.split()], dtype=np.int64)
+            except ValueError:
+                raise self.fail(i + 1, f"cannot parse line element 'l {_short(text)}'") from None
+            before = np.full(raw.shape, v_before[i])
+            idx = self._resolve_vertices(raw, before, n_v, np.full(raw.shape, i + 1), "line element")
+            if idx.shape[0] < 2:
+                dropped += 1
+                first_dropped = first_dropped or i + 1
+                continue
+            polylines.append(idx)
+        if dropped:
+            self.warnings.append(
+                f"dropped {dropped} line elements with fewer than 2 vertices (first at line {first_dropped})"
+            )
+        sizes = np.array([p.shape[0] for p in polylines], dtype=np.int64)
+        offsets = np.zeros(sizes.shape[0] + 1, dtype=np.int64)
+        np.cumsum(sizes, out=offsets[1:])
+        flat = np.concatenate(polylines) if polylines else np.zeros(0, dtype=np.int64)
+        return flat, offsets
+
+    def _report_cleanup(self, cleanup: PolygonCleanup, face_lines: np.ndarray) -> None:
+        def first_line(mask: np.ndarray) -> int:
+            return int(face_lines[int(np.flatnonzero(mask)[0])])
+
+        if cleanup.too_small.any():
+            n = int(cleanup.too_small.sum())
+            self.warnings.append(
+                f"dropped {n} face{'s' if n > 1 else ''} with fewer than 3 vertices (first at line "
+                f"{first_line(cleanup.too_small)})"
+            )
+        if cleanup.degenerate.any():
+            n = int(cleanup.degenerate.sum())
+            self.warnings.append(
+                f"dropped {n} degenerate polygon{'s' if n > 1 else ''} with fewer than 3 distinct vertices "
+                f"(first at line {first_line(cleanup.degenerate)})"
+            )
+        if cleanup.repaired.any():
+            n = int(cleanup.repaired.sum())
+            self.warnings.append(
+                f"removed repeated consecutive vertices from {n} polygon{'s' if n > 1 else ''} (first at line "
+                f"{first_line(cleanup.repaired)})"
+            )
+
+    @staticmethod
+    def _groups(
+        names: dict[str, None],
+        runs: list[tuple[int, tuple[str, ...]]],
+        n_faces: int,
+        face_keep: np.ndarray,
+        kept_before: np.ndarray,
+    ) -> dict[str, np.ndarray]:
+        """Group / object name -> indices of its faces (after dropped faces are taken out)."""
+        ranges: dict[str, list[np.ndarray]] = {name: [] for name in names}
+        for k, (start, members) in enumerate(runs):
+            end = runs[k + 1][0] if k + 1 < len(runs) else n_faces
+            if end > start:
+                for name in members:
+                    ranges[name].append(np.arange(start, end, dtype=np.int64))
+        groups: dict[str, np.ndarray] = {}
+        for name, parts in ranges.items():
+            faces = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+            faces = faces[face_keep[faces]]
+            groups[name] = kept_before[faces]
+        return groups
+
+
+def read_obj(path: PathLike) -> Mesh:
+    """Read an OBJ file into a Mesh (polygons and vertex order kept); MeshLoadError if broken."""
+    return _Reader(path).read()
+
+
+# --------------------------------------------------------------------------- writer
+
+
+def _format_rows(prefix: str, values: np.ndarray, fmt: str = "%r") -> str:
+    """`prefix v0 v1 ...` lines for a 2-D float array, `%r` = shortest exact round trip."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape[0] == 0:
+        return ""
+    row = prefix + (" " + fmt) * values.shape[1] + "\n"
+    return (row * values.shape[0]) % tuple(values.ravel().tolist())
+
+
+class ObjWriter:
+    """Writes frames of one mesh as OBJ files; the static text is built once in __init__.
+
+    Per frame only the `v` lines (and the `vn` lines, recomputed by `corner_normals` when the
+    input had normals) are formatted. Vertex order and count, UVs, the `v/vt/vn` index pattern,
+    statements (`g`, `o`, `usemtl`, `s`, `mtllib`) and `l` lines are those of the input.
+    """
+
+    def __init__(self, mesh: Mesh) -> None:
+        self.mesh = mesh
+        self._colors = mesh.vertex_properties.get("color")
+        if self._colors is not None:
+            colors = np.asarray(self._colors, dtype=np.float64)
+            if colors.ndim != 2 or colors.shape[0] != mesh.vertex_count or colors.shape[1] < 3:
+                colors = None
+            else:
+                colors = colors[:, :3]
+                if np.issubdtype(np.asarray(self._colors).dtype, np.integer):
+                    colors = colors / 255.0
+            self._colors = colors
+        self._has_normals = mesh.normals is not None and mesh.face_normal_indices is not None
+        self._has_uvs = mesh.uvs is not None and mesh.face_uv_indices is not None
+        head = [f"# written by meshdeform: {mesh.vertex_count} vertices, {mesh.face_count} polygons\n"]
+        statements = list(mesh.statements)
+        head.extend(text + "\n" for count, text in statements if count <= 0)
+        # the static parts, encoded once
+        self._head = "".join(head).encode("utf-8")
+        self._uv_text = (_format_rows("vt", mesh.uvs) if self._has_uvs else "").encode("utf-8")
+        tail = self._faces_text([(c, t) for c, t in statements if c > 0]) + self._lines_text()
+        self._tail = tail.encode("utf-8")
+
+    def _faces_text(self, statements: list[tuple[int, str]]) -> str:
+        mesh = self.mesh
+        n_faces = mesh.face_count
+        columns = [mesh.face_indices + 1]
+        if self._has_uvs and self._has_normals:
+            corner = "%d/%d/%d"
+            columns += [mesh.face_uv_indices + 1, mesh.face_normal_indices + 1]
+        elif self._has_uvs:
+            corner = "%d/%d"
+            columns.append(mesh.face_uv_indices + 1)
+        elif self._has_normals:
+            corner = "%d//%d"
+            columns.append(mesh.face_normal_indices + 1)
+        else:
+            corner = "%d"
+        values = np.stack([np.asarray(c, dtype=np.int64) for c in columns], axis=1).ravel().tolist()
+        face_sizes = mesh.face_sizes
+        uniform = n_faces > 0 and bool(np.all(face_sizes == face_sizes[0]))
+        sizes = [] if uniform else face_sizes.tolist()
+        by_size = {k: "f" + (" " + corner) * k + "\n" for k in np.flatnonzero(np.bincount(face_sizes)).tolist()}
+
+        def formats(a: int, b: int) -> list[str]:
+            """The format strings of faces a..b-1."""
+            if uniform:
+                return [by_size[int(face_sizes[0])] * (b - a)]
+            return list(map(by_size.__getitem__, sizes[a:b]))
+
+        # statements go between faces, at the face count recorded when they were read
+        pieces: list[str] = []
+        done = 0
+        for count, statement in sorted(statements, key=lambda st: st[0]):
+            if count >= n_faces:
+                break
+            pieces += formats(done, count)
+            pieces.append(statement.replace("%", "%%") + "\n")
+            done = count
+        pieces += formats(done, n_faces)
+        text = "".join(pieces) % tuple(values)
+        trailing = [t for c, t in statements if c >= n_faces]
+        return text + "".join(t + "\n" for t in trailing)
+
+    def _lines_text(self) -> str:
+        mesh = self.mesh
+        if mesh.line_count == 0:
+            return ""
+        out = []
+        flat = (np.asarray(mesh.line_indices, dtype=np.int64) + 1).tolist()
+        offs = mesh.line_offsets.tolist()
+        for k in range(mesh.line_count):
+            out.append("l " + " ".join(map(str, flat[offs[k] : offs[k + 1]])) + "\n")
+        return "".join(out)
+
+    def _frame_parts(self, positions: np.ndarray | None) -> list[bytes]:
+        mesh = self.mesh
+        pos = mesh.positions if positions is None else np.asarray(positions, dtype=np.float64)
+        if pos.shape != mesh.positions.shape:
+            raise ExportError(f"positions have shape {pos.shape}, the mesh needs {mesh.positions.shape}")
+        if self._colors is not None:
+            v_text = _format_rows("v", np.hstack([pos, self._colors]))
+        else:
+            v_text = _format_rows("v", pos)
+        vn_text = _format_rows("vn", corner_normals(mesh, pos), "%.7g") if self._has_normals else ""
+        return [self._head, v_text.encode("ascii"), self._uv_text, vn_text.encode("ascii"), self._tail]
+
+    def text(self, positions: np.ndarray | None = None) -> str:
+        """The OBJ text of one frame."""
+        return b"".join(self._frame_parts(positions)).decode("utf-8")
+
+    def write(self, path: PathLike, positions: np.ndarray | None = None) -> None:
+        """Write one frame to `path` atomically."""
+        parts = self._frame_parts(positions)
+        with atomic_open(path, "wb") as handle:
+            for part in parts:
+                handle.write(part)
+
+
+def write_obj(path: PathLike, mesh: Mesh, positions: np.ndarray | None = None) -> None:
+    """Write `mesh` (with other `positions` if given) as an OBJ file, atomically."""
+    ObjWriter(mesh).write(path, positions)

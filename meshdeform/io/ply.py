@@ -1,0 +1,835 @@
+"""Stanford PLY reading and writing with our own header parser and NumPy.
+
+Why not trimesh or meshio: trimesh rejects files whose `face` element comes before `vertex`
+(allowed by the format), meshio fails on list properties it does not know. Here:
+
+- ascii, binary_little_endian and binary_big_endian, every PLY type name (`char`/`int8` ...
+  `double`/`float64`), elements in any order, CR / LF / CRLF header lines;
+- binary elements of scalars are one `np.frombuffer`; list elements take a vectorised path when
+  every row has the same list lengths (checked), else a walk over the rows that records offsets
+  followed by vectorised gathers;
+- `vertex_indices` / `vertex_index` become polygons, `nx ny nz` normals, `u v` / `s t` /
+  `texture_u texture_v` UVs (or, without those, a face list `texcoord` of u v per corner, as
+  MeshLab writes UVs with seams), `red green blue [alpha]` a `color` array (each also kept under
+  its own name); other vertex / face scalars go to `vertex_properties` / `face_properties` with
+  their types; other list properties and other elements are skipped.
+
+Errors are one line: `"<path>: <element> row <r>: <what>"` or `"<path>: line <n>: <what>"` for
+the header.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from meshdeform.atomic import atomic_open
+from meshdeform.errors import ExportError, MeshLoadError
+from meshdeform.geometry import clean_polygons, corner_normals, vertex_normals
+from meshdeform.io.obj import read_mesh_bytes
+from meshdeform.mesh import Mesh
+
+__all__ = ["PLY_TYPES", "PlyWriter", "read_ply", "write_ply"]
+
+PathLike = str | os.PathLike[str]
+
+PLY_TYPES: dict[str, str] = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
+_FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
+_END_HEADER = re.compile(rb"(?:^|[\r\n])end_header[ \t]*(\r\n|\n|\r|\Z)")
+_HEADER_JUNK = re.compile(rb"[\x00-\x08\x0e-\x1f]")
+_UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+_INDEX_NAMES = ("vertex_indices", "vertex_index")
+_FACE_RESERVED = ("vertex_indices", "vertex_index", "texcoord")
+_CORNER_UV_NAMES = ("texcoord", "texcoords")  # face lists of u v per corner (MeshLab, OpenMesh)
+
+
+@dataclass
+class _Property:
+    name: str
+    code: str  # NumPy type code without byte order, e.g. "f4"
+    count_code: str | None = None  # set for list properties
+
+    @property
+    def is_list(self) -> bool:
+        return self.count_code is not None
+
+
+@dataclass
+class _Element:
+    name: str
+    count: int
+    line: int
+    props: list[_Property] = field(default_factory=list)
+
+    @property
+    def has_lists(self) -> bool:
+        return any(p.is_list for p in self.props)
+
+
+class _Reader:
+    """State of one PLY read; `read()` returns the Mesh."""
+
+    def __init__(self, path: PathLike) -> None:
+        self.path = path
+        self.warnings: list[str] = []
+
+    def fail(self, where: str | None, what: str) -> MeshLoadError:
+        return MeshLoadError(f"{self.path}: {where + ': ' if where else ''}{what}")
+
+    # ---- header
+    def _header(self, data: bytes) -> tuple[str, list[_Element], int]:
+        if not data:
+            raise self.fail(None, "empty file")
+        if not data.startswith(b"ply"):
+            raise self.fail(None, "not a PLY file (it does not start with 'ply')")
+        match = _END_HEADER.search(data)
+        if match is None:
+            junk = _HEADER_JUNK.search(data)
+            if junk is not None:
+                line = data.count(b"\n", 0, junk.start()) + 1
+                raise self.fail(
+                    None, f"no end_header: the header is truncated or corrupted (binary data on line {line})"
+                )
+            raise self.fail(None, "no end_header line: the header is truncated")
+        header = data[: match.start()]
+        junk = _HEADER_JUNK.search(header)
+        if junk is not None:
+            line = len(re.split(rb"\r\n|\r|\n", data[: junk.start()]))
+            raise self.fail(f"line {line}", "binary data in the PLY header")
+        body_start = match.end()
+        lines = header.decode("latin-1").splitlines()
+        fmt: str | None = None
+        elements: list[_Element] = []
+        names: set[str] = set()
+        for n, raw in enumerate(lines, 1):
+            parts = raw.split()
+            if n == 1:
+                if parts != ["ply"]:
+                    raise self.fail("line 1", "not a PLY file (the first line is not 'ply')")
+                continue
+            if not parts:
+                continue
+            key = parts[0]
+            where = f"line {n}"
+            if key in ("comment", "obj_info"):
+                continue
+            if key == "format":
+                if len(parts) < 2 or parts[1] not in _FORMATS:
+                    shown = parts[1] if len(parts) > 1 else "(none)"
+                    raise self.fail(
+                        where, f"unknown PLY format '{shown}' (ascii, binary_little_endian or binary_big_endian)"
+                    )
+                if fmt is not None:
+                    raise self.fail(where, "a second 'format' line")
+                fmt = parts[1]
+                if len(parts) > 2 and parts[2] not in ("1.0", "1"):
+                    self.warnings.append(f"PLY version {parts[2]} is not 1.0; read as 1.0")
+            elif key == "element":
+                if len(parts) != 3:
+                    raise self.fail(where, "an element line needs a name and a count: 'element <name> <count>'")
+                try:
+                    count = int(parts[2])
+                except ValueError:
+                    raise self.fail(where, f"element count '{parts[2]}' is not a whole number") from None
+                if count < 0:
+                    raise self.fail(where, f"negative element count {count}")
+                if parts[1] in names:
+                    raise self.fail(where, f"a second '{parts[1]}' element (the header declares it twice)")
+                names.add(parts[1])
+                elements.append(_Element(parts[1], count, n))
+            elif key == "property":
+                if not elements:
+                    raise self.fail(where, "a property before any element")
+                elements[-1].props.append(self._property(parts, where, elements[-1]))
+            else:
+                raise self.fail(where, f"unexpected header line '{raw.strip()[:40]}'")
+        if fmt is None:
+            raise self.fail(None, "the header has no 'format' line")
+        return fmt, elements, body_start
+
+    def _property(self, parts: list[str], where: str, element: _Element) -> _Property:
+        if len(parts) >= 2 and parts[1] == "list":
+            if len(parts) != 5:
+                raise self.fail(where, "a list property needs 'property list <count type> <item type> <name>'")
+            for t in parts[2:4]:
+                if t not in PLY_TYPES:
+                    raise self.fail(where, f"unknown property type '{t}'")
+            if PLY_TYPES[parts[2]][0] == "f":
+                raise self.fail(where, f"a list count type must be an integer type, not '{parts[2]}'")
+            prop = _Property(parts[4], PLY_TYPES[parts[3]], PLY_TYPES[parts[2]])
+        else:
+            if len(parts) != 3:
+                raise self.fail(where, "a property needs 'property <type> <name>'")
+            if parts[1] not in PLY_TYPES:
+                raise self.fail(where, f"unknown property type '{parts[1]}'")
+            prop = _Property(parts[2], PLY_TYPES[parts[1]])
+        if any(p.name == prop.name for p in element.props):
+            raise self.fail(where, f"property '{prop.name}' appears twice in element '{element.name}'")
+        return prop
+
+    # ---- binary body
+    def _binary(self, data: bytes, offset: int, element: _Element, order: str) -> tuple[dict, int]:
+        """Read one element: {name: array} for scalars, {name: (counts, flat items)} for lists."""
+        where = f"element '{element.name}'"
+        props = element.props
+        count = element.count
+        left = len(data) - offset
+        if not props:
+            return {}, offset
+        if not element.has_lists:
+            dt = np.dtype([(f"f{i}", order + p.code) for i, p in enumerate(props)])
+            need = dt.itemsize * count
+            if need > left:
+                raise self.fail(
+                    where, f"the file ends early: {count} rows need {need} bytes, {left} are left (truncated file?)"
+                )
+            rows = np.frombuffer(data, dt, count, offset)
+            return {p.name: rows[f"f{i}"] for i, p in enumerate(props)}, offset + need
+        min_row = sum(np.dtype(p.count_code or p.code).itemsize for p in props)
+        if min_row * count > left:
+            raise self.fail(
+                where, f"the file ends early: {count} rows need at least {min_row * count} bytes, {left} left"
+            )
+        if count == 0:
+            return {p.name: (np.zeros(0, np.int64), np.zeros(0, p.code)) if p.is_list else np.zeros(0, p.code)
+                    for p in props}, offset  # fmt: skip
+        fast = self._binary_uniform(data, offset, element, order)
+        if fast is not None:
+            return fast
+        return self._binary_walk(data, offset, element, order)
+
+    def _peek_counts(self, data: bytes, offset: int, element: _Element, order: str) -> list[int] | None:
+        counts = []
+        pos = offset
+        for p in element.props:
+            if p.is_list:
+                size = np.dtype(p.count_code).itemsize
+                if pos + size > len(data):
+                    return None
+                c = int(np.frombuffer(data, order + p.count_code, 1, pos)[0])
+                if c < 0:
+                    return None
+                counts.append(c)
+                pos += size + c * np.dtype(p.code).itemsize
+            else:
+                pos += np.dtype(p.code).itemsize
+        return counts
+
+    def _binary_uniform(self, data: bytes, offset: int, element: _Element, order: str) -> tuple[dict, int] | None:
+        """Vectorised path: every row has the list lengths of the first row (checked)."""
+        counts = self._peek_counts(data, offset, element, order)
+        if counts is None:
+            return None
+        it = iter(counts)
+        row_size = sum(
+            np.dtype(p.count_code).itemsize + next(it) * np.dtype(p.code).itemsize
+            if p.is_list
+            else np.dtype(p.code).itemsize
+            for p in element.props
+        )
+        if row_size * element.count > len(data) - offset:
+            return None
+        fields = []
+        it = iter(counts)
+        for i, p in enumerate(element.props):
+            if p.is_list:
+                fields.append((f"n{i}", order + p.count_code))
+                fields.append((f"f{i}", order + p.code, (next(it),)))
+            else:
+                fields.append((f"f{i}", order + p.code))
+        dt = np.dtype(fields)
+        need = dt.itemsize * element.count
+        if need > len(data) - offset:
+            return None
+        rows = np.frombuffer(data, dt, element.count, offset)
+        it = iter(counts)
+        out: dict = {}
+        for i, p in enumerate(element.props):
+            if p.is_list:
+                c = next(it)
+                if not np.all(rows[f"n{i}"] == c):
+                    return None
+                out[p.name] = (np.full(element.count, c, dtype=np.int64), rows[f"f{i}"].reshape(-1))
+            else:
+                out[p.name] = rows[f"f{i}"]
+        return out, offset + need
+
+    def _binary_walk(self, data: bytes, offset: int, element: _Element, order: str) -> tuple[dict, int]:
+        """Rows of varying list lengths: one pass records where every value is, then gathers."""
+        n = len(data)
+        plan = []
+        for i, p in enumerate(element.props):
+            if p.is_list:
+                cdt = np.dtype(p.count_code)
+                unpack = struct.Struct(order + cdt.char).unpack_from
+                plan.append((i, True, cdt.itemsize, unpack, np.dtype(p.code).itemsize))
+            else:
+                plan.append((i, False, np.dtype(p.code).itemsize, None, 0))
+        starts: dict[int, list[int]] = {i: [] for i in range(len(element.props))}
+        lengths: dict[int, list[int]] = {i: [] for i, p in enumerate(element.props) if p.is_list}
+        pos = offset
+        for r in range(element.count):
+            for i, is_list, size, unpack, item in plan:
+                if is_list:
+                    if pos + size > n:
+                        raise self.fail(f"element '{element.name}' row {r}", "the file ends early (truncated file?)")
+                    c = unpack(data, pos)[0]
+                    if c < 0:
+                        raise self.fail(f"element '{element.name}' row {r}", f"negative list length {c}")
+                    starts[i].append(pos + size)
+                    lengths[i].append(c)
+                    pos += size + c * item
+                else:
+                    starts[i].append(pos)
+                    pos += size
+            if pos > n:
+                raise self.fail(f"element '{element.name}' row {r}", "the file ends early (truncated file?)")
+        raw = np.frombuffer(data, np.uint8)
+        out: dict = {}
+        for i, p in enumerate(element.props):
+            dt = np.dtype(order + p.code)
+            begin = np.array(starts[i], dtype=np.int64)
+            if p.is_list:
+                lens = np.array(lengths[i], dtype=np.int64)
+                total = int(lens.sum())
+                first = np.zeros(lens.shape[0], dtype=np.int64)
+                np.cumsum(lens[:-1], out=first[1:])
+                local = np.arange(total, dtype=np.int64) - np.repeat(first, lens)
+                item_pos = np.repeat(begin, lens) + local * dt.itemsize
+                values = raw[item_pos[:, None] + np.arange(dt.itemsize)].reshape(-1).view(dt)
+                out[p.name] = (lens, values)
+            else:
+                out[p.name] = raw[begin[:, None] + np.arange(dt.itemsize)].reshape(-1).view(dt)
+        return out, pos
+
+    # ---- ascii body
+    def _ascii(self, tokens: list[bytes], pos: int, element: _Element) -> tuple[dict, int]:
+        props = element.props
+        count = element.count
+        where = f"element '{element.name}'"
+        left = len(tokens) - pos
+        if len(props) * count > left:
+            rows_there = left // max(len(props), 1)
+            raise self.fail(f"{where} row {rows_there}", "the file ends early (truncated file?)")
+        if count == 0 or not props:
+            return {p.name: (np.zeros(0, np.int64), np.zeros(0)) if p.is_list else np.zeros(0) for p in props}, pos
+        if not element.has_lists:
+            width = len(props)
+            table = self._numbers(tokens, pos, pos + width * count, element, width).reshape(count, width)
+            return {p.name: self._typed(table[:, i], p, element) for i, p in enumerate(props)}, pos + width * count
+        # uniform list lengths: one reshape
+        counts = []
+        width = 0
+        for p in props:
+            if p.is_list:
+                c = self._count(tokens, pos + width, element, 0)
+                counts.append(c)
+                width += 1 + c
+            else:
+                width += 1
+        if width * count <= left:
+            table = self._numbers(tokens, pos, pos + width * count, element, width).reshape(count, width)
+            col = 0
+            out: dict = {}
+            uniform = True
+            for p in props:
+                if p.is_list:
+                    c = int(table[0, col])
+                    if not np.all(table[:, col] == c):
+                        uniform = False
+                        break
+                    out[p.name] = (np.full(count, c, np.int64), table[:, col + 1 : col + 1 + c].reshape(-1))
+                    col += 1 + c
+                else:
+                    out[p.name] = self._typed(table[:, col], p, element)
+                    col += 1
+            if uniform:
+                return out, pos + width * count
+        # varying list lengths: walk the rows, then gather
+        starts: dict[int, list[int]] = {i: [] for i in range(len(props))}
+        lengths: dict[int, list[int]] = {i: [] for i, p in enumerate(props) if p.is_list}
+        p0 = pos
+        n_tok = len(tokens)
+        for r in range(count):
+            for i, p in enumerate(props):
+                if p.is_list:
+                    c = self._count(tokens, pos, element, r)
+                    starts[i].append(pos + 1)
+                    lengths[i].append(c)
+                    pos += 1 + c
+                else:
+                    starts[i].append(pos)
+                    pos += 1
+            if pos > n_tok:
+                raise self.fail(f"{where} row {r}", "the file ends early (truncated file?)")
+        values = self._numbers(tokens, p0, pos, element, None)
+        out = {}
+        for i, p in enumerate(props):
+            begin = np.array(starts[i], dtype=np.int64) - p0
+            if p.is_list:
+                lens = np.array(lengths[i], dtype=np.int64)
+                first = np.zeros(lens.shape[0], dtype=np.int64)
+                np.cumsum(lens[:-1], out=first[1:])
+                local = np.arange(int(lens.sum()), dtype=np.int64) - np.repeat(first, lens)
+                out[p.name] = (lens, values[np.repeat(begin, lens) + local])
+            else:
+                out[p.name] = self._typed(values[begin], p, element)
+        return out, pos
+
+    def _count(self, tokens: list[bytes], pos: int, element: _Element, row: int) -> int:
+        where = f"element '{element.name}' row {row}"
+        if pos >= len(tokens):
+            raise self.fail(where, "the file ends early (truncated file?)")
+        token = tokens[pos]
+        try:
+            c = int(token)
+        except ValueError:
+            try:
+                f = float(token)
+            except ValueError:
+                raise self.fail(where, f"cannot parse list length '{token[:24].decode('latin-1')}'") from None
+            if not f.is_integer():
+                raise self.fail(where, f"list length {f} is not a whole number") from None
+            c = int(f)
+        if c < 0:
+            raise self.fail(where, f"negative list length {c}")
+        if pos + 1 + c > len(tokens):
+            raise self.fail(where, f"the file ends early: a list of {c} values (truncated file?)")
+        return c
+
+    def _numbers(self, tokens: list[bytes], start: int, stop: int, element: _Element, width: int | None) -> np.ndarray:
+        chunk = tokens[start:stop]
+        try:
+            return np.array(chunk, dtype=np.float64)
+        except ValueError:
+            for k, token in enumerate(chunk):
+                try:
+                    float(token)
+                except ValueError:
+                    row = f" row {k // width}" if width else ""
+                    shown = token[:24].decode("latin-1")
+                    raise self.fail(f"element '{element.name}'{row}", f"cannot parse '{shown}' as a number") from None
+            raise
+
+    def _typed(self, values: np.ndarray, prop: _Property, element: _Element) -> np.ndarray:
+        """ASCII values (parsed as float64) in the property's declared type, checked."""
+        dt = np.dtype(prop.code)
+        if dt.kind == "f":
+            return values.astype(dt)
+        info = np.iinfo(dt)
+        bad = ~np.isfinite(values) | (values != np.round(values)) | (values < info.min) | (values > info.max)
+        if np.any(bad):
+            r = int(np.flatnonzero(bad)[0])
+            raise self.fail(
+                f"element '{element.name}' row {r}",
+                f"{prop.name} = {float(values[r])!r} is not a valid {dt.name} value",
+            )
+        return values.astype(dt)
+
+    # ---- assemble
+    def read(self) -> Mesh:
+        data = read_mesh_bytes(self.path)
+        fmt, elements, body = self._header(data)
+        order = _FORMATS[fmt]
+        parsed: dict[str, dict] = {}
+        if order is None:
+            tokens = data[body:].split()
+            pos = 0
+            for element in elements:
+                parsed[element.name], pos = self._ascii(tokens, pos, element)
+            if pos < len(tokens):
+                self.warnings.append(f"ignored {len(tokens) - pos} values after the last element")
+        else:
+            pos = body
+            for element in elements:
+                parsed[element.name], pos = self._binary(data, pos, element, order)
+            if pos < len(data) and data[pos:].strip(b"\x00\r\n\t "):
+                self.warnings.append(f"ignored {len(data) - pos} bytes after the last element")
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN bit patterns: reported, not warned
+            return self._mesh(elements, parsed)
+
+    def _mesh(self, elements: list[_Element], parsed: dict[str, dict]) -> Mesh:
+        by_name = {e.name: e for e in elements}
+        if "vertex" not in by_name:
+            raise self.fail(None, "no 'vertex' element")
+        vertex = by_name["vertex"]
+        vdata = parsed["vertex"]
+        names = [p.name for p in vertex.props]
+        missing = [c for c in "xyz" if c not in names or by_name["vertex"].props[names.index(c)].is_list]
+        if missing:
+            raise self.fail("element 'vertex'", f"no scalar property {', '.join(missing)}")
+        n_v = vertex.count
+        if n_v == 0 and ("face" not in by_name or by_name["face"].count == 0):
+            raise self.fail(None, "no vertices and no faces: nothing to load")
+        positions = np.stack([np.asarray(vdata[c], dtype=np.float64) for c in "xyz"], axis=1)
+        finite = np.isfinite(positions).all(axis=1)
+        if not finite.all():
+            r = int(np.flatnonzero(~finite)[0])
+            raise self.fail(f"element 'vertex' row {r}", f"non-finite position {positions[r].tolist()}")
+
+        used = {"x", "y", "z"}
+        normals = None
+        if all(c in vdata and not isinstance(vdata[c], tuple) for c in ("nx", "ny", "nz")):
+            normals = np.stack([np.asarray(vdata[c], dtype=np.float64) for c in ("nx", "ny", "nz")], axis=1)
+            used |= {"nx", "ny", "nz"}
+        uvs = None
+        for a, b in _UV_NAMES:
+            if a in vdata and b in vdata and not isinstance(vdata[a], tuple) and not isinstance(vdata[b], tuple):
+                uvs = np.stack([np.asarray(vdata[a], dtype=np.float64), np.asarray(vdata[b], dtype=np.float64)], 1)
+                used |= {a, b}
+                break
+        vertex_properties: dict[str, np.ndarray] = {}
+        for p in vertex.props:
+            if p.name in used or p.is_list:
+                continue
+            vertex_properties[p.name] = np.ascontiguousarray(vdata[p.name]).astype(np.dtype(p.code), copy=False)
+        if all(c in vertex_properties for c in ("red", "green", "blue")):
+            channels = ["red", "green", "blue"] + (["alpha"] if "alpha" in vertex_properties else [])
+            vertex_properties["color"] = np.stack([vertex_properties[c] for c in channels], axis=1)
+
+        face_indices = np.zeros(0, dtype=np.int64)
+        offsets = np.zeros(1, dtype=np.int64)
+        face_properties: dict[str, np.ndarray] = {}
+        corner_uvs = None
+        if "face" in by_name:
+            face = by_name["face"]
+            fdata = parsed["face"]
+            index_prop = next((p for p in face.props if p.name in _INDEX_NAMES and p.is_list), None)
+            if index_prop is None:
+                if face.count:
+                    raise self.fail("element 'face'", "no 'vertex_indices' list property")
+            else:
+                lens, flat = fdata[index_prop.name]
+                offsets = np.zeros(lens.shape[0] + 1, dtype=np.int64)
+                np.cumsum(lens, out=offsets[1:])
+                values = np.asarray(flat, dtype=np.float64)  # exact for every PLY integer type
+                bad = ~((values >= 0) & (values < n_v) & (values == np.floor(values)))  # also catches NaN
+                if np.any(bad):
+                    c = int(np.flatnonzero(bad)[0])
+                    r = int(np.searchsorted(offsets, c, side="right") - 1)
+                    value = float(values[c])
+                    shown = int(value) if value.is_integer() else value
+                    raise self.fail(f"element 'face' row {r}", f"vertex index {shown} out of range ({n_v} vertices)")
+                face_indices = values.astype(np.int64)
+            for p in face.props:
+                if not p.is_list:
+                    face_properties[p.name] = np.ascontiguousarray(fdata[p.name]).astype(np.dtype(p.code), copy=False)
+                elif p.name in _CORNER_UV_NAMES and uvs is None and corner_uvs is None and index_prop is not None:
+                    lens, flat = fdata[p.name]
+                    if np.array_equal(lens, 2 * np.diff(offsets)):  # MeshLab: u v per corner
+                        corner_uvs = np.asarray(flat, dtype=np.float64).reshape(-1, 2)
+        elif vertex.count:
+            self.warnings.append("the file has no 'face' element, only vertices")
+        skipped = [e for e in elements if e.name not in ("vertex", "face")]
+        if skipped:
+            listed = ", ".join(f"'{e.name}' ({e.count} rows)" for e in skipped)
+            self.warnings.append(f"ignored elements {listed}")
+
+        cleanup = clean_polygons(face_indices, offsets)
+        if not cleanup.face_keep.all() or cleanup.repaired.any():
+            n_faces = offsets.shape[0] - 1
+            self._report_cleanup(cleanup)
+            corner_face = np.repeat(np.arange(n_faces, dtype=np.int64), np.diff(offsets))
+            face_indices = face_indices[cleanup.corner_keep]
+            corner_uvs = None if corner_uvs is None else corner_uvs[cleanup.corner_keep]
+            sizes = np.bincount(corner_face[cleanup.corner_keep], minlength=n_faces)[cleanup.face_keep]
+            offsets = np.zeros(sizes.shape[0] + 1, dtype=np.int64)
+            np.cumsum(sizes, out=offsets[1:])
+            face_properties = {k: v[cleanup.face_keep] for k, v in face_properties.items()}
+
+        face_uv_indices = None if uvs is None else face_indices.copy()
+        if corner_uvs is not None:
+            uvs, face_uv_indices = corner_uvs, np.arange(corner_uvs.shape[0], dtype=np.int64)
+        return Mesh(
+            positions=positions,
+            face_indices=face_indices,
+            face_offsets=offsets,
+            uvs=uvs,
+            face_uv_indices=face_uv_indices,
+            normals=normals,
+            face_normal_indices=None if normals is None else face_indices.copy(),
+            vertex_properties=vertex_properties,
+            face_properties=face_properties,
+            source=Path(self.path),
+            warnings=tuple(self.warnings),
+        )
+
+    def _report_cleanup(self, cleanup) -> None:
+        for mask, what in (
+            (cleanup.too_small, "faces with fewer than 3 vertices"),
+            (cleanup.degenerate, "degenerate faces with fewer than 3 distinct vertices"),
+        ):
+            if mask.any():
+                self.warnings.append(
+                    f"dropped {int(mask.sum())} {what} (first: face row {int(np.flatnonzero(mask)[0])})"
+                )
+        if cleanup.repaired.any():
+            self.warnings.append(
+                f"removed repeated consecutive vertices from {int(cleanup.repaired.sum())} faces "
+                f"(first: face row {int(np.flatnonzero(cleanup.repaired)[0])})"
+            )
+
+
+def read_ply(path: PathLike) -> Mesh:
+    """Read a PLY file (ascii or binary, any element order) into a Mesh; MeshLoadError if broken."""
+    return _Reader(path).read()
+
+
+# --------------------------------------------------------------------------- writer
+
+_PLY_NAME = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint", "f4": "float",
+             "f8": "double"}  # fmt: skip
+
+
+def _ply_code(dtype: np.dtype, values: np.ndarray) -> str:
+    """The PLY-representable type code closest to `dtype` (int64 -> int when it fits)."""
+    dtype = np.dtype(dtype)
+    code = f"{dtype.kind}{dtype.itemsize}"
+    if code in _PLY_NAME:
+        return code
+    if dtype.kind == "b":
+        return "u1"
+    if dtype.kind in "iu":
+        if values.size == 0 or (values.min() >= -(2**31) and values.max() < 2**31):
+            return "i4"
+        if values.min() >= 0 and values.max() < 2**32:
+            return "u4"
+        return "f8"
+    if dtype.kind == "f":
+        return "f4" if dtype.itemsize < 4 else "f8"
+    raise ExportError(f"cannot write a {dtype} property to PLY")
+
+
+def _scatter_bytes(buf: np.ndarray, dest: np.ndarray, values: np.ndarray) -> None:
+    """buf[dest[k] : dest[k] + row_bytes] = bytes of row k (vectorised)."""
+    if dest.shape[0] == 0:
+        return
+    raw = np.ascontiguousarray(values).view(np.uint8).reshape(dest.shape[0], -1)
+    buf[dest[:, None] + np.arange(raw.shape[1])] = raw
+
+
+class PlyWriter:
+    """Writes frames of one mesh as PLY files: binary little-endian by default.
+
+    Kept from the input: vertex order, polygons (uchar count + int indices), extra vertex and face
+    properties with their types where PLY has them, UVs (per vertex as `s t`, or per corner as a
+    MeshLab-style face `texcoord` list when the UVs have seams). Normals (`nx ny nz`) are
+    recomputed every frame when the input had normals. The faces and static columns are packed
+    once; a frame only fills the position (and normal) columns.
+    """
+
+    def __init__(self, mesh: Mesh, encoding: str = "binary_little_endian", position_type: str = "float") -> None:
+        if encoding not in _FORMATS:
+            raise ExportError(f"unknown PLY encoding {encoding!r}; use one of {', '.join(_FORMATS)}")
+        if position_type not in ("float", "double"):
+            raise ExportError(f"position_type must be 'float' or 'double', not {position_type!r}")
+        self.mesh = mesh
+        self.encoding = encoding
+        self._order = _FORMATS[encoding] or "<"
+        n_v = mesh.vertex_count
+        pcode = PLY_TYPES[position_type]
+        columns: list[tuple[str, str, np.ndarray | None]] = [(c, pcode, None) for c in "xyz"]
+
+        self._normals = None
+        if mesh.normals is not None and mesh.face_normal_indices is not None:
+            per_vertex = mesh.normals.shape[0] == n_v and np.array_equal(mesh.face_normal_indices, mesh.face_indices)
+            self._normals = "corner" if per_vertex else "vertex"
+            columns += [(c, "f4", None) for c in ("nx", "ny", "nz")]
+        uv_corner = None
+        if mesh.uvs is not None and mesh.face_uv_indices is not None:
+            uvs = np.asarray(mesh.uvs, dtype=np.float64)[:, :2]
+            if uvs.shape[0] == n_v and np.array_equal(mesh.face_uv_indices, mesh.face_indices):
+                columns += [("s", "f4", uvs[:, 0]), ("t", "f4", uvs[:, 1])]
+            else:
+                uv_corner = uvs[mesh.face_uv_indices]
+        columns += self._property_columns(mesh.vertex_properties, n_v, "vertex", {c[0] for c in columns})
+        self._vertex_columns = columns
+
+        self._vdtype = np.dtype([(f"c{i}", self._order + code) for i, (_, code, _) in enumerate(columns)])
+        self._static = np.zeros(n_v, dtype=self._vdtype)
+        for i, (_, _, values) in enumerate(columns):
+            if values is not None:
+                self._static[f"c{i}"] = values
+
+        face_columns = self._property_columns(mesh.face_properties, mesh.face_count, "face", set(_FACE_RESERVED))
+        sizes = mesh.face_sizes
+        count_code = "u1" if sizes.size == 0 or sizes.max() <= 255 else "i4"
+        uv_count_code = "u1" if sizes.size == 0 or 2 * sizes.max() <= 255 else "i4"
+        lines = ["ply", f"format {encoding} 1.0", "comment written by meshdeform", f"element vertex {n_v}"]
+        lines += [f"property {_PLY_NAME[code]} {name}" for name, code, _ in columns]
+        lines += [f"element face {mesh.face_count}", f"property list {_PLY_NAME[count_code]} int vertex_indices"]
+        if uv_corner is not None:
+            lines.append(f"property list {_PLY_NAME[uv_count_code]} float texcoord")
+        lines += [f"property {_PLY_NAME[code]} {name}" for name, code, _ in face_columns]
+        lines.append("end_header")
+        self._header = ("\n".join(lines) + "\n").encode("latin-1", "replace")  # names as read (Latin-1)
+        if encoding == "ascii":
+            self._faces = self._faces_ascii(count_code, uv_corner, face_columns)
+        else:
+            self._faces = self._faces_binary(count_code, uv_count_code, uv_corner, face_columns)
+
+    @staticmethod
+    def _property_columns(
+        props: dict[str, np.ndarray], n: int, what: str, taken: set[str]
+    ) -> list[tuple[str, str, np.ndarray]]:
+        """Scalar columns for extra properties: (V,) arrays as they are, (V, k) as name_0..;
+        `color` only when it is not already there as red / green / blue. Names already written
+        (x, y, z, normals, UVs) are not written twice."""
+        out: list[tuple[str, str, np.ndarray]] = []
+        channels = ("red", "green", "blue", "alpha")
+        for name, values in props.items():
+            values = np.asarray(values)
+            if values.shape[:1] != (n,):
+                raise ExportError(f"{what} property '{name}' has shape {values.shape}, expected ({n}, ...)")
+            if name == "color" and values.ndim == 2:
+                if all(c in props for c in channels[:3]):
+                    continue
+                if values.dtype.kind == "f":  # OBJ colours are 0..1
+                    values = np.round(np.clip(np.nan_to_num(values, nan=0.0), 0.0, 1.0) * 255).astype(np.uint8)
+                for k in range(min(values.shape[1], 4)):
+                    out.append((channels[k], _ply_code(values.dtype, values[:, k]), values[:, k]))
+                continue
+            if values.ndim == 1:
+                out.append((name, _ply_code(values.dtype, values), values))
+            else:
+                flat = values.reshape(n, -1)
+                for k in range(flat.shape[1]):
+                    out.append((f"{name}_{k}", _ply_code(values.dtype, flat[:, k]), flat[:, k]))
+        unique: list[tuple[str, str, np.ndarray]] = []
+        for column in out:
+            if column[0] not in taken and " " not in column[0] and column[0]:
+                taken.add(column[0])
+                unique.append(column)
+        return unique
+
+    def _faces_binary(self, count_code: str, uv_count_code: str, uv_corner, face_columns) -> bytes:
+        mesh = self.mesh
+        order = self._order
+        sizes = mesh.face_sizes.astype(np.int64)
+        n_faces = sizes.shape[0]
+        cdt = np.dtype(order + count_code)
+        per_face = cdt.itemsize
+        per_corner = 4
+        if uv_corner is not None:
+            per_face += np.dtype(uv_count_code).itemsize
+            per_corner += 8
+        fdt = np.dtype([(f"c{i}", order + code) for i, (_, code, _) in enumerate(face_columns)])
+        per_face += fdt.itemsize
+        record = per_face + per_corner * sizes
+        start = np.zeros(n_faces, dtype=np.int64)
+        np.cumsum(record[:-1], out=start[1:])
+        buf = np.zeros(int(record.sum()), dtype=np.uint8)
+        corner_face = mesh.corner_face
+        corner_local = np.arange(mesh.face_indices.shape[0], dtype=np.int64) - mesh.face_offsets[corner_face]
+        cursor = start.copy()
+        _scatter_bytes(buf, cursor, sizes.astype(cdt))
+        cursor += cdt.itemsize
+        idx = np.asarray(mesh.face_indices).astype(order + "i4")
+        _scatter_bytes(buf, cursor[corner_face] + corner_local * 4, idx)
+        cursor += 4 * sizes
+        if uv_corner is not None:
+            udt = np.dtype(order + uv_count_code)
+            _scatter_bytes(buf, cursor, (2 * sizes).astype(udt))
+            cursor += udt.itemsize
+            _scatter_bytes(buf, cursor[corner_face] + corner_local * 8, uv_corner.astype(order + "f4"))
+            cursor += 8 * sizes
+        if face_columns:
+            rows = np.zeros(n_faces, dtype=fdt)
+            for i, (_, _, values) in enumerate(face_columns):
+                rows[f"c{i}"] = values
+            _scatter_bytes(buf, cursor, rows)
+        return buf.tobytes()
+
+    def _faces_ascii(self, count_code: str, uv_corner, face_columns) -> bytes:
+        mesh = self.mesh
+        sizes = mesh.face_sizes.tolist()
+        flat = mesh.face_indices.tolist()
+        offs = mesh.face_offsets.tolist()
+        uv = None if uv_corner is None else uv_corner.astype(np.float32).tolist()
+        extra = [[_ascii_value(v, code) for v in values.tolist()] for _, code, values in face_columns]
+        out = []
+        for f, k in enumerate(sizes):
+            parts = [str(k), *map(str, flat[offs[f] : offs[f + 1]])]
+            if uv is not None:
+                parts.append(str(2 * k))
+                parts += [f"{c:.9g}" for pair in uv[offs[f] : offs[f + 1]] for c in pair]
+            parts += [col[f] for col in extra]
+            out.append(" ".join(parts))
+        return ("\n".join(out) + ("\n" if out else "")).encode("ascii")
+
+    def _vertex_rows(self, positions: np.ndarray) -> np.ndarray:
+        rows = self._static.copy()
+        for i in range(3):
+            rows[f"c{i}"] = positions[:, i]
+        if self._normals is not None:
+            if self._normals == "corner":
+                normals = corner_normals(self.mesh, positions)
+            else:
+                normals = vertex_normals(self.mesh, positions)
+            for i in range(3):
+                rows[f"c{3 + i}"] = normals[:, i]
+        return rows
+
+    def data(self, positions: np.ndarray | None = None) -> bytes:
+        """The bytes of the PLY file of one frame."""
+        mesh = self.mesh
+        pos = mesh.positions if positions is None else np.asarray(positions, dtype=np.float64)
+        if pos.shape != mesh.positions.shape:
+            raise ExportError(f"positions have shape {pos.shape}, the mesh needs {mesh.positions.shape}")
+        rows = self._vertex_rows(pos)
+        if self.encoding != "ascii":
+            return self._header + rows.tobytes() + self._faces
+        columns = [rows[f"c{i}"] for i in range(len(self._vertex_columns))]
+        codes = [code for _, code, _ in self._vertex_columns]
+        fmt = " ".join("%r" if c == "f8" else "%.9g" if c == "f4" else "%d" for c in codes) + "\n"
+        values = tuple(itertools.chain.from_iterable(zip(*(c.tolist() for c in columns), strict=True)))
+        text = (fmt * pos.shape[0]) % values if pos.shape[0] else ""
+        return self._header + text.encode("ascii") + self._faces
+
+    def write(self, path: PathLike, positions: np.ndarray | None = None) -> None:
+        """Write one frame to `path` atomically."""
+        payload = self.data(positions)
+        with atomic_open(path, "wb") as handle:
+            handle.write(payload)
+
+
+def _ascii_value(value: float | int, code: str) -> str:
+    if code == "f8":
+        return repr(float(value))
+    if code == "f4":
+        return f"{value:.9g}"
+    return str(int(value))
+
+
+def write_ply(
+    path: PathLike,
+    mesh: Mesh,
+    positions: np.ndarray | None = None,
+    encoding: str = "binary_little_endian",
+    position_type: str = "float",
+) -> None:
+    """Write `mesh` (with other `positions` if given) as a PLY file, atomically."""
+    PlyWriter(mesh, encoding=encoding, position_type=position_type).write(path, positions)
