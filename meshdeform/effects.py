@@ -1,0 +1,150 @@
+"""Material effects beyond springs: pressure (volume keeping), plasticity (dents), tethers.
+
+- `Pressure` (Force): closed meshes keep their volume; each vertex is pushed along its
+  area-weighted normal by p = stiffness * (target - V) / V0 (Pa), divided by its mass.
+- `Plasticity` (Force and Constraint): an anchor-style pull toward a rest copy the effect owns;
+  after each substep, wherever a vertex is further than `yield_distance` from its rest copy, the
+  copy creeps toward it (`rate` of the excess per second), so impacts leave dents. The model's
+  arrays stay read-only: the only mutable rest state is this effect's own copy.
+- `Tethers` (Constraint): long-range attachments. Every vertex may be at most `max_stretch`
+  times its rest graph distance (shortest path over springs) from its nearest pin; beyond that it
+  is projected back, which stops the "rubber cloth" stretch of hanging cloth at any iteration count.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from meshdeform.forces import scatter_triangles
+from meshdeform.model import SpringModel, State
+
+
+def boundary_edge_count(triangles: np.ndarray) -> int:
+    """Number of edges used by exactly one triangle (0 for a closed surface)."""
+    if triangles.shape[0] == 0:
+        return 0
+    e = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
+    key = e[:, 0].astype(np.int64) * (int(triangles.max()) + 1) + e[:, 1]
+    _, counts = np.unique(key, return_counts=True)
+    return int(np.count_nonzero(counts == 1))
+
+
+def enclosed_volume(positions: np.ndarray, triangles: np.ndarray) -> float:
+    """Signed volume enclosed by triangles (positive for outward winding), divergence theorem."""
+    a = positions[triangles[:, 0]]
+    b = positions[triangles[:, 1]]
+    c = positions[triangles[:, 2]]
+    return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
+
+
+class Pressure:
+    """Volume-keeping pressure for a closed mesh.
+
+    stiffness: pressure in Pa at 100% volume loss; volume: target volume as a fraction of the rest
+    volume (above 1 inflates).
+    """
+
+    def __init__(self, model: SpringModel, stiffness: float, volume: float = 1.0) -> None:
+        self.stiffness = float(stiffness)
+        v0 = enclosed_volume(model.rest_positions, model.triangles)
+        self.orientation = 1.0 if v0 >= 0 else -1.0
+        self.rest_volume = abs(v0)
+        self.target = float(volume) * self.rest_volume
+
+    def pressure(self, positions: np.ndarray, triangles: np.ndarray) -> float:
+        volume = self.orientation * enclosed_volume(positions, triangles)
+        return self.stiffness * (self.target - volume) / max(self.rest_volume, 1e-300)
+
+    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+        tri = model.triangles
+        if tri.shape[0] == 0 or self.rest_volume <= 0:
+            return
+        x = state.positions
+        p = self.pressure(x, tri)
+        area_vectors = 0.5 * np.cross(x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]])
+        force = scatter_triangles(tri, area_vectors * (self.orientation * p), x.shape[0])
+        out += force / model.mass[:, None]
+
+
+class Plasticity:
+    """Anchor-style pull toward an owned rest copy that yields past a threshold (dents stay).
+
+    stiffness: pull in 1/s^2 (acceleration per metre from the rest copy); damping: 1/s, pull on
+    velocity; yield_distance: metres a vertex may move from its rest copy elastically; rate: fraction
+    of the excess absorbed into the rest copy per second (large = instant).
+    Add the same object to `Scene.forces` and `Scene.constraints`.
+    """
+
+    def __init__(
+        self, model: SpringModel, stiffness: float, yield_distance: float, rate: float, damping: float = 0.0
+    ) -> None:
+        self.rest = np.array(model.rest_positions, dtype=np.float64, copy=True)
+        self.stiffness = float(stiffness)
+        self.yield_distance = float(yield_distance)
+        self.rate = float(rate)
+        self.damping = float(damping)
+
+    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+        out -= self.stiffness * (state.positions - self.rest)
+        if self.damping > 0:
+            out -= self.damping * state.velocities
+
+    def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
+        d = state.positions - self.rest
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
+        excess = length - self.yield_distance
+        yielding = excess > 0
+        if not yielding.any():
+            return
+        fraction = min(self.rate * dt, 1.0)
+        rows = np.flatnonzero(yielding)
+        self.rest[rows] += d[rows] * (fraction * excess[rows] / length[rows])[:, None]
+
+
+class Tethers:
+    """Long-range attachments: each vertex within `max_stretch` x rest graph distance of its nearest anchor.
+
+    anchors: welded vertices the tethers start from (pinned ones); distances run over every
+    spring of the model weighted by rest length. Vertices not connected to an anchor are free.
+    """
+
+    def __init__(self, model: SpringModel, anchors: np.ndarray, max_stretch: float = 1.05) -> None:
+        anchors = np.unique(np.asarray(anchors, dtype=np.int64))
+        n = model.vertex_count
+        self.max_stretch = float(max_stretch)
+        if anchors.size == 0 or model.spring_count == 0:
+            self.vertices = np.zeros(0, dtype=np.int64)
+            self.anchor = np.zeros(0, dtype=np.int64)
+            self.limit = np.zeros(0)
+            return
+        s = model.springs
+        graph = coo_matrix((model.rest_lengths, (s[:, 0], s[:, 1])), shape=(n, n)).tocsr()
+        dist, _, source = dijkstra(graph, directed=False, indices=anchors, return_predecessors=True, min_only=True)
+        reach = np.isfinite(dist) & (source >= 0)
+        reach[anchors] = False
+        self.vertices = np.flatnonzero(reach)
+        self.anchor = source[self.vertices].astype(np.int64)
+        self.limit = dist[self.vertices] * self.max_stretch
+
+    def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
+        if self.vertices.size == 0:
+            return
+        vi = self.vertices
+        x = state.positions[vi]
+        a = state.positions[self.anchor]
+        d = x - a
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
+        over = (length > self.limit) & (model.inv_mass[vi] > 0)
+        if not over.any():
+            return
+        rows = np.flatnonzero(over)
+        u = d[rows] / length[rows, None]
+        new_x = a[rows] + u * self.limit[rows, None]
+        v = state.velocities[vi[rows]]
+        outward = np.maximum(np.einsum("ij,ij->i", v, u), 0.0)
+        v = v - outward[:, None] * u
+        state.positions[vi[rows]] = new_x
+        state.velocities[vi[rows]] = v
+        state.previous[vi[rows]] = new_x - v * dt

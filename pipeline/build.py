@@ -1,0 +1,345 @@
+"""Recipe + Mesh -> a runnable simulation: SpringModel, Scene (forces, constraints, pin motion), Settings.
+
+Selections are resolved here on the input vertices of the mesh (an empty one is a RecipeError
+naming its key path and line), then carried to the welded vertices the model lives on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from meshdeform import colliders as col
+from meshdeform.effects import Plasticity, Pressure, Tethers, boundary_edge_count
+from meshdeform.errors import MeshdeformError
+from meshdeform.forces import Impact, Wind, ray_hit, up_vector
+from meshdeform.material import Material
+from meshdeform.mesh import Mesh
+from meshdeform.model import SpringModel, lumped_mass
+from meshdeform.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
+from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
+from meshdeform.simulate import Constraint, Force, Scene, Settings
+from meshdeform.solvers.base import SOLVERS
+from meshdeform.topology import SpringKind, Springs, Welding, build_springs
+from pipeline.recipe import (
+    ColliderSpec,
+    KeySpec,
+    Recipe,
+    SelectSpec,
+    format_path,
+    parse_path,
+    resolve_path,
+)
+
+__all__ = ["BuiltSimulation", "build_simulation"]
+
+
+@dataclass
+class BuiltSimulation:
+    """Everything `meshdeform.simulate` needs, plus figures for reports.
+
+    selections: key path of each selection (e.g. "pins[0].select") -> input vertices it selects.
+    warnings: what the recipe asks for that this build does not do (tearing), one sentence each.
+    start_frame / up_axis: from the recipe, for the exporters.
+    """
+
+    model: SpringModel
+    scene: Scene
+    settings: Settings
+    selections: dict[str, int]
+    warnings: tuple[str, ...] = ()
+    start_frame: int = 1
+    up_axis: str = "y"
+
+
+class _Resolver:
+    """Evaluates recipe selections on one mesh, turning engine errors into recipe errors."""
+
+    def __init__(self, recipe: Recipe, mesh: Mesh) -> None:
+        self.recipe = recipe
+        self.mesh = mesh
+        self.ctx = SelectionContext.for_mesh(mesh)
+        self.frame: BoundsFrame = self.ctx.frame
+        self.counts: dict[str, int] = {}
+        name = mesh.source.name if mesh.source is not None else "the mesh"
+        self.mesh_name = name
+
+    def select(self, spec: SelectSpec | None, path: tuple[str | int, ...], relative: bool = False) -> np.ndarray:
+        """(V,) bool mask; None selects every vertex."""
+        if spec is None:
+            mask = np.ones(self.mesh.vertex_count, dtype=bool)
+        else:
+            node = spec.build(format_path(path), relative)
+            try:
+                mask = node.mask(self.ctx)
+            except SelectionResolveError as exc:
+                raise self.recipe.error(parse_path(exc.path) if exc.path else path, exc.detail) from None
+        if not mask.any():
+            raise self.recipe.error(path, f"selects no vertex of {self.mesh_name} ({self.mesh.vertex_count} vertices)")
+        self.counts[format_path(path)] = int(np.count_nonzero(mask))
+        return mask
+
+    def property(self, name: str, channel: int | None, path: tuple[str | int, ...]) -> np.ndarray:
+        try:
+            return vertex_property(self.mesh, name, channel)
+        except SelectionResolveError as exc:
+            raise self.recipe.error(path, exc.detail) from None
+
+    def point(self, value: tuple[float, float, float], relative: bool) -> np.ndarray:
+        return self.frame.to_world(value) if relative else np.asarray(value, dtype=np.float64)
+
+    def length(self, value: float, relative: bool) -> float:
+        return self.frame.length(value) if relative else float(value)
+
+
+def _keyframes(keys: tuple[KeySpec, ...], pivot: np.ndarray, loop: bool) -> Keyframes | None:
+    if not keys:
+        return None
+    return Keyframes([k.to_keyframe() for k in keys], pivot, loop)
+
+
+def _per_vertex_maps(
+    recipe: Recipe, res: _Resolver, mesh: Mesh, material: Material, welding: Welding, springs: Springs
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(vertex_stiffness (V,) or None, vertex_mass (V,) or None) for SpringModel.from_mesh."""
+    spec = recipe.material
+    stiffness = None
+    if spec.stiffness_map is not None:
+        m = spec.stiffness_map
+        values = res.property(m.attribute, m.channel, ("material", "stiffness_map", "attribute"))
+        stiffness = np.maximum(m.offset + m.scale * values, 0.0)
+    rep = welding.representative
+    vmap = welding.vertex_map
+    target = np.full(welding.count, np.nan)  # kg per welded vertex where set
+    if spec.mass_map is not None:
+        m = spec.mass_map
+        values = res.property(m.attribute, m.channel, ("material", "mass_map", "attribute"))
+        target = m.offset + m.scale * values[rep]
+        if np.any(target <= 0):
+            raise recipe.error(("material", "mass_map"), "gives a mass of zero or less to some vertices")
+    base_mass = None
+    for i, region in enumerate(spec.regions):
+        mask = res.select(region.select, ("material", "regions", i, "select"))
+        if region.stiffness is not None:
+            stiffness = np.ones(mesh.vertex_count) if stiffness is None else stiffness
+            stiffness[mask] = region.stiffness
+        welded = np.zeros(welding.count, dtype=bool)
+        welded[vmap[mask]] = True
+        if region.mass is not None:
+            target[welded] = region.mass
+        elif region.mass_scale is not None:
+            if base_mass is None:
+                positions = mesh.positions[rep]
+                triangles = vmap[mesh.triangles]
+                structural = springs.pairs[springs.kinds == SpringKind.STRUCTURAL]
+                base_mass = lumped_mass(positions, triangles, structural, material)
+            current = np.where(np.isnan(target), base_mass, target)
+            target[welded] = current[welded] * region.mass_scale
+    vertex_mass = None
+    if not np.all(np.isnan(target)):
+        vertex_mass = np.zeros(mesh.vertex_count)
+        given = ~np.isnan(target)
+        vertex_mass[rep[given]] = target[given]
+    return stiffness, vertex_mass
+
+
+def _collider(spec: ColliderSpec, i: int, recipe: Recipe, res: _Resolver) -> col.Collider:
+    rel = spec.relative
+    path = ("colliders", i, spec.kind)
+    shape: col.Shape
+    if spec.ground is not None:
+        up = up_vector(recipe.simulation.up)
+        axis = int(np.argmax(up))
+        height = spec.ground.height
+        if rel:
+            height = res.frame.origin[axis] + height * res.frame.scale[axis]
+        shape = col.Plane(up * height, up)
+    elif spec.plane is not None:
+        normal = np.asarray(spec.plane.normal, dtype=np.float64)
+        if rel:
+            normal = normal / res.frame.scale  # planes map with the inverse transpose
+        shape = col.Plane(res.point(spec.plane.point, rel), normal)
+    elif spec.sphere is not None:
+        shape = col.Sphere(res.point(spec.sphere.center, rel), res.length(spec.sphere.radius, rel))
+    elif spec.box is not None:
+        shape = col.Box(res.point(spec.box.min, rel), res.point(spec.box.max, rel))
+    elif spec.capsule is not None:
+        c = spec.capsule
+        shape = col.Capsule(res.point(c.a, rel), res.point(c.b, rel), res.length(c.radius, rel))
+    else:
+        assert spec.mesh is not None
+        from meshdeform.io import load
+
+        file = resolve_path(recipe, spec.mesh.path)
+        try:
+            other = load(file)
+        except MeshdeformError as exc:
+            raise recipe.error(path, f"cannot load collider mesh: {exc}") from None
+        if other.triangles.shape[0] == 0:
+            raise recipe.error(path, f"collider mesh {file} has no faces")
+        shape = col.TriangleMesh(other.positions, other.triangles)
+    pivot = res.point(spec.pivot, rel) if spec.pivot is not None else shape.center
+    return col.Collider(shape, spec.friction, spec.thickness, _keyframes(spec.animate, pivot, spec.loop))
+
+
+def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
+    """Resolve the recipe on a mesh: material, model with hard pins, forces, colliders, effects, settings."""
+    sim = recipe.simulation
+    if sim.solver not in SOLVERS:
+        import meshdeform.solvers  # noqa: F401  (registers the built-in solvers)
+    if sim.solver not in SOLVERS:
+        raise recipe.error(
+            ("simulation", "solver"),
+            f"solver {sim.solver!r} is not available in this build (available: {', '.join(sorted(SOLVERS))})",
+        )
+    settings = Settings(
+        solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=sim.solver_options()
+    )
+    res = _Resolver(recipe, mesh)
+    material = recipe.material.to_material()
+    welding, springs = build_springs(mesh)
+    vmap = welding.vertex_map
+    n_welded = welding.count
+    warnings: list[str] = []
+
+    # -- pins (input layout first: the hard ones go into the model) -------------------------------
+    pin_sets = []
+    hard_input = np.zeros(mesh.vertex_count, dtype=bool)
+    for i, pin in enumerate(recipe.pins):
+        mask = res.select(pin.select, ("pins", i, "select"), pin.relative)
+        strength = np.full(mesh.vertex_count, pin.stiffness)
+        if pin.weight is not None:
+            weight = res.property(pin.weight.attribute, pin.weight.channel, ("pins", i, "weight"))
+            strength = np.clip(pin.stiffness * weight, 0.0, 1.0)
+        hard = mask & (strength >= 1.0)
+        soft = mask & (strength > 0.0) & (strength < 1.0)
+        if not (hard.any() or soft.any()):
+            raise recipe.error(("pins", i, "weight"), "every selected vertex has weight 0: nothing is pinned")
+        pivot = res.point(pin.pivot, pin.relative) if pin.pivot is not None else pivot_of(mesh.positions[mask])
+        keys = _keyframes(pin.animate, pivot, pin.loop)
+        pin_sets.append((hard, soft, strength, keys, pin.damping))
+        hard_input |= hard
+
+    vertex_stiffness, vertex_mass = _per_vertex_maps(recipe, res, mesh, material, welding, springs)
+    model = SpringModel.from_mesh(
+        mesh,
+        material,
+        pinned_input=hard_input if hard_input.any() else None,
+        welding_and_springs=(welding, springs),
+        vertex_stiffness=vertex_stiffness,
+        vertex_mass=vertex_mass,
+    )
+
+    forces: list[Force] = []
+    constraints: list[Constraint] = []
+    hard_groups = []
+    anchors = [np.flatnonzero(model.pinned)]
+    for hard, soft, strength, keys, damping in pin_sets:
+        if hard.any():
+            hard_groups.append((np.unique(vmap[hard]), keys))
+        if soft.any():
+            per_welded = np.zeros(n_welded)
+            np.maximum.at(per_welded, vmap[soft], strength[soft])
+            idx = np.flatnonzero((per_welded > 0) & ~model.pinned)
+            if idx.size:
+                constraints.append(SoftPins(idx, model.rest_positions[idx], per_welded[idx], keys, damping))
+                anchors.append(idx)
+    pin_motion = None
+    if any(keys is not None for _, keys in hard_groups):
+        pin_motion = HardPinMotion(model, hard_groups)
+
+    # -- forces -------------------------------------------------------------------------------------
+    if recipe.wind is not None:
+        w = recipe.wind
+        forces.append(
+            Wind(
+                w.velocity,
+                drag=w.drag,
+                lift=w.lift,
+                air_density=w.air_density,
+                turbulence=w.turbulence,
+                turbulence_scale=w.turbulence_scale,
+                turbulence_frequency=w.turbulence_frequency,
+                air_damping=w.air_damping,
+                seed=sim.seed,
+            )
+        )
+    for i, imp in enumerate(recipe.impacts):
+        rel = imp.relative
+        mask = None
+        if imp.select is not None:
+            selected = res.select(imp.select, ("impacts", i, "select"), rel)
+            mask = np.zeros(n_welded, dtype=bool)
+            mask[vmap[selected]] = True
+        ray = None
+        fallback = None
+        point = None
+        if imp.ray is not None:
+            origin = res.point(imp.ray.origin, rel)
+            hit = ray_hit(model.rest_positions, model.triangles, origin, imp.ray.direction)
+            if hit is None:
+                raise recipe.error(("impacts", i, "ray"), f"the ray misses {res.mesh_name}")
+            ray = (origin, imp.ray.direction)
+            fallback = hit[0]
+        else:
+            assert imp.point is not None
+            point = res.point(imp.point, rel)
+        forces.append(
+            Impact(
+                time=imp.time,
+                radius=res.length(imp.radius, rel),
+                strength=imp.strength,
+                duration=imp.duration,
+                point=point,
+                ray=ray,
+                direction=imp.direction,
+                falloff=imp.falloff,
+                every=imp.every,
+                count=imp.count,
+                mask=mask,
+                step=settings.dt,
+                fallback_point=fallback,
+            )
+        )
+
+    # -- material effects ----------------------------------------------------------------------------
+    spec = recipe.material
+    if spec.pressure is not None:
+        open_edges = boundary_edge_count(model.triangles)
+        if model.triangles.shape[0] == 0 or open_edges:
+            raise recipe.error(
+                ("material", "pressure"),
+                f"pressure needs a closed mesh; {res.mesh_name} has {open_edges} boundary edges",
+            )
+        forces.append(Pressure(model, spec.pressure.stiffness, spec.pressure.volume))
+    if spec.plasticity is not None:
+        p = spec.plasticity
+        plastic = Plasticity(model, p.stiffness, res.length(p.yield_, p.relative), p.rate, p.damping)
+        forces.append(plastic)
+        constraints.append(plastic)
+    if spec.tethers is not None:
+        anchor_idx = np.unique(np.concatenate(anchors))
+        if anchor_idx.size == 0:
+            raise recipe.error(("material", "tethers"), "tethers need pins to attach to; the recipe pins nothing")
+        constraints.append(Tethers(model, anchor_idx, spec.tethers.max_stretch))
+
+    # -- tears: validated and counted here; the tearing engine comes later ----------------------------
+    for i, tear in enumerate(recipe.tears):
+        res.select(tear.select, ("tears", i, "select"))
+    if recipe.tears:
+        warnings.append("tearing is not implemented yet: [[tears]] are validated but have no effect")
+
+    # -- colliders last, so nothing is left inside one after a substep --------------------------------
+    constraints.extend(_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders))
+
+    scene = Scene(gravity=sim.gravity_vector, forces=forces, constraints=constraints, pin_motion=pin_motion)
+    return BuiltSimulation(
+        model=model,
+        scene=scene,
+        settings=settings,
+        selections=dict(res.counts),
+        warnings=tuple(warnings),
+        start_frame=sim.start_frame,
+        up_axis=recipe.up_axis,
+    )

@@ -1,0 +1,178 @@
+"""Colliders: signed distances, no vertex inside any collider in any frame, friction, tunnelling, animation."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+import trimesh
+
+from meshdeform.colliders import Box, Capsule, Collider, Plane, Sphere, TriangleMesh, closest_points_on_triangles
+from meshdeform.mesh import grid_mesh
+from meshdeform.model import SpringModel, State
+from meshdeform.pins import Keyframe, Keyframes
+from meshdeform.simulate import Scene, Settings, simulate
+from meshdeform.solvers.base import SolverOptions
+from pipeline.build import build_simulation
+from pipeline.recipe import parse_recipe
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_numba_thread():
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(before)
+
+
+def sheet(n: int = 12, size: float = 1.0, height: float = 1.0):
+    """An n x n cloth in the XZ plane, centred over the origin at `height`."""
+    mesh = grid_mesh(n, n, size=(size, size), plane="xz")
+    return mesh.with_positions(mesh.positions + [-size / 2, height, -size / 2])
+
+
+def test_primitive_signed_distances_and_normals() -> None:
+    p = np.array([[0.0, 2.0, 0.0], [0.0, 0.5, 0.0], [3.0, 0.0, 0.0]])
+    d, n = Sphere((0, 0, 0), 1.0).query(p)
+    np.testing.assert_allclose(d, [1.0, -0.5, 2.0])
+    np.testing.assert_allclose(n, [[0, 1, 0], [0, 1, 0], [1, 0, 0]])
+    d, n = Box((-1, -1, -1), (1, 1, 1)).query(np.array([[0.0, 3.0, 0.0], [0.0, 0.8, 0.1], [2.0, 2.0, 0.0]]))
+    np.testing.assert_allclose(d, [2.0, -0.2, np.sqrt(2)])
+    np.testing.assert_allclose(n[:2], [[0, 1, 0], [0, 1, 0]])
+    d, _ = Capsule((0, 0, 0), (2, 0, 0), 0.5).query(np.array([[1.0, 1.0, 0.0], [3.0, 0.0, 0.0], [1.0, 0.2, 0.0]]))
+    np.testing.assert_allclose(d, [0.5, 0.5, -0.3])
+    d, n = Plane((0, 1, 0), (0, 2, 0)).query(np.array([[5.0, 0.5, 1.0]]))
+    np.testing.assert_allclose(d, [-0.5])
+
+
+def test_closest_point_on_triangle_regions() -> None:
+    a, b, c = np.array([0.0, 0, 0]), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])
+    points = np.array([[0.2, 0.2, 1.0], [-1.0, -1.0, 0.0], [2.0, -0.5, 0.0], [1.0, 1.0, 0.0], [0.5, -1.0, 0.0]])
+    n = points.shape[0]
+    got = closest_points_on_triangles(points, np.tile(a, (n, 1)), np.tile(b, (n, 1)), np.tile(c, (n, 1)))
+    np.testing.assert_allclose(got, [[0.2, 0.2, 0], [0, 0, 0], [1, 0, 0], [0.5, 0.5, 0], [0.5, 0, 0]], atol=1e-12)
+
+
+def test_triangle_mesh_collider_matches_the_sphere_it_approximates() -> None:
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    shape = TriangleMesh(ball.vertices, ball.faces)
+    assert shape.solid
+    points = np.random.default_rng(0).normal(size=(200, 3))
+    points *= np.random.default_rng(1).uniform(0.5, 1.5, size=(200, 1)) / np.linalg.norm(points, axis=1, keepdims=True)
+    d, n = shape.query(points)
+    r = np.linalg.norm(points, axis=1)
+    np.testing.assert_allclose(d, r - 1.0, atol=0.02)  # the facets sit inside the true sphere by < 1.3 %
+    assert np.all(np.einsum("ij,ij->i", n, points / r[:, None]) > 0.9)
+
+
+DROP = """
+[simulation]
+solver = "verlet"
+fps = 24
+frames = 30
+substeps = 6
+iterations = 8
+
+[[colliders]]
+sphere = {{ center = [0, 0.45, 0], radius = 0.3 }}
+friction = 0.3
+thickness = {thickness}
+
+[[colliders]]
+ground = {{ height = 0.0 }}
+thickness = 0.005
+friction = 0.5
+"""
+
+
+def test_cloth_dropped_on_a_sphere_and_the_ground_never_gets_inside() -> None:
+    thickness = 0.02
+    built = build_simulation(parse_recipe(DROP.format(thickness=thickness)), sheet(14, 1.4, 1.0))
+    lowest = []
+    for frame in simulate(built.model, built.scene, built.settings):
+        p = frame.positions
+        assert np.linalg.norm(p - [0, 0.45, 0], axis=1).min() >= 0.3 + thickness - 1e-9, frame.index
+        assert p[:, 1].min() >= 0.005 - 1e-9, frame.index
+        lowest.append(p[:, 1].min())
+    # it really fell: draped over the ball with the corners on the floor
+    assert lowest[-1] < 0.02
+    assert frame.positions[:, 1].max() == pytest.approx(0.75 + thickness, abs=0.01)
+
+
+def test_cloth_on_a_triangle_mesh_collider_stays_outside(tmp_path) -> None:
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    ball.apply_translation([0, 0.45, 0])
+    path = tmp_path / "ball.obj"
+    ball.export(path)
+    text = DROP.format(thickness=0.02).replace("sphere = { center = [0, 0.45, 0], radius = 0.3 }", 'mesh = "ball.obj"')
+    recipe_path = tmp_path / "drop.toml"
+    recipe_path.write_text(text)
+    from pipeline.recipe import load_recipe
+
+    built = build_simulation(load_recipe(recipe_path), sheet(10, 1.4, 1.0))
+    shape = built.scene.constraints[0].shape
+    for frame in simulate(built.model, built.scene, built.settings):
+        d, _ = shape.query(frame.positions)
+        assert d.min() >= 0.02 - 1e-6, frame.index
+
+
+def single_vertex_state(prev, now):
+    model = SpringModel.from_mesh(grid_mesh(2, 2))
+    state = State.at_rest(model)
+    state.previous[:] = prev
+    state.positions[:] = now
+    state.velocities[:] = (np.asarray(now) - np.asarray(prev)) / 0.01
+    return model, state
+
+
+def test_fast_vertex_does_not_tunnel_through_a_thin_box() -> None:
+    # a 2 cm table top; in one substep a vertex goes from 10 cm above to 10 cm below it
+    table = Collider(Box((-1, 0.49, -1), (1, 0.51, 1)), friction=0.0, thickness=0.005)
+    model, state = single_vertex_state([0.2, 0.61, 0.3], [0.2, 0.39, 0.3])
+    table.project(model, state, 0.01, 0.01)
+    np.testing.assert_allclose(state.positions[:, 1], 0.515)
+    assert np.all(state.velocities[:, 1] >= 0)
+
+
+def test_thin_open_mesh_keeps_each_vertex_on_its_side() -> None:
+    sheet_mesh = grid_mesh(5, 5, size=(2, 2), plane="xz")
+    shape = TriangleMesh(sheet_mesh.positions - [1, 0, 1], sheet_mesh.triangles)
+    assert not shape.solid
+    floor = Collider(shape, friction=0.0, thickness=0.01)
+    model, state = single_vertex_state([0.1, 0.05, 0.1], [0.1, -0.04, 0.1])  # crossed from above
+    floor.project(model, state, 0.01, 0.01)
+    np.testing.assert_allclose(state.positions[:, 1], 0.01)
+    floor = Collider(shape, friction=0.0, thickness=0.01)
+    model, state = single_vertex_state([0.1, -0.05, 0.1], [0.1, -0.005, 0.1])  # below it, staying below
+    floor.project(model, state, 0.01, 0.01)
+    np.testing.assert_allclose(state.positions[:, 1], -0.01)
+
+
+def test_friction_slows_sliding() -> None:
+    speeds = []
+    for friction in (0.0, 0.5):
+        model = SpringModel.from_mesh(grid_mesh(2, 2, plane="xz"))
+        state = State.at_rest(model)
+        state.velocities[:] = (1.0, 0.0, 0.0)
+        state.previous[:] = state.positions - state.velocities * 0.01
+        scene = Scene(gravity=(0, -9.81, 0), constraints=[Collider(Plane((0, 0, 0), (0, 1, 0)), friction, 0.0)])
+        settings = Settings(solver="verlet", fps=25, frames=8, substeps=4, options=SolverOptions(damping=0.0))
+        frames = list(simulate(model, scene, settings, state=state))
+        speeds.append((frames[-1].positions[:, 0].mean() - frames[-2].positions[:, 0].mean()) * 25)
+    assert speeds[0] == pytest.approx(1.0, rel=0.05)
+    # Coulomb: it loses mu g = 4.9 m/s per second of contact, so it stops after about 0.2 s
+    assert abs(speeds[1]) < 0.02
+
+
+def test_animated_collider_pushes_cloth_and_nothing_gets_inside() -> None:
+    model = SpringModel.from_mesh(sheet(10, 1.0, 0.3))
+    keys = Keyframes([Keyframe(0.0, translate=(0, 0, 0)), Keyframe(0.5, translate=(0, 0.6, 0))], pivot=(0, 0, 0))
+    ball = Collider(Sphere((0, 0, 0), 0.25), friction=0.5, thickness=0.01, keys=keys)
+    scene = Scene(gravity=(0, -9.81, 0), constraints=[ball])
+    settings = Settings(solver="verlet", fps=24, frames=18, substeps=6)
+    top = []
+    for frame in simulate(model, scene, settings):
+        center = keys.apply(np.zeros((1, 3)), frame.time)[0]
+        assert np.linalg.norm(frame.positions - center, axis=1).min() >= 0.26 - 1e-9, frame.index
+        top.append(frame.positions[:, 1].max())
+    assert top[-1] > 0.8  # carried up on the rising ball
