@@ -1,0 +1,263 @@
+"""The streaming exporter contract shared by every output format.
+
+An exporter is opened once per run with an `ExportContext`, receives the frames one by one as
+`FrameData` and is closed (finalised) at the end, so a long bake never has to hold every frame
+in memory where the format allows it. Files appear under their final names only when they are
+complete (`meshdeform.atomic`); `abort()` removes everything the exporter wrote in this run, so
+an interrupted export leaves nothing that looks finished.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+
+from meshdeform.errors import ExportError
+from meshdeform.mesh import Mesh
+
+#: accepted values of `ExportContext.up_axis`
+UP_AXES = ("y", "z")
+
+
+@dataclass(frozen=True)
+class ExportContext:
+    """What every exporter needs to know before the first frame.
+
+    mesh: the input mesh (topology, UVs, groups, input vertex order; its positions are the rest pose).
+    out_dir: the result folder; each format writes its fixed file names inside it.
+    fps: frames per second of the sequence (USD timeCodesPerSecond, MDD times, npz `fps`).
+    start_frame: number of the first frame in caches and on the USD time line.
+    up_axis: "y" keeps the input's coordinates (Y up, as OBJ); "z" converts point caches and USD
+        to a Z-up world as Blender's: (x, y, z) -> (x, -z, y). None for start_frame or up_axis
+        means the default.
+    frame_count: the number of frames, when known (file-name padding; otherwise 4 digits).
+    """
+
+    mesh: Mesh
+    out_dir: Path
+    fps: float
+    start_frame: int = 1
+    up_axis: str = "y"
+    frame_count: int | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "out_dir", Path(self.out_dir))
+        # None means "the default", so callers can pass optional recipe values straight through
+        object.__setattr__(self, "up_axis", "y" if self.up_axis is None else str(self.up_axis).lower())
+        object.__setattr__(self, "start_frame", 1 if self.start_frame is None else int(self.start_frame))
+        if self.up_axis not in UP_AXES:
+            raise ExportError(f"up axis must be one of {', '.join(UP_AXES)}, not {self.up_axis!r}")
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise ExportError(f"fps must be a positive number, not {self.fps!r}")
+
+
+@dataclass(frozen=True)
+class FrameData:
+    """One frame handed to the exporters.
+
+    index: frame number, from 1 (file names use it).
+    time: seconds since the start of the simulation.
+    positions: (V, 3) positions in the input vertex layout (of `mesh` when that is given).
+    mesh: the new mesh when the topology changed at this frame (tearing), else None; it stays
+        in force for the following frames until another one arrives.
+    point_data: per-vertex arrays for formats that carry them (vtk, xdmf, npz), by convention
+        "strain" (V,) stretch ratio (1 = rest length), "velocity" (V, 3), "pinned" (V,) uint8.
+    """
+
+    index: int
+    time: float
+    positions: np.ndarray
+    mesh: Mesh | None = None
+    point_data: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Exporter(Protocol):
+    """A streaming writer of one output format."""
+
+    name: ClassVar[str]
+    supports_topology_change: ClassVar[bool]
+
+    def open(self, ctx: ExportContext) -> None: ...
+
+    def write(self, frame: FrameData) -> None: ...
+
+    def close(self) -> list[Path]: ...
+
+    def abort(self) -> None: ...
+
+
+def frame_file_name(index: int, frame_count: int | None, suffix: str, stem: str = "frame_") -> str:
+    """`frame_0001.obj`: 4-digit zero padding, more digits when the sequence has more than 9999 frames."""
+    width = max(4, len(str(frame_count))) if frame_count else 4
+    return f"{stem}{index:0{width}d}{suffix}"
+
+
+def convert_up_axis(points: np.ndarray, up_axis: str) -> np.ndarray:
+    """Points (or normals) in the requested world: "y" unchanged, "z" maps (x, y, z) -> (x, -z, y)."""
+    if up_axis == "y":
+        return points
+    out = np.empty_like(points)
+    out[:, 0] = points[:, 0]
+    out[:, 1] = -points[:, 2]
+    out[:, 2] = points[:, 1]
+    return out
+
+
+class BaseExporter:
+    """Common bookkeeping: open/closed state, frame order, shape checks and cleanup on abort.
+
+    Subclasses implement `_open`, `_write` and `_close` (returning the finished files) and may
+    override `_abort` to drop temporary files; files they finish during the run are listed in
+    `self._written` so that `abort()` can remove them.
+    """
+
+    name: ClassVar[str] = ""
+    supports_topology_change: ClassVar[bool] = False
+    #: the reason given when a frame changes the topology and the format cannot follow
+    topology_message: ClassVar[str] = "this format needs a fixed topology"
+
+    def __init__(self, **options: Any) -> None:
+        if options:
+            raise ExportError(f"{self.name}: unknown option(s) {', '.join(sorted(options))}")
+        self._ctx: ExportContext | None = None
+        self._mesh: Mesh | None = None
+        self._written: list[Path] = []
+        self._made_dirs: list[Path] = []
+        self._count = 0
+        self._last_index: int | None = None
+
+    # -- public protocol -------------------------------------------------------------------
+    def open(self, ctx: ExportContext) -> None:
+        """Start a run: remember the context, create folders, open streams."""
+        if self._ctx is not None:
+            raise ExportError(f"{self.name}: exporter is already open")
+        self._ctx = ctx
+        self._mesh = ctx.mesh
+        self._written = []
+        self._made_dirs = []
+        self._count = 0
+        self._last_index = None
+        try:
+            ctx.out_dir.mkdir(parents=True, exist_ok=True)
+            self._open(ctx)
+        except BaseException as exc:
+            with contextlib.suppress(Exception):
+                self._abort()
+            self._ctx = None
+            if isinstance(exc, OSError):
+                raise ExportError(f"{self.name}: cannot open output in {ctx.out_dir}: {exc}") from exc
+            raise
+
+    def write(self, frame: FrameData) -> None:
+        """Add one frame; checks order, topology and shapes before handing it to the format."""
+        ctx = self._require_open()
+        if self._last_index is not None and frame.index <= self._last_index:
+            raise ExportError(
+                f"{self.name}: frames must arrive in increasing order (frame {frame.index} after {self._last_index})"
+            )
+        if frame.mesh is not None:
+            if not self.supports_topology_change:
+                raise ExportError(
+                    f"{self.name}: {self.topology_message}; the mesh topology changed at frame {frame.index} "
+                    "(tearing). Export obj, ply, usd or vtk instead, or turn tearing off"
+                )
+            self._mesh = frame.mesh
+        mesh = self._mesh
+        assert mesh is not None
+        positions = np.asarray(frame.positions)
+        if positions.shape != (mesh.vertex_count, 3):
+            raise ExportError(
+                f"{self.name}: frame {frame.index} has positions of shape {positions.shape}, "
+                f"expected ({mesh.vertex_count}, 3)"
+            )
+        try:
+            self._write(ctx, frame, mesh, positions)
+        except OSError as exc:
+            raise ExportError(f"{self.name}: cannot write frame {frame.index}: {exc}") from exc
+        self._count += 1
+        self._last_index = frame.index
+
+    def close(self) -> list[Path]:
+        """Finalise: write headers/indexes, rename complete files into place; returns the files."""
+        ctx = self._require_open()
+        if self._count == 0:
+            self.abort()
+            raise ExportError(f"{self.name}: no frames were written")
+        try:
+            finished = self._close(ctx)
+        except BaseException:
+            self.abort()
+            raise
+        self._ctx = None
+        return finished
+
+    def abort(self) -> None:
+        """Give up: close streams, delete temporary files and every file written in this run."""
+        if self._ctx is None:
+            return
+        with contextlib.suppress(Exception):
+            self._abort()
+        folders = {path.parent for path in self._written} | set(self._made_dirs)
+        for path in self._written:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        for folder in folders - {self._ctx.out_dir}:  # frames/, vtk/: only if now empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        self._written = []
+        self._ctx = None
+
+    # -- for subclasses ----------------------------------------------------------------------
+    @property
+    def frames_written(self) -> int:
+        return self._count
+
+    def _make_dir(self, folder: Path) -> Path:
+        """Create a sub-folder of the output; `abort()` removes it again if it is left empty."""
+        if not folder.is_dir():
+            folder.mkdir(parents=True, exist_ok=True)
+            self._made_dirs.append(folder)
+        return folder
+
+    def _require_open(self) -> ExportContext:
+        if self._ctx is None:
+            raise ExportError(f"{self.name}: exporter is not open")
+        return self._ctx
+
+    def _open(self, ctx: ExportContext) -> None:
+        pass
+
+    def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _close(self, ctx: ExportContext) -> list[Path]:
+        raise NotImplementedError
+
+    def _abort(self) -> None:
+        pass
+
+
+class StreamedFile:
+    """A file written through a temporary name: `finish()` renames it into place, `discard()` deletes it."""
+
+    def __init__(self, target: Path) -> None:
+        from meshdeform.atomic import atomic_path
+
+        self.target = target
+        self._stack = contextlib.ExitStack()
+        self.path = self._stack.enter_context(atomic_path(target))
+        self.handle = self._stack.enter_context(open(self.path, "wb"))  # noqa: SIM115
+
+    def finish(self) -> Path:
+        self._stack.close()
+        return self.target
+
+    def discard(self) -> None:
+        err = ExportError("export aborted")
+        self._stack.__exit__(type(err), err, None)

@@ -1,0 +1,78 @@
+"""MDD (LightWave point cache, read by Blender's Mesh Cache modifier) export: one big-endian file.
+
+Layout (DESIGN.md section 5): `int32 num_frames`, `int32 num_points`, `float32 times[num_frames]`
+(seconds), then exactly `num_frames` blocks of `num_points * 3` float32 (no extra rest block).
+The times are scene times, `(start_frame + index - 1) / fps`, so that Blender's Mesh Cache
+modifier in "Time" mode plays frame 1 at scene frame `start_frame` (checked with Blender 5.0.1).
+The header's size depends on the frame count, so positions are streamed into an anonymous
+temporary file and the cache is composed (header + times + blocks) at close.
+
+Point caches need a fixed vertex count: a frame with a changed topology (tearing) is refused.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from meshdeform.atomic import atomic_open
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.mesh import Mesh
+
+FILE_NAME = "cache.mdd"
+
+
+class MddExporter(BaseExporter):
+    """Streams frames into a spool file and writes `cache.mdd` at close."""
+
+    name: ClassVar[str] = "mdd"
+    supports_topology_change: ClassVar[bool] = False
+    topology_message: ClassVar[str] = "point caches need a fixed vertex count"
+
+    def _open(self, ctx: ExportContext) -> None:
+        self._spool = tempfile.TemporaryFile(dir=ctx.out_dir, prefix=".cache.mdd.", suffix=".spool")  # noqa: SIM115
+        self._times: list[float] = []
+
+    def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
+        data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=">f4")
+        self._spool.write(data.tobytes())
+        self._times.append((ctx.start_frame + frame.index - 1) / ctx.fps)
+
+    def _close(self, ctx: ExportContext) -> list[Path]:
+        target = ctx.out_dir / FILE_NAME
+        with atomic_open(target, "wb") as out:
+            out.write(np.array([len(self._times), ctx.mesh.vertex_count], dtype=">i4").tobytes())
+            out.write(np.asarray(self._times, dtype=">f4").tobytes())
+            self._spool.seek(0)
+            shutil.copyfileobj(self._spool, out, 1 << 20)
+        self._spool.close()
+        return [target]
+
+    def _abort(self) -> None:
+        self._spool.close()
+
+
+def read_mdd(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read an MDD file: positions (frames, points, 3) float32 and times (frames,) in seconds.
+
+    Raises MeshLoadError when the size does not match the header.
+    """
+    from meshdeform.errors import MeshLoadError
+
+    path = Path(path)
+    with open(path, "rb") as handle:
+        head = handle.read(8)
+        if len(head) != 8:
+            raise MeshLoadError(f"{path}: too short for an MDD header")
+        frames, points = (int(v) for v in np.frombuffer(head, dtype=">i4"))
+        if frames < 0 or points < 0:
+            raise MeshLoadError(f"{path}: not an MDD point cache")
+        times = np.fromfile(handle, dtype=">f4", count=frames)
+        data = np.fromfile(handle, dtype=">f4")
+    if times.size != frames or data.size != frames * points * 3:
+        raise MeshLoadError(f"{path}: size does not match the header ({frames} frames of {points} points)")
+    return data.reshape(frames, points, 3).astype(np.float32), times.astype(np.float64)

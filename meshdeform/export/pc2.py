@@ -1,0 +1,84 @@
+"""PC2 (Point Cache 2) export: one little-endian file read by Blender's Mesh Cache modifier, Maya, 3ds Max.
+
+Layout (DESIGN.md section 5): a 32-byte header `char[12] "POINTCACHE2\\0"`, `int32 version = 1`,
+`int32 num_points`, `float32 start_frame`, `float32 sample_rate = 1.0`, `int32 num_samples`, then
+`num_samples * num_points * 3` float32 (x, y, z). Frames are streamed straight into the file
+(under a temporary name) and the header is patched with the sample count at close.
+
+Blender's Mesh Cache modifier plays PC2 in "Frame" mode as sample = scene frame - Frame Start and
+ignores the header's start frame: set the modifier's Frame Start to the start frame (checked with
+Blender 5.0.1, benchmarks/blender_check.py).
+
+Point caches need a fixed vertex count: a frame with a changed topology (tearing) is refused.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from meshdeform.errors import ExportError
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData, StreamedFile, convert_up_axis
+from meshdeform.mesh import Mesh
+
+PC2_MAGIC = b"POINTCACHE2\0"
+PC2_HEADER = struct.Struct("<12siiffi")  # 32 bytes
+FILE_NAME = "cache.pc2"
+
+
+def pc2_header(num_points: int, start_frame: float, num_samples: int, sample_rate: float = 1.0) -> bytes:
+    """The 32-byte PC2 header."""
+    return PC2_HEADER.pack(PC2_MAGIC, 1, num_points, float(start_frame), float(sample_rate), num_samples)
+
+
+class Pc2Exporter(BaseExporter):
+    """Streams frames into `cache.pc2`; frames must be consecutive (one sample per frame)."""
+
+    name: ClassVar[str] = "pc2"
+    supports_topology_change: ClassVar[bool] = False
+    topology_message: ClassVar[str] = "point caches need a fixed vertex count"
+
+    def _open(self, ctx: ExportContext) -> None:
+        self._file = StreamedFile(ctx.out_dir / FILE_NAME)
+        self._file.handle.write(pc2_header(ctx.mesh.vertex_count, ctx.start_frame, 0))
+
+    def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
+        if self._last_index is not None and frame.index != self._last_index + 1:
+            raise ExportError(
+                f"pc2: frames must be consecutive (one sample per frame): frame {frame.index} after {self._last_index}"
+            )
+        data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype="<f4")
+        self._file.handle.write(data.tobytes())
+
+    def _close(self, ctx: ExportContext) -> list[Path]:
+        handle = self._file.handle
+        handle.seek(0)
+        handle.write(pc2_header(ctx.mesh.vertex_count, ctx.start_frame, self.frames_written))
+        return [self._file.finish()]
+
+    def _abort(self) -> None:
+        self._file.discard()
+
+
+def read_pc2(path: str | Path) -> tuple[np.ndarray, float, float]:
+    """Read a PC2 file: positions (samples, points, 3) float32, start frame, sample rate.
+
+    Raises MeshLoadError when the header is not a PC2 header or the size does not match it.
+    """
+    from meshdeform.errors import MeshLoadError
+
+    path = Path(path)
+    with open(path, "rb") as handle:
+        head = handle.read(PC2_HEADER.size)
+        if len(head) != PC2_HEADER.size:
+            raise MeshLoadError(f"{path}: too short for a PC2 header")
+        magic, _version, points, start, rate, samples = PC2_HEADER.unpack(head)
+        if magic != PC2_MAGIC or points < 0 or samples < 0:
+            raise MeshLoadError(f"{path}: not a PC2 point cache")
+        data = np.fromfile(handle, dtype="<f4")
+    if data.size != points * samples * 3:
+        raise MeshLoadError(f"{path}: {data.size} floats, the header promises {points * samples * 3}")
+    return data.reshape(samples, points, 3), float(start), float(rate)

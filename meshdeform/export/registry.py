@@ -1,0 +1,116 @@
+"""The exporter registry: format name -> exporter class, and the streaming session over several."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from meshdeform.errors import ExportError
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData
+from meshdeform.export.mdd import MddExporter
+from meshdeform.export.npz import NpzExporter
+from meshdeform.export.obj import ObjExporter
+from meshdeform.export.pc2 import Pc2Exporter
+from meshdeform.export.ply import PlyExporter
+from meshdeform.export.usd import UsdExporter
+from meshdeform.export.vtk import VtkExporter
+from meshdeform.export.xdmf import XdmfExporter
+
+EXPORTERS: dict[str, type[BaseExporter]] = {
+    cls.name: cls
+    for cls in (ObjExporter, PlyExporter, Pc2Exporter, MddExporter, UsdExporter, VtkExporter, XdmfExporter, NpzExporter)
+}
+
+
+def make_exporter(name: str, **options: Any) -> BaseExporter:
+    """A new exporter for a format name (case-insensitive); `options` go to its constructor.
+
+    Options: usd `ascii` (write scene.usda) and `normals`; vtk `compress`. Unknown names or
+    options raise ExportError listing what is known.
+    """
+    cls = EXPORTERS.get(str(name).strip().lower())
+    if cls is None:
+        raise ExportError(f"unknown export format {name!r}; known formats: {', '.join(EXPORTERS)}")
+    try:
+        return cls(**options)
+    except TypeError as exc:
+        raise ExportError(f"{cls.name}: {exc}") from exc
+
+
+class ExportSession:
+    """Several exporters driven together: opened at once, fed each frame, closed or aborted as one.
+
+    Used as a context manager, an exception inside the block aborts every exporter, so an
+    interrupted run leaves no finished-looking file behind:
+
+        with ExportSession(["obj", "pc2"], ctx) as session:
+            for frame in frames:
+                session.write(frame)
+        session.outputs   # {"obj": [...], "pc2": [...]}
+    """
+
+    def __init__(
+        self,
+        formats: Iterable[str],
+        ctx: ExportContext,
+        options: Mapping[str, Mapping[str, Any]] | None = None,
+    ) -> None:
+        names = list(dict.fromkeys(str(f).strip().lower() for f in formats))
+        options = options or {}
+        self.ctx = ctx
+        self.exporters: dict[str, BaseExporter] = {n: make_exporter(n, **dict(options.get(n, {}))) for n in names}
+        self.outputs: dict[str, list[Path]] = {}
+        self._open = False
+
+    def check_topology_change(self) -> list[str]:
+        """Names of the chosen formats that refuse a changed topology (to warn before a tearing run)."""
+        return [n for n, e in self.exporters.items() if not e.supports_topology_change]
+
+    def open(self) -> ExportSession:
+        opened: list[BaseExporter] = []
+        try:
+            for exporter in self.exporters.values():
+                exporter.open(self.ctx)
+                opened.append(exporter)
+        except BaseException:
+            for exporter in opened:
+                exporter.abort()
+            raise
+        self._open = True
+        return self
+
+    def write(self, frame: FrameData) -> None:
+        for exporter in self.exporters.values():
+            exporter.write(frame)
+
+    def close(self) -> dict[str, list[Path]]:
+        try:
+            for name, exporter in self.exporters.items():
+                self.outputs[name] = exporter.close()
+        except BaseException:
+            self.abort()
+            raise
+        self._open = False
+        return self.outputs
+
+    def abort(self) -> None:
+        """Abort every exporter and delete what the session has finished so far."""
+        for exporter in self.exporters.values():
+            exporter.abort()
+        for paths in self.outputs.values():
+            for path in paths:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+        self.outputs = {}
+        self._open = False
+
+    def __enter__(self) -> ExportSession:
+        return self.open()
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

@@ -1,0 +1,178 @@
+"""USD export (usd-core): one stage `scene.usdc` (or `scene.usda`) for Blender, Houdini, Maya, Omniverse.
+
+`/Root` (default prim, Xform) holds a `UsdGeom.Mesh` with the topology authored once
+(faceVertexCounts / faceVertexIndices, quads stay quads, subdivisionScheme "none"), time-sampled
+`points`, `normals` (per vertex) and `extent`, and the UVs as an indexed faceVarying primvar `st`
+when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside it.
+The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame k (from 1) sits at
+time code `start_frame + k - 1`, and `upAxis` is Y (or Z with `up_axis="z"`, the points then
+converted as for Blender's world). When the topology changes (tearing) the face lists and UV
+indices become time-sampled too, from that frame on.
+
+Samples are authored as the frames come; the layer lives in memory until it is saved at close.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from meshdeform.atomic import atomic_path
+from meshdeform.errors import ExportError
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.mesh import Mesh
+
+ROOT = "/Root"
+
+
+def usd_prim_name(mesh: Mesh) -> str:
+    """A valid prim name from the mesh's file name ("mesh" when it has none)."""
+    stem = mesh.source.stem if mesh.source is not None else "mesh"
+    name = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "mesh"
+    return name if not name[0].isdigit() else f"_{name}"
+
+
+def vertex_normals_of(mesh: Mesh, positions: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (V, 3) of the polygons at these positions."""
+    from meshdeform.geometry import vertex_normals
+
+    return np.asarray(vertex_normals(mesh.with_positions(positions)), dtype=np.float64)
+
+
+class UsdExporter(BaseExporter):
+    """Authors time samples as frames come and saves the stage at close."""
+
+    name: ClassVar[str] = "usd"
+    supports_topology_change: ClassVar[bool] = True
+
+    def __init__(self, *, ascii: bool = False, normals: bool = True, **options: Any) -> None:
+        super().__init__(**options)
+        self.ascii = ascii
+        self.normals = normals
+
+    @property
+    def file_name(self) -> str:
+        return "scene.usda" if self.ascii else "scene.usdc"
+
+    def _open(self, ctx: ExportContext) -> None:
+        from pxr import Sdf, Usd, UsdGeom
+
+        self._target = ctx.out_dir / self.file_name
+        self._atomic = atomic_path(self._target)
+        self._tmp = self._atomic.__enter__()
+        self._tmp.unlink()  # USD refuses to create a layer over an existing file
+        stage = Usd.Stage.CreateNew(str(self._tmp))
+        if stage is None:
+            raise OSError(f"USD could not create {self._tmp}")
+        self._stage = stage
+        stage.SetTimeCodesPerSecond(float(ctx.fps))
+        stage.SetFramesPerSecond(float(ctx.fps))
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if ctx.up_axis == "z" else UsdGeom.Tokens.y)
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        root = UsdGeom.Xform.Define(stage, ROOT)
+        stage.SetDefaultPrim(root.GetPrim())
+        name = usd_prim_name(ctx.mesh)
+        self._geom = UsdGeom.Mesh.Define(stage, f"{ROOT}/{name}") if ctx.mesh.face_count else None
+        self._curves = UsdGeom.BasisCurves.Define(stage, f"{ROOT}/{name}_lines") if ctx.mesh.line_count else None
+        if self._geom is None and self._curves is None:
+            raise ExportError("usd: the mesh has neither polygons nor polylines")
+        if self._geom is not None:
+            self._geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+            self._geom.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+            self._geom.CreateDoubleSidedAttr(True)
+        if self._curves is not None:
+            self._curves.CreateTypeAttr(UsdGeom.Tokens.linear)
+        self._sdf = Sdf
+        self._topology_mesh: Mesh | None = None
+        self._topology_sampled = False
+        self._first_code: float | None = None
+        self._last_code: float | None = None
+        self._st: Any = None
+
+    def _code(self, ctx: ExportContext, index: int) -> float:
+        return float(ctx.start_frame + index - 1)
+
+    def _author_topology(self, mesh: Mesh, code: Any) -> None:
+        """Face lists, UV primvar and curve counts, as defaults or (after tearing) time samples."""
+        from pxr import Sdf, UsdGeom, Vt
+
+        if self._geom is not None:
+            counts = Vt.IntArray.FromNumpy(np.asarray(mesh.face_sizes, dtype=np.int32))
+            indices = Vt.IntArray.FromNumpy(np.asarray(mesh.face_indices, dtype=np.int32))
+            self._geom.GetFaceVertexCountsAttr().Set(counts, code)
+            self._geom.GetFaceVertexIndicesAttr().Set(indices, code)
+            uv_ok = (
+                mesh.uvs is not None
+                and mesh.face_uv_indices is not None
+                and mesh.face_uv_indices.shape == mesh.face_indices.shape
+                and bool((mesh.face_uv_indices >= 0).all())
+            )
+            if uv_ok:
+                if self._st is None:
+                    api = UsdGeom.PrimvarsAPI(self._geom)
+                    self._st = api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+                uvs = np.ascontiguousarray(np.asarray(mesh.uvs)[:, :2], dtype=np.float32)
+                self._st.Set(Vt.Vec2fArray.FromNumpy(uvs), code)
+                self._st.SetIndices(Vt.IntArray.FromNumpy(np.asarray(mesh.face_uv_indices, dtype=np.int32)), code)
+        if self._curves is not None:
+            counts = np.diff(mesh.line_offsets).astype(np.int32)
+            self._curves.GetCurveVertexCountsAttr().Set(Vt.IntArray.FromNumpy(counts), code)
+
+    def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
+        from pxr import Usd, Vt
+
+        code = self._code(ctx, frame.index)
+        if self._topology_mesh is None:
+            self._author_topology(mesh, Usd.TimeCode.Default())
+            self._topology_mesh = mesh
+        elif mesh is not self._topology_mesh:
+            if not self._topology_sampled:  # hold the input topology up to this frame
+                self._author_topology(self._topology_mesh, Usd.TimeCode(self._first_code))
+                self._topology_sampled = True
+            self._author_topology(mesh, Usd.TimeCode(code))
+            self._topology_mesh = mesh
+        if self._first_code is None:
+            self._first_code = code
+        self._last_code = code
+        time = Usd.TimeCode(code)
+        points = convert_up_axis(np.asarray(positions, dtype=np.float64), ctx.up_axis)
+        points32 = np.ascontiguousarray(points, dtype=np.float32)
+        lo, hi = points32.min(axis=0), points32.max(axis=0)
+        extent = Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32))
+        if self._geom is not None:
+            self._geom.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points32), time)
+            self._geom.GetExtentAttr().Set(extent, time)
+            if self.normals:
+                normals = convert_up_axis(vertex_normals_of(mesh, positions), ctx.up_axis)
+                self._geom.GetNormalsAttr().Set(
+                    Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, dtype=np.float32)), time
+                )
+                self._geom.SetNormalsInterpolation("vertex")
+        if self._curves is not None:
+            curve_points = np.ascontiguousarray(points32[mesh.line_indices])
+            self._curves.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(curve_points), time)
+            self._curves.GetExtentAttr().Set(
+                Vt.Vec3fArray.FromNumpy(np.stack([curve_points.min(axis=0), curve_points.max(axis=0)])), time
+            )
+
+    def _close(self, ctx: ExportContext) -> list[Path]:
+        self._stage.SetStartTimeCode(self._first_code)
+        self._stage.SetEndTimeCode(self._last_code)
+        self._stage.GetRootLayer().Save()
+        self._release()
+        self._atomic.__exit__(None, None, None)
+        return [self._target]
+
+    def _release(self) -> None:
+        self._geom = None
+        self._curves = None
+        self._st = None
+        self._stage = None
+
+    def _abort(self) -> None:
+        self._release()
+        err = RuntimeError("export aborted")
+        self._atomic.__exit__(type(err), err, None)

@@ -1,0 +1,157 @@
+"""VTK export for ParaView: per-frame `vtk/frame_0001.vtp` files and a `scene.pvd` collection.
+
+Each `.vtp` holds the frame's polygons (quads stay quads, polylines as lines), float32 points
+and point data: every array the frame carried (`strain`, `velocity`, `pinned`, ...), the
+`displacement` (V, 3) from the rest pose while the topology is the input's (it replaces a frame
+array of that name), and `TCoords` when the UVs are per vertex (no seams). Open `scene.pvd` in
+ParaView to get the time series. The topology may change between frames (tearing): every file
+carries its own.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, ClassVar
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from meshdeform.atomic import atomic_path, write_text_atomic
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData, frame_file_name
+from meshdeform.mesh import Mesh
+
+FOLDER = "vtk"
+COLLECTION_NAME = "scene.pvd"
+
+
+def _cell_array(indices: np.ndarray, offsets: np.ndarray) -> Any:
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonCore import VTK_ID_TYPE
+    from vtkmodules.vtkCommonDataModel import vtkCellArray
+
+    cells = vtkCellArray()
+    cells.SetData(
+        numpy_to_vtk(np.ascontiguousarray(offsets, dtype=np.int64), deep=True, array_type=VTK_ID_TYPE),
+        numpy_to_vtk(np.ascontiguousarray(indices, dtype=np.int64), deep=True, array_type=VTK_ID_TYPE),
+    )
+    return cells
+
+
+def vertex_uvs(mesh: Mesh) -> np.ndarray | None:
+    """Per-vertex UVs (V, 2) when every corner of a vertex uses the same UV (no seams), else None."""
+    if mesh.uvs is None or mesh.face_uv_indices is None or mesh.face_indices.size == 0:
+        return None
+    uv_index = np.asarray(mesh.face_uv_indices)
+    if uv_index.shape != mesh.face_indices.shape or (uv_index < 0).any():
+        return None
+    corner_uv = np.asarray(mesh.uvs, dtype=np.float64)[uv_index, :2]
+    per_vertex = np.zeros((mesh.vertex_count, 2))
+    per_vertex[mesh.face_indices] = corner_uv
+    if not np.allclose(per_vertex[mesh.face_indices], corner_uv):
+        return None
+    return per_vertex
+
+
+def polydata_from_mesh(mesh: Mesh, positions: np.ndarray | None = None) -> Any:
+    """A `vtkPolyData` of the mesh's polygons and polylines (no point data), float32 points."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import vtkPolyData
+
+    pts = np.ascontiguousarray(mesh.positions if positions is None else positions, dtype=np.float32)
+    points = vtkPoints()
+    points.SetData(numpy_to_vtk(pts, deep=True))
+    poly = vtkPolyData()
+    poly.SetPoints(points)
+    if mesh.face_count:
+        poly.SetPolys(_cell_array(mesh.face_indices, mesh.face_offsets))
+    if mesh.line_count:
+        poly.SetLines(_cell_array(mesh.line_indices, mesh.line_offsets))
+    return poly
+
+
+def set_point_array(poly: Any, name: str, values: np.ndarray) -> None:
+    """Attach (or replace) a named point-data array, floats as float32."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+
+    values = np.asarray(values)
+    if values.dtype.kind == "f":
+        values = values.astype(np.float32, copy=False)
+    elif values.dtype.kind == "b":
+        values = values.astype(np.uint8)
+    array = numpy_to_vtk(np.ascontiguousarray(values), deep=True)
+    array.SetName(name)
+    poly.GetPointData().AddArray(array)
+
+
+def pvd_text(entries: list[tuple[float, str]]) -> str:
+    """The ParaView collection file listing (time, relative file) pairs."""
+    lines = [
+        '<?xml version="1.0"?>',
+        '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">',
+        "  <Collection>",
+    ]
+    lines += [f'    <DataSet timestep="{t!r}" group="" part="0" file={quoteattr(f)}/>' for t, f in entries]
+    lines += ["  </Collection>", "</VTKFile>", ""]
+    return "\n".join(lines)
+
+
+class VtkExporter(BaseExporter):
+    """Writes one `.vtp` per frame as it comes and the `.pvd` collection at close."""
+
+    name: ClassVar[str] = "vtk"
+    supports_topology_change: ClassVar[bool] = True
+
+    def __init__(self, *, compress: bool = True, **options: Any) -> None:
+        super().__init__(**options)
+        self.compress = compress
+
+    def _open(self, ctx: ExportContext) -> None:
+        from vtkmodules.vtkIOXML import vtkXMLPolyDataWriter
+
+        self._make_dir(ctx.out_dir / FOLDER)
+        self._entries: list[tuple[float, str]] = []
+        self._poly_mesh: Mesh | None = None
+        self._writer = vtkXMLPolyDataWriter()
+        self._writer.SetDataModeToAppended()
+        self._writer.EncodeAppendedDataOff()
+        if self.compress:
+            self._writer.SetCompressorTypeToZLib()
+        else:
+            self._writer.SetCompressorTypeToNone()
+
+    def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
+        from vtkmodules.util.numpy_support import numpy_to_vtk
+
+        if self._poly_mesh is not mesh:  # first frame or a new topology: rebuild the cells
+            self._poly = polydata_from_mesh(mesh, positions)
+            self._poly_mesh = mesh
+            self._uvs = vertex_uvs(mesh)
+        else:
+            self._poly.GetPoints().SetData(numpy_to_vtk(np.ascontiguousarray(positions, dtype=np.float32), deep=True))
+            self._poly.GetPoints().Modified()
+        poly = self._poly
+        pd = poly.GetPointData()
+        for name in [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]:
+            pd.RemoveArray(name)
+        for key, value in frame.point_data.items():
+            set_point_array(poly, key, value)
+        if mesh is ctx.mesh:  # the vector (for Warp By Vector) replaces a frame array of that name
+            set_point_array(poly, "displacement", positions - ctx.mesh.positions)
+        if self._uvs is not None:
+            set_point_array(poly, "TCoords", self._uvs)
+            pd.SetActiveTCoords("TCoords")
+        rel = f"{FOLDER}/{frame_file_name(frame.index, ctx.frame_count, '.vtp')}"
+        target = ctx.out_dir / rel
+        with atomic_path(target) as tmp:
+            self._writer.SetFileName(str(tmp))
+            self._writer.SetInputData(poly)
+            if self._writer.Write() != 1:
+                raise OSError(f"VTK could not write {target}")
+        self._written.append(target)
+        self._entries.append((float(frame.time), rel))
+
+    def _close(self, ctx: ExportContext) -> list[Path]:
+        target = ctx.out_dir / COLLECTION_NAME
+        write_text_atomic(target, pvd_text(self._entries))
+        return [*self._written, target]

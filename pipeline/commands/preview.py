@@ -1,0 +1,108 @@
+"""`meshdeform preview RESULT_DIR`: render PNGs, a contact sheet and a video of an existing result.
+
+No re-simulation: the frames are read from the result folder (`frames/*.obj|ply`, else
+`positions.npz`, else `scene.usdc`), with `report.json` for the input mesh (rest pose) and fps.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import typer
+
+from pipeline.commands.errors import cli_errors, fail
+
+
+def parse_frames(text: str) -> tuple[int, ...]:
+    """`1,12,24` or ranges `1-24` (mixed) -> frame numbers; a usage error otherwise."""
+    numbers: list[int] = []
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
+        if match is None:
+            raise fail(f"--frames: expected numbers or ranges like 1,12,20-24, got {text!r}")
+        lo = int(match.group(1))
+        hi = int(match.group(2)) if match.group(2) else lo
+        if lo < 1 or hi < lo:
+            raise fail(f"--frames: bad range {part!r} (frames are numbered from 1)")
+        numbers.extend(range(lo, hi + 1))
+    if not numbers:
+        raise fail("--frames: no frame numbers given")
+    return tuple(dict.fromkeys(numbers))
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """`800x600` -> (800, 600); a usage error otherwise."""
+    match = re.fullmatch(r"\s*(\d+)\s*[xX*,]\s*(\d+)\s*", text)
+    if match is None:
+        raise fail(f"--size: expected WIDTHxHEIGHT like 800x600, got {text!r}")
+    return int(match.group(1)), int(match.group(2))
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def preview(
+        result_dir: Path = typer.Argument(..., help="A result folder written by simulate or batch."),
+        out: Path | None = typer.Option(None, "--out", "-o", help="Where to write (default: RESULT_DIR)."),
+        every: int = typer.Option(1, min=1, help="Save every Nth frame as PNG (1, 1+N, ...)."),
+        frames: str | None = typer.Option(None, help="Frames to save as PNG, e.g. 1,12,20-24 (overrides --every)."),
+        size: str = typer.Option("800x600", help="Image size WIDTHxHEIGHT in pixels."),
+        view: str = typer.Option("iso", help="Camera view: iso | front | side | top."),
+        color: str = typer.Option("strain", help="Colouring: strain | flat | displacement."),
+        wireframe: bool = typer.Option(False, "--wireframe", help="Draw polygon edges over the surface."),
+        pins: bool = typer.Option(True, "--pins/--no-pins", help="Highlight pinned vertices (when known)."),
+        tears: bool = typer.Option(False, "--tears", help="Highlight torn edges (new boundary edges)."),
+        background: str = typer.Option("white", help="Background colour (name or #hex)."),
+        video: str = typer.Option("none", help="Also write a video of every frame: mp4 | gif | none."),
+        contact_sheet: bool = typer.Option(False, "--contact-sheet", help="Write preview/contact_sheet.png."),
+        pngs: bool = typer.Option(True, "--png/--no-png", help="Write the per-frame PNG files."),
+        fps: float | None = typer.Option(None, min=1e-6, help="Video frame rate (default: the result's)."),
+        up: str = typer.Option("y", help="Up axis of the meshes for the named views: y | z."),
+    ) -> None:
+        """Render preview PNGs, a contact sheet and an MP4/GIF of a result folder without re-simulating."""
+        from meshdeform.preview import PreviewOptions, open_result, render_previews
+
+        frame_list = parse_frames(frames) if frames else None
+        width, height = parse_size(size)
+        with cli_errors():
+            options = PreviewOptions(
+                every=every,
+                frames=frame_list,
+                size=(width, height),
+                view=view.lower(),
+                color=color.lower(),
+                wireframe=wireframe,
+                highlight_pins=pins,
+                highlight_tears=tears,
+                background=background,
+                video=None if video.lower() == "none" else video.lower(),
+                contact_sheet=contact_sheet,
+                pngs=pngs,
+                fps=fps,
+                up_axis=up.lower(),
+            )
+            if not (pngs or contact_sheet or options.video):
+                raise fail("nothing to render: --no-png without --contact-sheet or --video")
+            seq = open_result(result_dir)
+            result = render_previews(
+                seq.mesh,
+                seq.frames,
+                out if out is not None else result_dir,
+                options,
+                frame_numbers=seq.frame_numbers,
+                fps=seq.fps,
+                rest_positions=seq.rest_positions,
+                pinned=seq.pinned,
+                strain=seq.strain,
+            )
+        parts = [f"{len(result.images)} PNG" + ("" if len(result.images) == 1 else "s")]
+        if result.contact_sheet is not None:
+            parts.append("a contact sheet")
+        if result.video is not None:
+            parts.append(result.video.name)
+        typer.echo(
+            f"{result_dir}: {', '.join(parts)} from {seq.source} ({result.frames_rendered} "
+            f"frame{'' if result.frames_rendered == 1 else 's'} rendered in {result.seconds:.1f} s)"
+        )

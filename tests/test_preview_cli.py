@@ -1,0 +1,128 @@
+"""`meshdeform preview RESULT_DIR` and reading a result folder's frames back (OBJ, PLY, npz, USD)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pyvista as pv
+
+pv.OFF_SCREEN = True
+
+import imageio.v3 as iio  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import typer  # noqa: E402
+from typer.testing import CliRunner  # noqa: E402
+
+from meshdeform.errors import MeshLoadError  # noqa: E402
+from meshdeform.export import ExportContext, ExportSession, FrameData  # noqa: E402
+from meshdeform.io import save  # noqa: E402
+from meshdeform.mesh import Mesh, grid_mesh  # noqa: E402
+from meshdeform.preview import open_result, render_result_previews  # noqa: E402
+from pipeline.commands.preview import parse_frames, parse_size, register  # noqa: E402
+
+FRAMES = 8
+
+
+def motion(mesh: Mesh, i: int) -> np.ndarray:
+    pos = mesh.positions.copy()
+    pos[:, 2] = 0.1 * np.sin(4 * pos[:, 0] + i) * (1 - pos[:, 1])
+    pos[:, 1] -= 0.02 * i * (1 - pos[:, 1])
+    return pos
+
+
+def make_result(folder: Path, formats: list[str], report: bool = True, up_axis: str = "y") -> Mesh:
+    """A result folder as a run writes it: exported frames plus report.json naming the input."""
+    mesh = grid_mesh(10, 10)
+    folder.mkdir(parents=True, exist_ok=True)
+    input_path = folder.parent / "input.obj"
+    save(input_path, mesh)
+    pinned = (mesh.positions[:, 1] > 0.99).astype(np.uint8)
+    ctx = ExportContext(mesh=mesh, out_dir=folder, fps=12.0, frame_count=FRAMES, up_axis=up_axis)
+    with ExportSession(formats, ctx) as session:
+        for i in range(1, FRAMES + 1):
+            session.write(FrameData(i, i / 12.0, motion(mesh, i), point_data={"pinned": pinned}))
+    if report:
+        (folder / "report.json").write_text(json.dumps({"input": str(input_path), "fps": 12.0, "frames": FRAMES}))
+    return mesh
+
+
+@pytest.fixture
+def app() -> typer.Typer:
+    app = typer.Typer()
+
+    @app.callback()
+    def main() -> None:
+        """Test app."""
+
+    register(app)
+    return app
+
+
+def test_preview_command_renders_pngs_sheet_and_gif(app: typer.Typer, tmp_path: Path) -> None:
+    result_dir = tmp_path / "out" / "flag"
+    make_result(result_dir, ["obj", "vtk"])
+    run = CliRunner().invoke(
+        app,
+        ["preview", str(result_dir), "--every", "3", "--size", "160x120", "--contact-sheet", "--video", "gif"],
+    )
+    assert run.exit_code == 0, run.output
+    assert "3 PNGs" in run.stdout and "frames/*.obj" in run.stdout
+    names = sorted(p.name for p in (result_dir / "preview").iterdir())
+    assert names == ["0001.png", "0004.png", "0007.png", "contact_sheet.png"]
+    assert iio.imread(result_dir / "preview.gif", index=None).shape[0] == FRAMES
+    assert iio.imread(result_dir / "preview" / "0004.png").shape == (120, 160, 3)
+
+
+def test_preview_command_errors_are_one_line_and_exit_2(app: typer.Typer, tmp_path: Path) -> None:
+    runner = CliRunner()
+    for args in (
+        ["preview", str(tmp_path / "missing")],
+        ["preview", str(tmp_path)],  # an empty folder: no frames
+        ["preview", str(tmp_path), "--view", "below"],
+        ["preview", str(tmp_path), "--size", "big"],
+        ["preview", str(tmp_path), "--frames", "3-1"],
+    ):
+        run = runner.invoke(app, args)
+        assert run.exit_code == 2, (args, run.output)
+        lines = run.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error:"), (args, run.stderr)
+
+
+def test_parsers() -> None:
+    assert parse_frames("1,5,10-12") == (1, 5, 10, 11, 12)
+    assert parse_size("640x480") == (640, 480)
+
+
+@pytest.mark.parametrize(
+    ("formats", "up_axis"),
+    [(["ply"], "y"), (["npz"], "y"), (["usd"], "z"), (["vtk"], "y"), (["pc2"], "y"), (["pc2"], "z"), (["mdd"], "z")],
+)
+def test_open_result_reads_each_kind_of_folder(tmp_path: Path, formats: list[str], up_axis: str) -> None:
+    mesh = make_result(tmp_path / "r", formats, up_axis=up_axis)
+    seq = open_result(tmp_path / "r")
+    assert seq.source.split(".")[-1].strip("*/") in {"ply", "npz", "usdc", "vtp", "pc2", "mdd"}
+    assert seq.frame_numbers == list(range(1, FRAMES + 1))
+    assert seq.fps == 12.0
+    assert seq.mesh.face_count == mesh.face_count
+    np.testing.assert_allclose(seq.rest_positions, mesh.positions)
+    for k in (0, FRAMES - 1):
+        np.testing.assert_allclose(np.asarray(seq.frames[k]), motion(mesh, k + 1), atol=1e-6)
+    if formats in (["npz"], ["vtk"]):  # these carry the pinned flags
+        np.testing.assert_array_equal(seq.pinned, mesh.positions[:, 1] > 0.99)
+
+
+def test_open_result_without_report_uses_the_first_frame_as_rest(tmp_path: Path) -> None:
+    make_result(tmp_path / "r", ["obj"], report=False)
+    seq = open_result(tmp_path / "r")
+    np.testing.assert_allclose(seq.rest_positions, motion(grid_mesh(10, 10), 1))
+    with pytest.raises(MeshLoadError, match="no frames found"):
+        open_result(tmp_path)  # the parent holds only input.obj
+
+
+def test_render_result_previews_returns_the_files(tmp_path: Path) -> None:
+    make_result(tmp_path / "r", ["npz"])
+    files = render_result_previews(tmp_path / "r", {"every": 4, "size": [96, 72], "video": "mp4"})
+    assert sorted(p.name for p in files) == ["0001.png", "0005.png", "preview.mp4"]
+    assert all(p.is_file() for p in files)
