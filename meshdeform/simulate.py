@@ -1,14 +1,23 @@
 """The fixed-step simulation loop: frames split into substeps, forces and constraints around a solver.
 
-Per substep: external accelerations (gravity plus every force of the scene) are evaluated,
-animated hard pins are moved to their targets, the solver steps, then the scene's constraints
-(colliders, soft pins) are projected and hard pins are restored exactly. After each frame a
-guard stops the run with `SimulationDiverged` when positions are non-finite or run away.
+Per substep: external accelerations (gravity plus every force of the scene; filled once when
+the scene has no forces) are evaluated, animated hard pins are moved to their targets, the
+solver steps, then the scene's constraints (colliders, soft pins) are projected and hard pins
+are restored exactly (bit-identical to the input, or to their animation targets).
+
+After every frame, before it is yielded, one compiled pass checks the positions: non-finite
+values or a vertex farther from the mesh centre than a generous bound (1000 mesh diagonals
+plus twice the free-fall distance plus 100 m) stop the run with `SimulationDiverged` naming
+the frame, the solver and a hint. No frame with non-finite positions is ever yielded.
+
+Each frame reports its largest vertex speed and whether the model is at rest
+(`max_speed < Settings.rest_speed`, default 1e-4 m/s); `rest_frame` is the first frame of the
+current run of frames at rest (None while moving), and `rest_frame(frames)` finds it in a list.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -16,7 +25,9 @@ import numpy as np
 
 from meshdeform.errors import SimulationDiverged
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, Solver, SolverOptions, make_solver
+from meshdeform.solvers import kernels
+from meshdeform.solvers.base import Control, Solver, SolverOptions, make_solver, solver_class
+from meshdeform.solvers.common import structural_mask
 
 
 class Force(Protocol):
@@ -48,22 +59,44 @@ class Scene:
 
 @dataclass(frozen=True)
 class Settings:
-    """Time stepping: frames at fps, each split into substeps, and the solver's options."""
+    """Time stepping: frames at fps, each split into substeps, and the solver's options.
 
-    solver: str = "verlet"
+    substeps: solver steps per frame; None (the default) takes the solver's own default
+        (anchor 8, verlet 16, xpbd 16, springs 8, implicit 1) and is resolved on construction,
+        so `settings.substeps` is always an int afterwards. Iterations likewise come from
+        `options.iterations` or the solver's default (see `Settings.iterations`).
+    rest_speed: m/s; a frame whose largest vertex speed is below it is at rest.
+    """
+
+    solver: str = "xpbd"
     fps: float = 24.0
     frames: int = 120
-    substeps: int = 8
+    substeps: int | None = None
     options: SolverOptions = field(default_factory=SolverOptions)
+    rest_speed: float = 1e-4
+
+    def __post_init__(self) -> None:
+        if self.substeps is None:
+            object.__setattr__(self, "substeps", int(solver_class(self.solver).default_substeps))
 
     @property
     def dt(self) -> float:
         return 1.0 / (self.fps * self.substeps)
 
+    @property
+    def iterations(self) -> int:
+        """Iterations per substep in force (0 for solvers without iterations)."""
+        return self.options.iterations_for(solver_class(self.solver))
+
 
 @dataclass(frozen=True)
 class Frame:
-    """One output frame: number (from 1), time, positions in the input layout and figures."""
+    """One output frame: number (from 1), time, positions in the input layout and figures.
+
+    max_stretch: largest structural spring length / rest length. max_speed: m/s.
+    at_rest: max_speed below `Settings.rest_speed`. rest_frame: the first frame of the
+    current run of frames at rest, None when this frame is not at rest.
+    """
 
     index: int
     time: float
@@ -71,12 +104,31 @@ class Frame:
     welded_positions: np.ndarray
     max_stretch: float
     max_speed: float
+    at_rest: bool = False
+    rest_frame: int | None = None
+
+
+def rest_frame(frames: Iterable[Frame]) -> int | None:
+    """The frame from which the model stayed at rest to the last frame given (None if it did not)."""
+    last = None
+    for frame in frames:
+        last = frame
+    return last.rest_frame if last is not None else None
 
 
 def _runaway_limit(model: SpringModel, gravity: np.ndarray, time: float) -> float:
     extent = model.rest_positions.max(axis=0) - model.rest_positions.min(axis=0) if model.vertex_count else np.ones(3)
     diag = float(np.linalg.norm(extent)) or 1.0
     return 1000.0 * diag + float(np.linalg.norm(gravity)) * time * time + 100.0
+
+
+_HINTS = {
+    "anchor": "lower anchor_stiffness or spring stiffness, or keep stable_substeps on",
+    "verlet": "keep stiffness within 0..1 or use more substeps",
+    "xpbd": "use more substeps or check the forces for non-finite values",
+    "springs": "keep stable_substeps on, lower stiffness or use more substeps",
+    "implicit": "use more substeps or iterations, or check the forces for non-finite values",
+}
 
 
 def simulate(
@@ -90,55 +142,78 @@ def simulate(
     scene = scene or Scene()
     settings = settings or Settings()
     solver = solver or make_solver(settings.solver, settings.options)
+    name = str(getattr(solver, "name", settings.solver))
     state = state or State.at_rest(model)
-    dt = settings.dt
+    substeps = int(settings.substeps)
+    dt = 1.0 / (settings.fps * substeps)
+    start_time = state.time
     gravity = np.asarray(scene.gravity, dtype=np.float64)
     pinned_idx = np.flatnonzero(model.pinned)
-    pinned_rest = model.rest_positions[pinned_idx]
+    pinned_rest = np.array(model.rest_positions[pinned_idx])
     accelerations = np.empty_like(state.positions)
+    accelerations[:] = gravity
     control = Control(accelerations=accelerations)
+    forces = list(scene.forces)
+    constraints = list(scene.constraints)
+    pin_motion = scene.pin_motion if pinned_idx.size else None
     center = model.rest_positions.mean(axis=0) if model.vertex_count else np.zeros(3)
+    structural = np.flatnonzero(structural_mask(model))
+    sa = np.ascontiguousarray(model.springs[structural, 0], dtype=np.int64)
+    sb = np.ascontiguousarray(model.springs[structural, 1], dtype=np.int64)
+    srest = np.ascontiguousarray(np.maximum(model.rest_lengths[structural], 1e-300), dtype=np.float64)
+    step = solver.step
     step_count = 0
+    resting_since: int | None = None
     for frame in range(1, settings.frames + 1):
-        for _ in range(settings.substeps):
+        for _ in range(substeps):
             t0 = state.time
             step_count += 1
-            t1 = step_count * dt
-            accelerations[:] = gravity
-            for force in scene.forces:
-                force.accumulate(model, state, t0, accelerations)
-            if scene.pin_motion is not None and pinned_idx.size:
+            t1 = start_time + step_count * dt
+            if forces:
+                accelerations[:] = gravity
+                for force in forces:
+                    force.accumulate(model, state, t0, accelerations)
+            if pin_motion is not None:
+                targets = np.asarray(pin_motion(t1), dtype=np.float64)
                 state.previous[pinned_idx] = state.positions[pinned_idx]
-                state.positions[pinned_idx] = scene.pin_motion(t1)
-            solver.step(model, state, dt, control)
-            for constraint in scene.constraints:
+                state.positions[pinned_idx] = targets
+            step(model, state, dt, control)
+            for constraint in constraints:
                 constraint.project(model, state, t1, dt)
-            if pinned_idx.size:
-                state.positions[pinned_idx] = scene.pin_motion(t1) if scene.pin_motion is not None else pinned_rest
+            if pin_motion is not None:
+                state.positions[pinned_idx] = targets
+            elif pinned_idx.size:
+                state.positions[pinned_idx] = pinned_rest
             state.time = t1
         positions = state.positions
-        if not np.isfinite(positions).all():
+        finite, reach, speed = kernels.guard_figures(positions, state.velocities, center)
+        if not finite:
             raise SimulationDiverged(
-                f"simulation diverged at frame {frame} with solver {settings.solver!r}: positions became non-finite; "
-                "try a smaller time step (more substeps), more iterations or lower stiffness",
+                f"simulation diverged at frame {frame} with solver {name!r}: positions became non-finite; "
+                f"try: {_HINTS.get(name, 'more substeps or lower stiffness')}",
                 frame=frame,
-                solver=settings.solver,
+                solver=name,
             )
-        reach = float(np.abs(positions - center).max()) if positions.size else 0.0
-        if reach > _runaway_limit(model, gravity, state.time):
+        if reach > _runaway_limit(model, gravity, state.time - start_time):
             raise SimulationDiverged(
-                f"simulation diverged at frame {frame} with solver {settings.solver!r}: positions ran away "
-                f"({reach:.3g} from the mesh centre); try more substeps, more iterations or lower stiffness",
+                f"simulation diverged at frame {frame} with solver {name!r}: positions ran away "
+                f"({reach:.3g} from the mesh centre); try: {_HINTS.get(name, 'more substeps or lower stiffness')}",
                 frame=frame,
-                solver=settings.solver,
+                solver=name,
             )
-        speed = np.sqrt(np.einsum("ij,ij->i", state.velocities, state.velocities)) if positions.size else np.zeros(1)
+        at_rest = bool(speed < settings.rest_speed)
+        if not at_rest:
+            resting_since = None
+        elif resting_since is None:
+            resting_since = frame
         welded = positions.copy()
         yield Frame(
             index=frame,
             time=state.time,
             positions=model.to_input_layout(welded),
             welded_positions=welded,
-            max_stretch=model.max_stretch(welded),
-            max_speed=float(speed.max()) if speed.size else 0.0,
+            max_stretch=float(kernels.max_ratio(welded, sa, sb, srest)),
+            max_speed=float(speed),
+            at_rest=at_rest,
+            rest_frame=resting_since,
         )

@@ -1,6 +1,15 @@
-"""Solvers behind one interface; importing this package registers the built-in ones."""
+"""Solvers behind one interface; importing this package registers the built-in ones.
 
-from meshdeform.solvers import verlet  # noqa: F401
-from meshdeform.solvers.base import SOLVERS, Control, Solver, SolverOptions, make_solver
+| name       | what                                                                   |
+|------------|------------------------------------------------------------------------|
+| `anchor`   | vertices spring back to rest (stress-ball deformer), semi-implicit Euler |
+| `verlet`   | Verlet integration, springs relaxed as distance constraints (Jakobsen)  |
+| `xpbd`     | compliant distance constraints, small steps (Macklin et al. 2016/2019)  |
+| `springs`  | Hooke springs, semi-implicit Euler, stable substeps, Provot strain limit |
+| `implicit` | projective dynamics (Liu et al. 2013) with BDF2, prefactored           |
+"""
 
-__all__ = ["SOLVERS", "Control", "Solver", "SolverOptions", "make_solver"]
+from meshdeform.solvers import anchor, implicit, springs, verlet, xpbd  # noqa: F401
+from meshdeform.solvers.base import SOLVERS, Control, Solver, SolverOptions, make_solver, solver_class
+
+__all__ = ["SOLVERS", "Control", "Solver", "SolverOptions", "make_solver", "solver_class"]

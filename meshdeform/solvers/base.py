@@ -3,6 +3,19 @@
 Solvers only advance positions under spring forces or constraints and the external
 accelerations in `Control`; pins with inv_mass 0 are never moved by a solver. Gravity,
 wind, impacts, colliders and pin animation are evaluated outside (see `meshdeform.simulate`).
+
+A solver instance caches data derived from the model it last stepped (spring order,
+partitions, per-spring constants, a factorisation); stepping another model (for example
+after tearing) rebuilds the cache. One instance serves one simulation at a time.
+
+Damping (`SolverOptions.damping`) means the same for every solver: the fraction of a
+vertex's velocity that air/velocity damping removes per second of simulated time, applied
+per step as a factor `(1 - damping) ** dt` (so it does not depend on the step size). 0 is
+no damping; the default 0.9 (a decay rate of ln 10 = 2.3 per second, about the air drag of
+a light cloth: terminal velocity g / 2.3 = 4.3 m/s) makes a hanging cloth come to rest
+(max vertex speed below 1e-4 m/s) within a few seconds. Spring damping along springs is a
+material property (`KindMaterial.damping`, a damping ratio, see `meshdeform.material`).
+Free fall is only exact without air damping (damping = 0).
 """
 
 from __future__ import annotations
@@ -18,15 +31,26 @@ from meshdeform.model import SpringModel, State
 
 @dataclass
 class Control:
-    """Per-substep inputs from outside the solver: external accelerations (W, 3), m/s^2."""
+    """Per-substep inputs from outside the solver: external accelerations (W, 3), m/s^2.
+
+    Solvers read but never modify it. A velocity kick dv over one substep of length dt
+    (an impact) is the acceleration dv / dt during that substep; every solver turns it
+    into the same change of momentum.
+    """
 
     accelerations: np.ndarray
 
 
 class Solver(Protocol):
-    """Advances a State by dt in place; keeps `state.previous` and `state.velocities` consistent."""
+    """Advances a State by dt in place; keeps `state.previous` and `state.velocities` consistent.
+
+    Class attributes: `name` (registry key), `default_substeps` and `default_iterations`
+    (used when `Settings.substeps` / `SolverOptions.iterations` are None).
+    """
 
     name: ClassVar[str]
+    default_substeps: ClassVar[int]
+    default_iterations: ClassVar[int]
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None: ...
 
@@ -35,15 +59,58 @@ class Solver(Protocol):
 class SolverOptions:
     """Options shared by all solvers; each solver reads what applies to it.
 
-    iterations: constraint relaxation sweeps per substep (verlet, xpbd).
-    damping: fraction of velocity removed per second of simulated time (air/velocity damping),
-        0 <= damping < 1 applied per substep as (1 - damping) ** dt.
-    strain_limit: optional maximum stretch ratio (springs solver, Provot 1995), e.g. 1.1.
+    iterations: constraint sweeps per substep (verlet, xpbd) or local/global iterations per
+        step (implicit); None means the solver's default (verlet 2, xpbd 2, implicit 10;
+        springs and anchor have none).
+    damping: fraction of velocity removed per second of simulated time (air/velocity
+        damping, 0 <= damping < 1), applied per substep as (1 - damping) ** dt. See the module
+        docstring; default 0.9.
+    strain_limit: maximum stretch ratio of structural springs (Provot 1995) for `springs`
+        and `anchor` with neighbour springs, e.g. 1.1 for 10 %; None switches it off.
+    strain_iterations: at most this many Gauss-Seidel passes enforce the strain limit per step
+        (it stops as soon as no structural spring exceeds it).
+    stable_substeps: `springs` and `anchor` split a substep into as many explicit steps as
+        the stiffest spring needs to stay stable (from a Gershgorin bound on k/m); False
+        trusts the given substeps (and may explode, which the guard in simulate reports).
+    anchor_stiffness: `anchor` spring constant per unit mass (1/s^2, as Catlike Coding's
+        "spring force"): acceleration -anchor_stiffness * uniform_scale * (x - anchor).
+    uniform_scale: `anchor`: the object's uniform scale; displacements are multiplied by it
+        before the anchor spring acts, as in the original deformer.
+    anchor_frame: `anchor`: "world" anchors each vertex to its rest position; "centroid"
+        anchors it to its rest position moved with the centre of mass (the body keeps its
+        momentum and can fall freely, its shape springs back); "auto" (default) is "world"
+        when any vertex is pinned and "centroid" otherwise.
+    neighbour_springs: `anchor`: also apply the mesh's springs (as the `springs` solver does)
+        so that pinned vertices hold the rest of the mesh.
+    partitions: `verlet` / `xpbd`: slabs of springs swept in parallel, one thread each
+        (Gauss-Seidel inside each, the springs between slabs after them); results depend on
+        this number, not on the thread count, so runs are reproducible on any machine.
+        1 runs serially (no parallel runtime); 0 (default, auto) uses 2 slabs from 100k
+        springs up (about a 128 x 128 grid) and 1 below, where a parallel launch per sweep
+        costs more than it saves.
+    tethers: `verlet` and `xpbd`: long range attachments (Kim, Tang, Mueller 2012): after the
+        sweeps, every vertex connected to a pin is kept within this ratio of its rest distance
+        along the mesh to the nearest pin (1.0: no stretch along that path). Plain sweeps
+        propagate a pin's hold one spring per sweep, so a cloth hanging from its corners
+        stretches far near them; tethers fix that at the cost of one projection per vertex.
+        None switches them off.
     """
 
-    iterations: int = 10
-    damping: float = 0.01
+    iterations: int | None = None
+    damping: float = 0.9
     strain_limit: float | None = None
+    strain_iterations: int = 500
+    stable_substeps: bool = True
+    anchor_stiffness: float = 20.0
+    uniform_scale: float = 1.0
+    anchor_frame: str = "auto"
+    neighbour_springs: bool = False
+    partitions: int = 0
+    tethers: float | None = 1.0
+
+    def iterations_for(self, solver: type | object) -> int:
+        """The iteration count in force for a solver class or instance."""
+        return int(self.iterations) if self.iterations is not None else int(solver.default_iterations)
 
 
 SOLVERS: dict[str, type] = {}
@@ -55,15 +122,19 @@ def register(cls: type) -> type:
     return cls
 
 
-def make_solver(name: str, options: SolverOptions | None = None) -> Solver:
-    """A solver instance by registry name; unknown names raise MeshdeformError listing the known ones."""
+def solver_class(name: str) -> type:
+    """The registered solver class; unknown names raise MeshdeformError listing the known ones."""
     import meshdeform.solvers  # noqa: F401  (registers the built-in solvers)
 
     try:
-        cls = SOLVERS[name]
+        return SOLVERS[name]
     except KeyError:
         raise MeshdeformError(f"unknown solver {name!r}; choose one of: {', '.join(sorted(SOLVERS))}") from None
-    return cls(options or SolverOptions())
+
+
+def make_solver(name: str, options: SolverOptions | None = None) -> Solver:
+    """A solver instance by registry name; unknown names raise MeshdeformError listing the known ones."""
+    return solver_class(name)(options or SolverOptions())
 
 
 def velocity_retention(damping: float, dt: float) -> float:

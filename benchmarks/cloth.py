@@ -1,0 +1,175 @@
+"""Cloth benchmark: N x N quad grid hanging from its two top corners, gravity, 24 fps, 100 frames.
+
+For each solver and N (64, 128, 256 by default) prints: frames/s (warm, after the first
+step), the first step's time separately (Numba compile or cache load, LU factorisation),
+spring projections per second (springs x iterations x substeps x frames / seconds; the
+explicit solvers count their stability steps as substeps and one force evaluation per
+spring as a projection), peak memory (tracemalloc peak of Python/NumPy allocations during
+the run, and the process's max RSS), and the structural max stretch over all frames and
+at the last frame. A vectorised-NumPy Jacobi reference kernel (np.bincount scatter) runs
+the same number of spring projections as the default xpbd settings; its rate and the
+ratio of the Numba kernels to it are printed at the end.
+
+    .venv/bin/python benchmarks/cloth.py [--sizes 64,128,256] [--solvers xpbd,verlet,...] [--frames 100]
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from meshdeform.mesh import grid_mesh
+from meshdeform.model import SpringModel, State
+from meshdeform.simulate import Scene, Settings, simulate
+from meshdeform.solvers import Control, SolverOptions, make_solver
+
+ALL = ("xpbd", "verlet", "implicit", "springs", "anchor")
+
+
+def scene_model(n: int) -> SpringModel:
+    """The benchmark cloth: 1 m x 1 m, vertical (XY, Y up), pinned at its two top corners."""
+    mesh = grid_mesh(n, n, plane="xy")
+    pinned = np.zeros(n * n, dtype=bool)
+    pinned[[n * (n - 1), n * n - 1]] = True
+    return SpringModel.from_mesh(mesh, pinned_input=pinned)
+
+
+def projections_per_frame(solver, settings: Settings, model: SpringModel) -> float:
+    springs = model.spring_count
+    if settings.solver in ("springs", "anchor"):
+        use = settings.solver == "springs" or settings.options.neighbour_springs
+        return float(springs * getattr(solver, "inner_steps", 1) * settings.substeps) if use else 0.0
+    return float(springs * settings.iterations * settings.substeps)
+
+
+def run(name: str, n: int, frames: int) -> dict:
+    model = scene_model(n)
+    settings = Settings(solver=name, frames=frames + 1)
+    solver = make_solver(name, settings.options)
+    # cold start: the first frame (compile / cache load / factorisation)
+    tracemalloc.start()
+    it = simulate(model, Scene(), settings, solver=solver)
+    t0 = time.perf_counter()
+    first = next(it)
+    cold = time.perf_counter() - t0
+    stretch = [first.max_stretch]
+    t0 = time.perf_counter()
+    last = first
+    for frame in it:
+        stretch.append(frame.max_stretch)
+        last = frame
+    warm = time.perf_counter() - t0
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return {
+        "solver": name,
+        "n": n,
+        "springs": model.spring_count,
+        "substeps": settings.substeps,
+        "iterations": settings.iterations,
+        "cold": cold,
+        "fps": frames / warm,
+        "proj": projections_per_frame(solver, settings, model) * frames / warm,
+        "peak_mb": peak / 2**20,
+        "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "stretch": max(stretch),
+        "stretch_last": last.max_stretch,
+        "rest_frame": last.rest_frame,
+    }
+
+
+def numpy_jacobi(x: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, w: np.ndarray, sweeps: int) -> None:
+    """Reference: vectorised Jacobi distance projection with np.bincount scatter (averaged)."""
+    n = x.shape[0]
+    wa, wb = w[a], w[b]
+    ws = wa + wb
+    ok = ws > 0
+    count = np.bincount(a, weights=ok * 1.0, minlength=n) + np.bincount(b, weights=ok * 1.0, minlength=n)
+    count = np.maximum(count, 1.0)[:, None]
+    ws = np.where(ok, ws, 1.0)
+    for _ in range(sweeps):
+        d = x[b] - x[a]
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
+        f = np.where(ok, (length - rest) / (np.maximum(length, 1e-12) * ws), 0.0)
+        corr = d * f[:, None]
+        delta = np.empty_like(x)
+        for k in range(3):
+            delta[:, k] = np.bincount(a, weights=corr[:, k] * wa, minlength=n) - np.bincount(
+                b, weights=corr[:, k] * wb, minlength=n
+            )
+        x += delta / count
+
+
+def reference(n: int, sweeps: int = 160) -> float:
+    model = scene_model(n)
+    x = np.array(model.rest_positions)
+    x[:, 1] *= 1.01
+    a = np.asarray(model.springs[:, 0], dtype=np.int64)
+    b = np.asarray(model.springs[:, 1], dtype=np.int64)
+    t0 = time.perf_counter()
+    numpy_jacobi(x, a, b, np.asarray(model.rest_lengths), np.asarray(model.inv_mass), sweeps)
+    return model.spring_count * sweeps / (time.perf_counter() - t0)
+
+
+def kernel_rate(name: str, n: int, steps: int = 200) -> float:
+    """Numba solver alone (no simulate loop): projections per second over `steps` substeps."""
+    model = scene_model(n)
+    solver = make_solver(name, SolverOptions())
+    settings = Settings(solver=name)
+    state = State.at_rest(model)
+    control = Control(np.tile(np.array([0.0, -9.81, 0.0]), (model.vertex_count, 1)))
+    dt = settings.dt
+    solver.step(model, state, dt, control)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        solver.step(model, state, dt, control)
+    return model.spring_count * settings.iterations * steps / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="64,128,256")
+    parser.add_argument("--solvers", default=",".join(ALL))
+    parser.add_argument("--frames", type=int, default=100)
+    args = parser.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")]
+    names = [s for s in args.solvers.split(",") if s]
+    print(f"cloth benchmark: N x N grid, 2 top corners pinned, gravity, 24 fps, {args.frames} frames")
+    header = (
+        f"{'solver':9} {'N':>4} {'springs':>8} {'sub':>4} {'it':>3} {'first s':>8} {'frames/s':>9} "
+        f"{'Mproj/s':>8} {'peak MB':>8} {'RSS MB':>7} {'stretch':>8} {'last':>7} {'rest':>5}"
+    )
+    print(header)
+    for name in names:
+        for n in sizes:
+            if name == "springs" and n > 64:
+                print(f"{name:9} {n:>4}  skipped: explicit, its stable step shrinks with 1 / N (springs.py)")
+                continue
+            r = run(name, n, args.frames)
+            print(
+                f"{r['solver']:9} {r['n']:>4} {r['springs']:>8} {r['substeps']:>4} {r['iterations']:>3} "
+                f"{r['cold']:>8.3f} {r['fps']:>9.1f} {r['proj'] / 1e6:>8.1f} {r['peak_mb']:>8.1f} "
+                f"{r['rss_mb']:>7.0f} {r['stretch']:>8.4f} {r['stretch_last']:>7.4f} {r['rest_frame']!s:>5}",
+                flush=True,
+            )
+    print()
+    for n in sizes:
+        ref = reference(n)
+        line = f"N={n}: NumPy Jacobi reference {ref / 1e6:.1f} M proj/s"
+        for name in ("xpbd", "verlet"):
+            if name in names:
+                rate = kernel_rate(name, n)
+                line += f"; {name} kernel {rate / 1e6:.1f} M proj/s ({rate / ref:.1f}x)"
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,184 @@
+"""Spring order for the solvers' kernels: partitions solved in parallel, sorted for locality.
+
+Vertices are split into P slabs of equal count along the rest shape's longest axis. A spring
+whose two ends lie in the same slab belongs to that slab; the few that cross slabs form a
+separator. Slabs share no vertex, so Gauss-Seidel sweeps over them run in parallel without
+locks (one thread per slab) and give the same result whatever the number of threads; the
+separator is swept serially after them. Inside a slab, springs are sorted by their rest
+distance from the nearest pin (so a forward sweep carries the pins' hold across the whole
+cloth in one pass, and the alternating backward sweep carries the load back), or by their
+first vertex when nothing is pinned, so that neighbours sit near each other in memory.
+Works for any spring list (no grid assumption).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from meshdeform.arrays import argsort_int
+from meshdeform.model import SpringModel
+
+
+@dataclass(frozen=True, eq=False)
+class SpringLayout:
+    """Springs of a model reordered: `order` (S,) indexes the model's spring arrays.
+
+    a, b: (S,) int64 end vertices in the new order; rest: (S,) rest lengths;
+    offsets: (P + 2,) slab p is order[offsets[p]:offsets[p + 1]], the separator is
+    order[offsets[P]:offsets[P + 1]].
+    """
+
+    order: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    rest: np.ndarray
+    offsets: np.ndarray
+    parts: int
+
+    def take(self, per_spring: np.ndarray) -> np.ndarray:
+        """A per-spring model array in this layout's order (contiguous float64)."""
+        return np.ascontiguousarray(np.asarray(per_spring, dtype=np.float64)[self.order])
+
+
+#: springs from which `partitions = 0` (auto) solves two slabs in parallel: below it a parallel
+#: launch per sweep costs more than it saves (and far more on an oversubscribed machine)
+AUTO_PARALLEL_SPRINGS = 100_000
+
+
+def resolve_parts(parts: int, springs: int) -> int:
+    """Slab count: the option, or for 0 (auto) 2 from AUTO_PARALLEL_SPRINGS springs up, else 1.
+
+    Auto never looks at the thread count, so results are the same on every machine.
+    """
+    if parts > 0:
+        return int(parts)
+    return 2 if springs >= AUTO_PARALLEL_SPRINGS and nb.get_num_threads() > 1 else 1
+
+
+def pin_distance(model: SpringModel) -> np.ndarray | None:
+    """Rest distance along structural springs from every vertex to the nearest pin (None: no pins).
+
+    Vertices not connected to any pin get a distance beyond every connected one.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    from meshdeform.topology import SpringKind
+
+    pins = np.flatnonzero(model.pinned)
+    n = model.vertex_count
+    if pins.size == 0 or n == 0:
+        return None
+    structural = np.asarray(model.kinds) == SpringKind.STRUCTURAL
+    pairs = np.asarray(model.springs)[structural]
+    length = np.maximum(np.asarray(model.rest_lengths)[structural], 1e-12)
+    graph = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    dist = dijkstra(graph, directed=False, indices=pins, min_only=True)
+    finite = np.isfinite(dist)
+    top = float(dist[finite].max()) if finite.any() else 0.0
+    return np.where(finite, dist, 2.0 * top + 1.0)
+
+
+def spring_layout(model: SpringModel, parts: int, mask: np.ndarray | None = None) -> SpringLayout:
+    """Partitioned, locality-sorted order of the model's springs (or of those in `mask`)."""
+    springs = np.asarray(model.springs, dtype=np.int64)
+    index = np.arange(springs.shape[0], dtype=np.int64) if mask is None else np.flatnonzero(mask)
+    parts = resolve_parts(parts, index.shape[0])
+    a = springs[index, 0]
+    b = springs[index, 1]
+    n = max(model.vertex_count, 1)
+    if parts > 1 and model.vertex_count >= 64 * parts:
+        rest = model.rest_positions
+        axis = int(np.argmax(rest.max(axis=0) - rest.min(axis=0)))
+        rank = np.empty(n, dtype=np.int64)
+        rank[np.argsort(rest[:, axis], kind="stable")] = np.arange(n)
+        slab = rank * parts // n
+        sa, sb = slab[a], slab[b]
+        group = np.where(sa == sb, sa, parts)
+    else:
+        parts = 1
+        group = np.zeros(a.shape[0], dtype=np.int64)
+    lo = np.minimum(a, b)
+    hi = np.maximum(a, b)
+    dist = pin_distance(model)
+    if dist is not None:
+        # from the pins outward: a forward sweep carries a pin's hold all the way in one pass
+        dspring = np.minimum(dist[a], dist[b])
+        order_local = np.lexsort((hi, lo, dspring, group))
+    else:
+        key = (group * n + lo) * n + hi if (parts + 1) * n * n < 2**62 else group * n + lo
+        order_local = argsort_int(key)
+    order = index[order_local]
+    counts = np.bincount(group, minlength=parts + 1)
+    offsets = np.zeros(parts + 2, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    return SpringLayout(
+        order=order,
+        a=np.ascontiguousarray(springs[order, 0]),
+        b=np.ascontiguousarray(springs[order, 1]),
+        rest=np.ascontiguousarray(np.asarray(model.rest_lengths, dtype=np.float64)[order]),
+        offsets=offsets,
+        parts=parts,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class Tethers:
+    """Long range attachments (Kim, Tang, Mueller 2012): vertex -> pins along the mesh.
+
+    vertex, pin: (T,) int64; limit: (T,) the rest geodesic distance (over structural springs)
+    times the allowed ratio; |x_vertex - x_pin| is kept at or below it.
+    """
+
+    vertex: np.ndarray
+    pin: np.ndarray
+    limit: np.ndarray
+
+
+def tethers(model: SpringModel, ratio: float, groups: int = 4) -> Tethers:
+    """Tethers from every free vertex to the nearest pin of each of its `groups` nearest pin groups.
+
+    A pin group is a connected set of pinned vertices (a pinned corner, a pinned edge), so a
+    cloth held at two corners gets two tethers per vertex, one held along an edge one.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components, dijkstra
+
+    from meshdeform.topology import SpringKind
+
+    pinned = np.asarray(model.pinned)
+    pins = np.flatnonzero(pinned)
+    n = model.vertex_count
+    if pins.size == 0 or n == 0:
+        return Tethers(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    structural = np.asarray(model.kinds) == SpringKind.STRUCTURAL
+    pairs = np.asarray(model.springs)[structural]
+    length = np.maximum(np.asarray(model.rest_lengths)[structural], 1e-12)
+    graph = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    both = pinned[pairs[:, 0]] & pinned[pairs[:, 1]]
+    pin_graph = coo_matrix(
+        (np.ones(int(both.sum())), (pairs[both, 0], pairs[both, 1])), shape=(n, n)
+    ).tocsr()[pins][:, pins]
+    count, label = connected_components(pin_graph, directed=False)
+    dists = np.full((count, n), np.inf)
+    sources = np.full((count, n), -1, dtype=np.int64)
+    for g in range(count):
+        d, _, src = dijkstra(graph, directed=False, indices=pins[label == g], min_only=True, return_predecessors=True)
+        dists[g] = d
+        sources[g] = src
+    if count > groups:
+        # keep each vertex's `groups` nearest groups
+        cut = np.partition(dists, groups - 1, axis=0)[groups - 1]
+        dists = np.where(dists <= cut[None, :], dists, np.inf)
+    keep = np.isfinite(dists) & ~pinned[None, :] & (sources >= 0)
+    g_idx, vertex = np.nonzero(keep)
+    order = np.argsort(vertex, kind="stable")
+    g_idx, vertex = g_idx[order], vertex[order]
+    return Tethers(
+        vertex=vertex.astype(np.int64),
+        pin=sources[g_idx, vertex].astype(np.int64),
+        limit=np.ascontiguousarray(dists[g_idx, vertex] * float(ratio)),
+    )

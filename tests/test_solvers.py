@@ -1,0 +1,176 @@
+"""The solver interface: registry, defaults, stepping, caches, layouts and rest reporting."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from meshdeform.errors import MeshdeformError
+from meshdeform.mesh import grid_mesh
+from meshdeform.model import SpringModel, State
+from meshdeform.simulate import Frame, Scene, Settings, rest_frame, simulate
+from meshdeform.solvers import SOLVERS, Control, SolverOptions, make_solver, solver_class
+from meshdeform.solvers.layout import spring_layout, tethers
+
+NAMES = ("anchor", "verlet", "xpbd", "springs", "implicit")
+
+
+def cloth(n: int = 8, pins: bool = True) -> SpringModel:
+    mesh = grid_mesh(n, n, plane="xy")
+    pinned = np.zeros(n * n, dtype=bool)
+    if pins:
+        pinned[[n * (n - 1), n * n - 1]] = True
+    return SpringModel.from_mesh(mesh, pinned_input=pinned)
+
+
+def test_all_five_solvers_registered_by_name() -> None:
+    assert set(NAMES) <= set(SOLVERS)
+    for name in NAMES:
+        solver = make_solver(name)
+        assert solver.name == name
+        assert callable(solver.step)
+
+
+def test_unknown_solver_lists_the_known_ones() -> None:
+    with pytest.raises(MeshdeformError, match="xpbd"):
+        make_solver("nope")
+    with pytest.raises(MeshdeformError):
+        Settings(solver="nope")
+
+
+def test_settings_resolve_solver_defaults() -> None:
+    assert Settings(solver="implicit").substeps == 1
+    assert Settings(solver="xpbd").substeps == solver_class("xpbd").default_substeps
+    assert Settings(solver="xpbd", substeps=3).substeps == 3
+    assert Settings(solver="xpbd").iterations == solver_class("xpbd").default_iterations
+    assert Settings(solver="verlet", options=SolverOptions(iterations=7)).iterations == 7
+    assert Settings(solver="xpbd", fps=25, substeps=4).dt == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_step_moves_free_vertices_and_keeps_pins(name: str) -> None:
+    model = cloth()
+    solver = make_solver(name)
+    state = State.at_rest(model)
+    control = Control(np.tile([0.0, -9.81, 0.0], (model.vertex_count, 1)))
+    before = control.accelerations.copy()
+    for _ in range(5):
+        solver.step(model, state, 1.0 / 96.0, control)
+    assert np.isfinite(state.positions).all()
+    assert np.array_equal(control.accelerations, before)  # control is read-only for solvers
+    free = ~model.pinned
+    assert (state.positions[free, 1] < model.rest_positions[free, 1] + 1e-4).all()
+    assert np.mean(state.positions[free, 1] - model.rest_positions[free, 1]) < -1e-3
+    assert np.array_equal(state.positions[model.pinned], model.rest_positions[model.pinned])
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_solver_rebuilds_its_cache_for_another_model(name: str) -> None:
+    solver = make_solver(name)
+    for model in (cloth(6), cloth(9), cloth(6)):
+        state = State.at_rest(model)
+        control = Control(np.zeros((model.vertex_count, 3)))
+        solver.step(model, state, 0.01, control)
+        assert np.allclose(state.positions, model.rest_positions)
+
+
+def test_anchor_rejects_unknown_frame() -> None:
+    with pytest.raises(MeshdeformError, match="anchor_frame"):
+        make_solver("anchor", SolverOptions(anchor_frame="sideways"))
+
+
+def test_anchor_springs_back_after_a_kick() -> None:
+    """A velocity kick dents the mesh; without gravity it returns to rest and stops."""
+    mesh = grid_mesh(5, 5, plane="xz")
+    model = SpringModel.from_mesh(mesh, pinned_input=np.arange(25) == 0)
+
+    class Kick:
+        def accumulate(self, model, state, time, out) -> None:
+            if time < 1e-9:
+                out[12, 1] += 2.0 * 96.0  # dv = 2 m/s over the first substep (dt = 1/96)
+
+    settings = Settings(solver="anchor", frames=24 * 12, substeps=4)
+    frames = list(simulate(model, Scene(gravity=(0, 0, 0), forces=[Kick()]), settings))
+    assert frames[0].welded_positions[12, 1] > 0.01
+    assert np.allclose(frames[-1].welded_positions, model.rest_positions, atol=1e-4)
+    assert frames[-1].at_rest
+
+
+def test_anchor_neighbour_springs_carry_pins() -> None:
+    """With neighbour springs, a pinned corner holds its neighbours closer than without."""
+    model = cloth(8)
+    scene = Scene()
+    plain = list(simulate(model, scene, Settings(solver="anchor", frames=48)))[-1]
+    carried = list(
+        simulate(model, scene, Settings(solver="anchor", frames=48, options=SolverOptions(neighbour_springs=True)))
+    )[-1]
+    near = 8 * 6  # the vertex below the pinned top-left corner
+    assert carried.welded_positions[near, 1] > plain.welded_positions[near, 1]
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3])
+def test_layout_slabs_share_no_vertex(parts: int) -> None:
+    model = cloth(24)
+    lay = spring_layout(model, parts)
+    assert lay.offsets[-1] == model.spring_count
+    assert np.array_equal(np.sort(lay.order), np.arange(model.spring_count))
+    seen = []
+    for p in range(lay.parts):
+        sl = slice(lay.offsets[p], lay.offsets[p + 1])
+        seen.append(set(lay.a[sl]) | set(lay.b[sl]))
+    for i in range(len(seen)):
+        for j in range(i + 1, len(seen)):
+            assert not (seen[i] & seen[j])
+    assert np.array_equal(lay.rest, model.rest_lengths[lay.order])
+
+
+def test_tethers_hold_at_rest_and_reach_each_pin_group() -> None:
+    model = cloth(10)
+    t = tethers(model, 1.0)
+    x = model.rest_positions
+    dist = np.linalg.norm(x[t.vertex] - x[t.pin], axis=1)
+    assert (dist <= t.limit + 1e-12).all()
+    assert t.vertex.shape[0] == 2 * (model.vertex_count - 2)  # both corners, every free vertex
+    assert set(np.unique(t.pin)) == set(np.flatnonzero(model.pinned))
+
+
+def test_parallel_and_serial_sweeps_agree_in_quality() -> None:
+    model = cloth(24)
+    last = {}
+    for parts in (1, 2):
+        settings = Settings(solver="xpbd", frames=12, options=SolverOptions(partitions=parts))
+        last[parts] = list(simulate(model, Scene(), settings))[-1]
+    assert np.allclose(last[1].welded_positions, last[2].welded_positions, atol=0.02)
+
+
+def test_parallel_runs_are_reproducible() -> None:
+    model = cloth(24)
+    settings = Settings(solver="verlet", frames=6, options=SolverOptions(partitions=2))
+    a = list(simulate(model, Scene(), settings))[-1].welded_positions
+    b = list(simulate(model, Scene(), settings))[-1].welded_positions
+    assert np.array_equal(a, b)
+
+
+def test_frames_report_rest_and_rest_frame_helper() -> None:
+    model = cloth(6)
+    frames = list(simulate(model, Scene(gravity=(0, 0, 0)), Settings(solver="xpbd", frames=3)))
+    assert all(f.at_rest for f in frames)
+    assert [f.rest_frame for f in frames] == [1, 1, 1]
+    assert rest_frame(frames) == 1
+    moving = Frame(1, 0.0, np.zeros((1, 3)), np.zeros((1, 3)), 1.0, 1.0)
+    assert not moving.at_rest and moving.rest_frame is None
+    assert rest_frame([*frames, moving]) is None
+    assert rest_frame([]) is None
+
+
+def test_pin_motion_moves_pins_exactly() -> None:
+    model = cloth(6)
+    pins = np.flatnonzero(model.pinned)
+    start = model.rest_positions[pins]
+
+    def motion(t: float) -> np.ndarray:
+        return start + np.array([0.5 * t, 0.0, 0.0])
+
+    for name in NAMES:
+        frames = list(simulate(model, Scene(pin_motion=motion), Settings(solver=name, frames=6)))
+        assert np.array_equal(frames[-1].welded_positions[pins], motion(frames[-1].time))
