@@ -14,7 +14,7 @@ import typer
 from pipeline import __version__
 
 #: command modules, each exposing `register(app)`
-COMMANDS = ("inspect", "simulate", "check", "preview", "batch", "recipe_help")
+COMMANDS = ("inspect", "simulate", "check", "preview", "batch")
 
 app = typer.Typer(
     name="meshdeform",

@@ -136,8 +136,7 @@ def run_job(
                 sim_seconds += time.perf_counter() - tick
                 max_stretch.append(round(frame.max_stretch, 9))
                 max_speed.append(round(frame.max_speed, 9))
-                if rest_frame is None and getattr(frame, "at_rest", False):
-                    rest_frame = frame.index
+                rest_frame = frame.rest_frame  # first frame of the still run that lasts to the end
                 tick = time.perf_counter()
                 data = FrameData(
                     index=frame.index,
@@ -177,7 +176,8 @@ def run_job(
             "solver": settings.solver,
             "fps": settings.fps,
             "substeps": settings.substeps,
-            "iterations": settings.options.iterations,
+            "iterations": settings.iterations,
+            "damping": settings.options.damping,
             "frames": len(max_stretch),
             "vertices": mesh.vertex_count,
             "welded_vertices": model.vertex_count,

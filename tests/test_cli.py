@@ -1,0 +1,200 @@
+"""The command line as a user drives it: help, inspect, simulate, bad input."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from meshdeform.io import load
+from meshdeform.io.obj import write_obj
+from meshdeform.mesh import grid_mesh
+from pipeline import __version__
+from pipeline.cli import app
+
+runner = CliRunner()
+
+
+def run(*args: str):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_version() -> None:
+    result = run("--version")
+    assert result.exit_code == 0
+    assert __version__ in result.stdout
+
+
+def test_every_command_has_help_text() -> None:
+    command = typer.main.get_command(app)
+    names = sorted(command.commands)
+    assert {"inspect", "simulate"} <= set(names)
+    for name in names:
+        result = run(name, "--help")
+        assert result.exit_code == 0, name
+        assert command.commands[name].help, f"{name} has no help text"
+
+
+@pytest.mark.parametrize(("n", "m"), [(5, 9), (13, 4)])
+def test_inspect_json_counts_springs_of_quad_grids(tmp_path: Path, n: int, m: int) -> None:
+    path = tmp_path / "grid.obj"
+    write_obj(path, grid_mesh(n, m))
+    result = run("inspect", path, "--json")
+    assert result.exit_code == 0, result.output
+    info = json.loads(result.stdout)
+    assert info["vertices"] == n * m
+    assert info["faces"] == (n - 1) * (m - 1)
+    assert info["springs"] == {
+        "structural": n * (m - 1) + m * (n - 1),
+        "shear": 2 * (n - 1) * (m - 1),
+        "bending": n * (m - 2) + m * (n - 2),
+    }
+    assert info["boundary_edges"] == 2 * (n - 1) + 2 * (m - 1)
+    assert info["pieces"] == 1
+
+
+def test_inspect_text_names_the_figures(samples_dir: Path) -> None:
+    result = run("inspect", samples_dir / "meshes" / "flag.obj")
+    assert result.exit_code == 0
+    for word in ("vertices", "faces", "springs", "pieces", "boundary edges", "non-manifold"):
+        assert word in result.stdout
+
+
+def test_inspect_welded_counts_match_trimesh_on_real_meshes(shared_meshes: Path) -> None:
+    import trimesh
+
+    for path in sorted((shared_meshes / "real").iterdir()):
+        result = run("inspect", path, "--json")
+        assert result.exit_code == 0, f"{path.name}: {result.output}"
+        info = json.loads(result.stdout)
+        positions = load(path).positions
+        unique = trimesh.grouping.unique_rows(positions, digits=15)[0]
+        assert info["welded_vertices"] == len(unique), path.name
+
+
+def _grid_obj(tmp_path: Path, n: int = 12, m: int = 10, plane: str = "xz") -> Path:
+    """A 1 x 1 m quad grid; lying flat (XZ) by default so that it falls when pinned at two corners."""
+    path = tmp_path / "cloth.obj"
+    write_obj(path, grid_mesh(n, m, size=(1.0, 1.0), plane=plane))
+    return path
+
+
+def test_simulate_writes_frames_in_input_order_with_pins_unmoved(tmp_path: Path) -> None:
+    n, m = 12, 10
+    mesh_path = _grid_obj(tmp_path, n, m)
+    out = tmp_path / "out"
+    top_left, top_right = (m - 1) * n, m * n - 1
+    result = run(
+        "simulate", mesh_path, "--out", out, "--frames", "12", "--solver", "verlet",
+        "--pin", f"indices:{top_left},{top_right}", "--quiet",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    frames = sorted((out / "frames").glob("frame_*.obj"))
+    assert [f.name for f in frames] == [f"frame_{i:04d}.obj" for i in range(1, 13)]
+    rest = load(mesh_path)
+    last = load(frames[-1])
+    assert last.vertex_count == rest.vertex_count
+    np.testing.assert_array_equal(last.face_indices, rest.face_indices)
+    for frame in frames:
+        positions = load(frame).positions
+        np.testing.assert_array_equal(positions[[top_left, top_right]], rest.positions[[top_left, top_right]])
+    # the free part swings down under gravity (0.5 s of fall: well below the pins) and nothing flies off
+    assert last.positions[:, 1].min() < rest.positions[:, 1].min() - 0.3
+    assert np.abs(last.positions).max() < 5.0
+    report = json.loads((out / "report.json").read_text())
+    for key in ("vertices", "springs", "frames", "solver", "seconds", "max_stretch"):
+        assert key in report
+    assert report["frames"] == 12 and len(report["max_stretch"]) == 12
+    assert report["vertices"] == n * m
+    assert report["springs"]["structural"] == n * (m - 1) + m * (n - 1)
+
+
+def test_simulate_box_pin_is_relative_to_bounds(tmp_path: Path) -> None:
+    mesh_path = _grid_obj(tmp_path, 8, 8)
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "--out", out, "--frames", "5", "--pin", "box:0,0,0.99,1,1,1", "--quiet")
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["pinned_vertices"] == 8
+    rest = load(mesh_path).positions
+    moved = load(out / "frames" / "frame_0005.obj").positions
+    top = rest[:, 2] == rest[:, 2].max()  # the far edge of the flat sheet
+    np.testing.assert_array_equal(moved[top], rest[top])
+    assert (moved[~top, 1] < rest[~top, 1]).all()
+
+
+def test_simulate_ply_output_keeps_vertex_count(tmp_path: Path, samples_dir: Path) -> None:
+    out = tmp_path / "ball"
+    mesh = samples_dir / "meshes" / "icosphere.ply"
+    result = run("simulate", mesh, "--out", out, "--frames", "3", "--format", "ply", "--quiet", "--gravity", "0,0,0")
+    assert result.exit_code == 0, result.output
+    frames = sorted((out / "frames").glob("*.ply"))
+    assert len(frames) == 3
+    assert load(frames[0]).vertex_count == load(mesh).vertex_count
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--gravity", "0,-9.81"), "--gravity"),
+        (("--pin", "sphere:1"), "pin"),
+        (("--solver", "nope"), "solver"),
+    ],
+)
+def test_bad_options_give_one_line_and_exit_2(tmp_path: Path, args: tuple[str, ...], message: str) -> None:
+    mesh_path = _grid_obj(tmp_path, 4, 4)
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "--out", out, "--frames", "2", "--quiet", *args)
+    assert result.exit_code == 2, result.output
+    assert message in result.stderr
+    assert "Traceback" not in result.output
+    assert not out.exists()
+
+
+def test_missing_file_and_unknown_extension(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    missing = run("simulate", tmp_path / "nope.obj", "--out", out, "--quiet")
+    assert missing.exit_code == 2 and "nope.obj" in missing.stderr
+    odd = tmp_path / "mesh.stl"
+    odd.write_text("solid x\nendsolid x\n")
+    unknown = run("inspect", odd)
+    assert unknown.exit_code == 2 and "mesh.stl" in unknown.stderr
+    assert not out.exists()
+
+
+def test_every_broken_mesh_loads_with_warning_or_fails_with_one_line(tmp_path: Path, shared_meshes: Path) -> None:
+    for path in sorted((shared_meshes / "broken").iterdir()):
+        out = tmp_path / path.stem
+        result = run("simulate", path, "--out", out, "--frames", "2", "--quiet", "--gravity", "0,0,0")
+        assert "Traceback" not in result.output, path.name
+        if result.exit_code == 0:
+            assert (out / "report.json").is_file(), path.name
+            continue
+        assert result.exit_code == 2, f"{path.name}: exit {result.exit_code}: {result.output}"
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1, f"{path.name}: {result.stderr}"
+        assert path.name in lines[0]
+        assert not out.exists(), path.name
+        assert not list(tmp_path.glob(f".{path.stem}.partial-*")), path.name
+
+
+def test_diverging_run_names_the_frame_and_leaves_nothing(tmp_path: Path) -> None:
+    mesh_path = _grid_obj(tmp_path, 6, 6)
+    recipe = tmp_path / "stiff.toml"
+    recipe.write_text(
+        '[simulation]\nsolver = "springs"\nsubsteps = 1\nfps = 2\nstable_substeps = false\n\n'
+        "[material]\nstructural = { stiffness = 1.0 }\n"
+    )
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "--out", out, "--recipe", recipe, "--frames", "50", "--quiet",
+                 "--pin", "indices:30,35")  # fmt: skip
+    if result.exit_code == 0:
+        pytest.fail("a one-substep explicit spring run at 2 fps was expected to diverge")
+    assert result.exit_code == 1, result.output
+    assert re.search(r"frame \d+", result.stderr)
+    assert not out.exists()
