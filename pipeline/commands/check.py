@@ -55,7 +55,8 @@ def register(app: typer.Typer) -> None:
             if mesh is not None:
                 from meshdeform.io import load
 
-                built = build_simulation(loaded, load(mesh))
+                # [[assets]] rules apply as in a batch whose folder holds the mesh
+                built = build_simulation(loaded.for_asset(mesh.name), load(mesh))
                 model = built.model
                 lines.append(
                     f"{mesh}: {model.vertex_count} simulated vertices, {model.spring_count} springs, "

@@ -49,7 +49,7 @@ def register(app: typer.Typer) -> None:
         from pipeline.recipe import apply_overrides, load_recipe
 
         with cli_errors():
-            loaded = load_recipe(recipe)
+            loaded = load_recipe(recipe).for_asset(mesh.name)  # [[assets]] rules match the file name
             loaded = apply_overrides(
                 loaded,
                 solver=solver,
