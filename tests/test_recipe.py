@@ -316,7 +316,7 @@ def test_build_maps_recipe_onto_model_scene_and_settings() -> None:
     )
     assert len(built.scene.forces) == 2 and len(built.scene.constraints) == 1
     assert built.model.material.density == 0.3
-    assert any("tearing" in w for w in built.warnings)
+    assert built.scene.tearing is not None
 
 
 SAMPLE_MESHES = {
@@ -326,6 +326,7 @@ SAMPLE_MESHES = {
     "blackhole.toml": "sheet.obj",
     "drop.toml": "sheet.obj",
     "rope.toml": "rope.obj",
+    "tear.toml": "curtain.obj",
 }
 
 
@@ -348,7 +349,8 @@ def test_sample_recipes_build_on_their_sample_meshes_and_run(sample_meshes: Path
     from meshdeform.io import load
     from meshdeform.simulate import simulate
 
-    assert {p.name for p in SAMPLES.glob("*.toml")} == set(SAMPLE_MESHES)
+    # every single-mesh sample recipe is covered (showcase.toml spans all meshes: tests/test_samples.py)
+    assert {p.name for p in SAMPLES.glob("*.toml")} - {"showcase.toml"} == set(SAMPLE_MESHES)
     recipe = apply_overrides(load_recipe(SAMPLES / recipe_name), frames=2)
     built = build_simulation(recipe, load(sample_meshes / mesh_name))
     assert all(count > 0 for count in built.selections.values())

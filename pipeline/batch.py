@@ -1,0 +1,583 @@
+"""A batch: every OBJ/PLY under a folder through one recipe, in parallel, resumable, failures isolated.
+
+    discover (sorted, relative paths) -> select (--include/--exclude) -> output folder names
+    -> per-asset recipe (base <- [[assets]] rules <- sidecar NAME.toml) -> up to date? skip
+    -> executor (serial / processes / Dask) -> manifest.json updated as assets finish.
+
+The per-asset `report.json` (written by `run_job` together with the outputs, renamed into place
+in one step) is what a rerun trusts: an asset is skipped when its report names the same input
+hash, merged-recipe hash and tool version and every output it lists exists.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import json
+import logging
+import os
+import re
+import shutil
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Any, Protocol
+
+from meshdeform.errors import MeshdeformError, RecipeError
+from pipeline import __version__
+from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
+from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
+
+#: mesh suffixes a batch picks up (case-insensitive)
+MESH_SUFFIXES = (".obj", ".ply")
+LOG_NAME = "batch.log"
+LOCK_NAME = ".meshdeform-batch.lock"
+#: staging folders of `pipeline.job.staged_directory` and atomic temp files of the manifest
+_STALE_DIR = re.compile(r"^\..+\.(partial|old)-[0-9a-f]{8}$")
+_STALE_MANIFEST = re.compile(r"^\.manifest\..+\.part\.json$")
+
+
+class BatchError(MeshdeformError):
+    """The batch cannot start: missing folder, no assets, output folder busy (a usage error)."""
+
+
+# -- globs -------------------------------------------------------------------------------------
+
+
+def glob_match(pattern: str, relative: str) -> bool:
+    """Does the asset path `relative` (POSIX, relative to the assets folder) match `pattern`?
+
+    The same rule as the recipe's [[assets]] globs (`pipeline.recipe.AssetRule.matches`): fnmatch
+    on the whole relative path, and a pattern without "/" also matches the file name alone.
+    """
+    from pipeline.recipe import AssetRule
+
+    return AssetRule(pattern.strip().removeprefix("./"), {}).matches(relative)
+
+
+# -- discovery ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Asset:
+    """One mesh of the batch.
+
+    key: its path relative to the assets folder, POSIX (the manifest's `input`).
+    path: absolute path of the mesh file.
+    output: its output folder relative to OUT (POSIX): the key without suffix, or with it when
+        two assets would share a folder (`note` then says so).
+    """
+
+    key: str
+    path: Path
+    output: str
+    note: str | None = None
+
+
+def _sort_key(relative: str) -> tuple[str, ...]:
+    return tuple(relative.split("/"))
+
+
+def discover(root: Path, skip: Sequence[Path] = ()) -> list[str]:
+    """Relative POSIX paths of every .obj/.ply under `root`, sorted; hidden names and `skip` folders
+    (the output folder when it lies inside the assets folder) are left out."""
+    root = Path(root)
+    skipped = {Path(os.path.realpath(p)) for p in skip}
+    found: list[str] = []
+    for folder, dirs, files in os.walk(root):
+        here = Path(folder)
+        dirs[:] = [d for d in dirs if not d.startswith(".") and Path(os.path.realpath(here / d)) not in skipped]
+        for name in files:
+            if not name.startswith(".") and name.lower().endswith(MESH_SUFFIXES):
+                found.append((here / name).relative_to(root).as_posix())
+    return sorted(found, key=_sort_key)
+
+
+def select(keys: Sequence[str], include: Sequence[str] = (), exclude: Sequence[str] = ()) -> list[str]:
+    """Keys matching any --include (all when none is given) and no --exclude."""
+    return [
+        key
+        for key in keys
+        if (not include or any(glob_match(p, key) for p in include)) and not any(glob_match(p, key) for p in exclude)
+    ]
+
+
+def output_folders(keys: Sequence[str]) -> dict[str, tuple[str, str | None]]:
+    """Output folder (relative, POSIX) and note for each key: the key without its suffix, unless that
+    folder would be shared (`a.obj` and `a.ply`, or names equal but for case): then every asset of the
+    clash keeps its suffix (`a.obj/`, `a.ply/`). Deterministic: it depends on the set of keys only."""
+    full = {key: False for key in keys}  # True: this key keeps its suffix
+    while True:
+        names = {key: key if keep else str(PurePosixPath(key).with_suffix("")) for key, keep in full.items()}
+        groups: dict[str, list[str]] = {}
+        for key, name in names.items():
+            groups.setdefault(name.casefold(), []).append(key)
+        clashes = [group for group in groups.values() if len(group) > 1 and not all(full[k] for k in group)]
+        if not clashes:
+            break
+        for group in clashes:
+            for key in group:
+                full[key] = True
+    result: dict[str, tuple[str, str | None]] = {}
+    for key in keys:
+        note = None
+        if full[key]:
+            plain = str(PurePosixPath(key).with_suffix(""))
+            others = sorted(
+                k for k in keys if k != key and str(PurePosixPath(k).with_suffix("")).casefold() == plain.casefold()
+            )
+            note = f"output folder keeps the suffix: {', '.join([key, *others])} would share {plain}/"
+        result[key] = (names[key], note)
+    return result
+
+
+# -- recipes -------------------------------------------------------------------------------------
+
+
+def load_base_recipe(path: Path) -> Any:
+    """Load and validate the batch's recipe (with its [[assets]] rules); RecipeError is a usage error."""
+    from pipeline.recipe import load_recipe
+
+    return load_recipe(path)
+
+
+def sidecar_path(mesh: Path) -> Path:
+    """`NAME.toml` next to `NAME.obj` / `NAME.ply`: that asset's own recipe overrides."""
+    return mesh.with_suffix(".toml")
+
+
+def resolve_recipe(base: Any, asset: Asset) -> tuple[Any, list[str]]:
+    """The merged recipe of one asset and the layers applied over the base, in order.
+
+    base <- every matching [[assets]] rule in recipe order (`Recipe.for_asset`) <- the sidecar
+    `NAME.toml`. Tables merge deeply, arrays replace. Raises RecipeError naming the file when a
+    layer is invalid (the asset then fails alone).
+    """
+    layers = [
+        f"[[assets]] #{n} {rule.glob!r}" for n, rule in enumerate(base.asset_rules, start=1) if rule.matches(asset.key)
+    ]
+    recipe = base.for_asset(asset.key)
+    sidecar = sidecar_path(asset.path)
+    if not sidecar.is_file() or (base.source is not None and sidecar.resolve() == Path(base.source).resolve()):
+        return recipe, layers
+    recipe = apply_sidecar(recipe, sidecar)
+    return recipe, [*layers, f"sidecar {sidecar.name}"]
+
+
+@functools.lru_cache(maxsize=8)
+def _load_cached(path: str, mtime_ns: int, size: int) -> Any:
+    return load_base_recipe(Path(path))
+
+
+@dataclass(frozen=True)
+class AssetRecipe:
+    """How a worker rebuilds one asset's merged recipe: the batch recipe's path, the asset's key and
+    mesh path. Recipe objects (pydantic models made at run time) do not pickle, and rebuilding from
+    the files keeps every error's file, key path and line. The base is parsed once per worker."""
+
+    base: str
+    key: str
+    mesh: str
+
+    def load(self) -> Any:
+        stat = os.stat(self.base)
+        base = _load_cached(self.base, stat.st_mtime_ns, stat.st_size)
+        return resolve_recipe(base, Asset(key=self.key, path=Path(self.mesh), output=""))[0]
+
+
+def apply_sidecar(recipe: Any, sidecar: Path) -> Any:
+    """`recipe` with a sidecar file merged over it. The sidecar is first validated alone, so its
+    mistakes are reported with its own name, key path and line; relative paths in it (mesh
+    colliders) are, as in [[assets]] rules, relative to the batch recipe."""
+    from pipeline import recipe as recipe_module
+
+    try:
+        text = sidecar.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecipeError(f"{sidecar}: cannot read sidecar recipe: {exc}") from None
+    partial = recipe_module.parse_recipe(text, str(sidecar))
+    if partial.assets:
+        raise RecipeError(f"{sidecar}: [[assets]] rules belong in the batch recipe, not in a sidecar")
+    data = recipe_module.merge_recipe_data(recipe.raw, partial.raw)
+    label = f"{recipe.label} + {sidecar}"
+    # The recipe module's validation of merged data, as Recipe.for_asset and apply_overrides use it
+    # (no public entry point takes data rather than text yet). No line numbers: the keys come from
+    # two files; the message names both and the key path.
+    return recipe_module._validate(data, label, recipe.source, {}, error_lines=False)
+
+
+# -- resume ------------------------------------------------------------------------------------
+
+
+def read_report(out_dir: Path) -> dict[str, Any] | None:
+    """The report.json of a finished job in `out_dir`, or None."""
+    try:
+        data = json.loads((out_dir / "report.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def up_to_date(report: dict[str, Any] | None, out_dir: Path, mesh: Path, recipe_sha: str) -> bool:
+    """Is a previous result reusable: same tool version, merged-recipe hash and input hash, and every
+    output it lists still there? (The input is hashed only when the cheaper checks pass.)"""
+    from pipeline.job import file_sha256
+
+    if not report or report.get("version") != __version__ or report.get("recipe_sha256") != recipe_sha:
+        return False
+    outputs = report.get("outputs")
+    if not isinstance(outputs, list) or not all((out_dir / str(p)).is_file() for p in outputs):
+        return False
+    try:
+        return report.get("input_sha256") == file_sha256(mesh)
+    except OSError:
+        return False
+
+
+def remove_stale(out: Path) -> list[Path]:
+    """Delete what interrupted runs left in OUT: staging folders `.NAME.partial-*` / `.NAME.old-*` at
+    any depth and temporary manifest files. Only safe while this batch holds the OUT lock."""
+    removed: list[Path] = []
+    if not out.is_dir():
+        return removed
+    for folder, dirs, files in os.walk(out):
+        here = Path(folder)
+        for name in list(dirs):
+            if _STALE_DIR.match(name):
+                shutil.rmtree(here / name, ignore_errors=True)
+                removed.append(here / name)
+                dirs.remove(name)
+        if here == out:
+            for name in files:
+                if _STALE_MANIFEST.match(name):
+                    with contextlib.suppress(OSError):
+                        (here / name).unlink()
+                        removed.append(here / name)
+    return removed
+
+
+@contextlib.contextmanager
+def out_lock(out: Path) -> Iterator[None]:
+    """Hold an exclusive lock on OUT for the batch, so two batches never write into one folder."""
+    try:
+        import fcntl
+    except ImportError:  # no flock on this platform: run unlocked
+        yield
+        return
+    handle = open(out / LOCK_NAME, "a+")  # noqa: SIM115  (held for the whole batch)
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise BatchError(f"{out}: another batch is writing into this folder") from None
+        yield
+    finally:
+        handle.close()
+
+
+# -- running -----------------------------------------------------------------------------------
+
+
+class BatchProgress(Protocol):
+    """What a display is told: the plan, then each asset's start, frames and end (main thread)."""
+
+    def begin(self, total: int, done: int) -> None: ...
+
+    def started(self, key: str) -> None: ...
+
+    def frame(self, key: str, frame: int, total: int) -> None: ...
+
+    def finished(self, key: str, entry: dict[str, Any]) -> None: ...
+
+
+@dataclass
+class BatchResult:
+    """The end of a batch: the manifest as written, its path, and the exit code it calls for."""
+
+    manifest: dict[str, Any]
+    manifest_path: Path
+    log_path: Path
+    exit_code: int
+    executor: str
+    seconds: float
+    removed_stale: list[Path] = field(default_factory=list)
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        return self.manifest["summary"]
+
+
+class _Recorder:
+    """Executor reporter: updates the manifest, the log and the display as assets move."""
+
+    def __init__(self, manifest: Manifest, log: logging.Logger, progress: BatchProgress | None) -> None:
+        self.manifest = manifest
+        self.log = log
+        self.progress = progress
+
+    def started(self, task: AssetTask) -> None:
+        self.manifest.flush_if_due()
+        if self.progress is not None:
+            self.progress.started(task.key)
+
+    def frame(self, task: AssetTask, frame: int, total: int) -> None:
+        self.manifest.flush_if_due()  # a throttled write is not left waiting for the next asset
+        if self.progress is not None:
+            self.progress.frame(task.key, frame, total)
+
+    def finished(self, task: AssetTask, outcome: AssetOutcome) -> None:
+        entry = self.manifest.update(
+            task.key,
+            status=outcome.status,
+            error=outcome.error,
+            error_type=outcome.error_type,
+            outputs=outcome.outputs,
+            frames=outcome.frames,
+            seconds=outcome.seconds,
+            input_sha256=outcome.input_sha256 or self.manifest.entries[task.key]["input_sha256"],
+            recipe_sha256=outcome.recipe_sha256 or self.manifest.entries[task.key]["recipe_sha256"],
+        )
+        self.manifest.write()
+        if outcome.status == "ok":
+            self.log.info(
+                "ok %s: %s frames in %.2f s -> %s", task.key, outcome.frames, outcome.seconds, entry["output"]
+            )
+        else:
+            self.log.error("failed %s: %s", task.key, outcome.error)
+            if outcome.traceback:
+                self.log.error("%s", outcome.traceback.rstrip())
+        if self.progress is not None:
+            self.progress.finished(task.key, entry)
+
+
+def _open_log(path: Path) -> logging.Logger:
+    logger = logging.getLogger(f"meshdeform.batch.{id(path)}.{time.monotonic_ns()}")
+    logger.setLevel(logging.INFO)
+    logger.propagate = False
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+    logger.addHandler(handler)
+    return logger
+
+
+def _close_log(logger: logging.Logger) -> None:
+    for handler in list(logger.handlers):
+        handler.close()
+        logger.removeHandler(handler)
+
+
+def run_batch(
+    assets_dir: Path,
+    recipe_path: Path,
+    out: Path,
+    *,
+    jobs: int | None = None,
+    include: Sequence[str] = (),
+    exclude: Sequence[str] = (),
+    dask: str | None = None,
+    force: bool = False,
+    progress: BatchProgress | None = None,
+    job: JobFunction | None = None,
+    executor: Executor | None = None,
+) -> BatchResult:
+    """Run the recipe on every selected asset under `assets_dir` into `out`; see the module doc.
+
+    Raises BatchError / RecipeError for usage errors (nothing is run then). Asset failures never
+    raise: they are entries with status "failed". KeyboardInterrupt propagates after the manifest
+    (with `"complete": false`) has been written and the workers stopped.
+    """
+    from pipeline.executors import available_cores
+
+    started = time.perf_counter()
+    assets_dir = Path(os.path.abspath(assets_dir))
+    out = Path(os.path.abspath(out))
+    if not assets_dir.is_dir():
+        raise BatchError(f"{assets_dir}: no such folder")
+    if os.path.realpath(out) == os.path.realpath(assets_dir):
+        raise BatchError(f"{out}: the output folder cannot be the assets folder itself (its frames would be inputs)")
+    base = load_base_recipe(Path(os.path.abspath(recipe_path)))
+    every = discover(assets_dir, skip=[out])
+    keys = select(every, include, exclude)
+    if not keys:
+        filters = " with the --include/--exclude given" if include or exclude else ""
+        raise BatchError(f"{assets_dir}: no .obj or .ply files found{filters}")
+    folders = output_folders(every)  # on every asset, so names do not change with the selection
+    assets = [Asset(key=k, path=assets_dir / k, output=folders[k][0], note=folders[k][1]) for k in keys]
+    jobs = available_cores() if jobs is None else jobs
+    if executor is not None:
+        runner = executor
+    else:
+        try:
+            runner = make_executor(jobs, dask)
+        except (OSError, ValueError) as exc:  # a Dask scheduler that cannot be reached
+            raise BatchError(f"cannot connect to the Dask scheduler at {dask}: {' '.join(str(exc).split())}") from None
+    try:
+        return _run(
+            assets_dir,
+            assets,
+            every,
+            keys,
+            base,
+            out,
+            runner,
+            started,
+            jobs=jobs,
+            dask=dask,
+            force=force,
+            progress=progress,
+            job=job,
+        )
+    finally:
+        if executor is None:
+            runner.close()
+
+
+def _run(
+    assets_dir: Path,
+    assets: Sequence[Asset],
+    every: Sequence[str],
+    keys: Sequence[str],
+    base: Any,
+    out: Path,
+    runner: Executor,
+    started: float,
+    *,
+    jobs: int,
+    dask: str | None,
+    force: bool,
+    progress: BatchProgress | None,
+    job: JobFunction | None,
+) -> BatchResult:
+    """The locked part of `run_batch`: plan, run, keep the manifest current."""
+    from pipeline.recipe import recipe_hash
+
+    out.mkdir(parents=True, exist_ok=True)
+    with out_lock(out):
+        removed = remove_stale(out)
+        log = _open_log(out / LOG_NAME)
+        previous = read_manifest(out / MANIFEST_NAME)
+        manifest = Manifest(
+            out / MANIFEST_NAME,
+            {
+                "tool": "meshdeform",
+                "version": __version__,
+                "assets_dir": str(assets_dir),
+                "recipe": base.label,
+                "recipe_sha256": recipe_hash(base),
+            },
+        )
+        if previous:
+            chosen = set(keys)
+            existing = set(every)
+            for entry in previous["assets"]:
+                key = entry.get("input") if isinstance(entry, dict) else None
+                if key in existing and key not in chosen:
+                    manifest.carry(entry)
+        try:
+            log.info(
+                "batch %s -> %s with %s (%d of %d assets%s)",
+                assets_dir,
+                out,
+                base.label,
+                len(keys),
+                len(every),
+                ", --force" if force else "",
+            )
+            if removed:
+                log.info("removed %d stale staging folder(s) of interrupted runs", len(removed))
+            tasks = _plan(assets, base, out, manifest, log, force=force, job=job)
+            manifest.write(force=True)
+            if progress is not None:
+                progress.begin(len(assets), len(assets) - len(tasks))
+            for key, entry in manifest.entries.items():
+                if entry["status"] != "pending" and progress is not None:
+                    progress.finished(key, entry)
+            name = runner.name if tasks else "none"
+            if tasks:
+                log.info(
+                    "running %d asset(s) with the %s executor (jobs=%s%s)",
+                    len(tasks),
+                    name,
+                    jobs,
+                    f", dask={dask}" if dask else "",
+                )
+                runner.run(tasks, _Recorder(manifest, log, progress))
+            manifest.complete = True
+        except BaseException:
+            manifest.total_seconds = time.perf_counter() - started
+            with contextlib.suppress(Exception):
+                manifest.write(force=True)
+                remove_stale(out)
+                log.warning("interrupted: %s", json.dumps(manifest.summary()))
+            _close_log(log)
+            raise
+        manifest.total_seconds = time.perf_counter() - started
+        manifest.write(force=True)
+        summary = manifest.summary()
+        log.info("done: %s", json.dumps(summary))
+        _close_log(log)
+    exit_code = 1 if summary["failed"] or summary["pending"] else 0
+    return BatchResult(
+        manifest=manifest.to_dict(),
+        manifest_path=manifest.path,
+        log_path=out / LOG_NAME,
+        exit_code=exit_code,
+        executor=name,
+        seconds=manifest.total_seconds,
+        removed_stale=removed,
+    )
+
+
+def _plan(
+    assets: Sequence[Asset],
+    base: Any,
+    out: Path,
+    manifest: Manifest,
+    log: logging.Logger,
+    *,
+    force: bool,
+    job: JobFunction | None,
+) -> list[AssetTask]:
+    """Resolve each asset's recipe, record skips and recipe failures, and return the tasks to run."""
+    from pipeline.job import file_sha256
+    from pipeline.recipe import recipe_hash
+
+    tasks: list[AssetTask] = []
+    for index, asset in enumerate(assets):
+        out_dir = out / asset.output
+        try:
+            recipe, layers = resolve_recipe(base, asset)
+        except Exception as exc:  # a bad sidecar or rule fails this asset only
+            error, kind = one_line(exc)
+            entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, note=asset.note))
+            entry.update(status="failed", error=error, error_type=kind, seconds=0.0)
+            with contextlib.suppress(OSError):
+                entry["input_sha256"] = file_sha256(asset.path)
+            log.error("failed %s: %s", asset.key, error)
+            continue
+        entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, overrides=layers, note=asset.note))
+        sha = recipe_hash(recipe)
+        entry["recipe_sha256"] = sha
+        report = None if force else read_report(out_dir)
+        if report is not None and up_to_date(report, out_dir, asset.path, sha):
+            entry.update(
+                status="skipped",
+                outputs=list(report.get("outputs", [])),
+                frames=report.get("frames"),
+                seconds=0.0,
+                input_sha256=report.get("input_sha256"),
+            )
+            log.info("skipped %s: up to date in %s", asset.key, asset.output)
+            continue
+        tasks.append(
+            AssetTask(
+                index=index,
+                key=asset.key,
+                mesh_path=str(asset.path),
+                out_dir=str(out_dir),
+                recipe=AssetRecipe(base=str(base.source), key=asset.key, mesh=str(asset.path)),
+                job=job,
+            )
+        )
+    return tasks
