@@ -1,14 +1,16 @@
 """Cloth benchmark: N x N quad grid hanging from its two top corners, gravity, 24 fps, 100 frames.
 
 For each solver and N (64, 128, 256 by default) prints: frames/s (warm, after the first
-step), the first step's time separately (Numba compile or cache load, LU factorisation),
-spring projections per second (springs x iterations x substeps x frames / seconds; the
-explicit solvers count their stability steps as substeps and one force evaluation per
-spring as a projection), peak memory (tracemalloc peak of Python/NumPy allocations during
-the run, and the process's max RSS), and the structural max stretch over all frames and
-at the last frame. A vectorised-NumPy Jacobi reference kernel (np.bincount scatter) runs
-the same number of spring projections as the default xpbd settings; its rate and the
-ratio of the Numba kernels to it are printed at the end.
+step, whole simulate loop, without tracemalloc), the first step's time separately (Numba
+compile or cache load, LU factorisation), spring projections per second (springs x
+iterations x substeps x frames / seconds; the explicit solvers count their stability steps
+as substeps and one force evaluation per spring as a projection), peak memory (tracemalloc
+peak of Python/NumPy allocations over a second, traced run of a few frames, and the max RSS
+of the process, which runs that one solver and size only unless --no-isolate), and the
+structural max stretch over all frames and at the last frame. A vectorised-NumPy Jacobi
+reference kernel (np.bincount scatter) and each position-based solver's `step` alone (best
+of 5 repeats, no simulate loop) are measured at the end. The machine is shared: the load
+average is printed at the start and the end, put it beside any figure you quote.
 
     .venv/bin/python benchmarks/cloth.py [--sizes 64,128,256] [--solvers xpbd,verlet,...] [--frames 100]
 """
@@ -16,7 +18,10 @@ ratio of the Numba kernels to it are printed at the end.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import resource
+import subprocess
 import sys
 import time
 import tracemalloc
@@ -55,7 +60,6 @@ def run(name: str, n: int, frames: int) -> dict:
     settings = Settings(solver=name, frames=frames + 1)
     solver = make_solver(name, settings.options)
     # cold start: the first frame (compile / cache load / factorisation)
-    tracemalloc.start()
     it = simulate(model, Scene(), settings, solver=solver)
     t0 = time.perf_counter()
     first = next(it)
@@ -67,6 +71,12 @@ def run(name: str, n: int, frames: int) -> dict:
         stretch.append(frame.max_stretch)
         last = frame
     warm = time.perf_counter() - t0
+    per_frame = projections_per_frame(solver, settings, model)
+    del it, solver
+    # memory: a fresh solver over a few frames under tracemalloc (it slows the loop down)
+    tracemalloc.start()
+    for _ in simulate(model, Scene(), Settings(solver=name, frames=min(frames, 5))):
+        pass
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     return {
@@ -77,13 +87,29 @@ def run(name: str, n: int, frames: int) -> dict:
         "iterations": settings.iterations,
         "cold": cold,
         "fps": frames / warm,
-        "proj": projections_per_frame(solver, settings, model) * frames / warm,
+        "proj": per_frame * frames / warm,
         "peak_mb": peak / 2**20,
         "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "stretch": max(stretch),
         "stretch_last": last.max_stretch,
         "rest_frame": last.rest_frame,
     }
+
+
+def run_isolated(name: str, n: int, frames: int) -> dict:
+    """`run` in a fresh interpreter, so that its max RSS is this solver's and size's alone."""
+    code = (
+        "import json, sys; sys.path.insert(0, sys.argv[1]); import cloth; "
+        "print(json.dumps(cloth.run(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))))"
+    )
+    here = str(Path(__file__).resolve().parent)
+    proc = subprocess.run(
+        [sys.executable, "-c", code, here, name, str(n), str(frames)], capture_output=True, text=True, check=False
+    )
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        raise SystemExit(f"{name} N={n} failed: {proc.stderr.strip()[-2000:]}")
+    return json.loads(lines[-1])
 
 
 def numpy_jacobi(x: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, w: np.ndarray, sweeps: int) -> None:
@@ -119,19 +145,28 @@ def reference(n: int, sweeps: int = 160) -> float:
     return model.spring_count * sweeps / (time.perf_counter() - t0)
 
 
-def kernel_rate(name: str, n: int, steps: int = 200) -> float:
-    """Numba solver alone (no simulate loop): projections per second over `steps` substeps."""
+def kernel_rate(name: str, n: int, steps: int = 0, repeats: int = 5) -> float:
+    """Solver `step` alone (no simulate loop): best projections per second over `repeats` runs."""
     model = scene_model(n)
     solver = make_solver(name, SolverOptions())
     settings = Settings(solver=name)
     state = State.at_rest(model)
     control = Control(np.tile(np.array([0.0, -9.81, 0.0]), (model.vertex_count, 1)))
     dt = settings.dt
-    solver.step(model, state, dt, control)
-    t0 = time.perf_counter()
-    for _ in range(steps):
+    steps = steps or max(10, int(200 * (64 / n) ** 2))
+    for _ in range(10):
         solver.step(model, state, dt, control)
-    return model.spring_count * settings.iterations * steps / (time.perf_counter() - t0)
+    best = 0.0
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            solver.step(model, state, dt, control)
+        best = max(best, model.spring_count * settings.iterations * steps / (time.perf_counter() - t0))
+    return best
+
+
+def load() -> str:
+    return "load average " + " ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
 def main() -> None:
@@ -139,10 +174,11 @@ def main() -> None:
     parser.add_argument("--sizes", default="64,128,256")
     parser.add_argument("--solvers", default=",".join(ALL))
     parser.add_argument("--frames", type=int, default=100)
+    parser.add_argument("--no-isolate", action="store_true", help="run everything in this process (RSS accumulates)")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     names = [s for s in args.solvers.split(",") if s]
-    print(f"cloth benchmark: N x N grid, 2 top corners pinned, gravity, 24 fps, {args.frames} frames")
+    print(f"cloth benchmark: N x N grid, 2 top corners pinned, gravity, 24 fps, {args.frames} frames; {load()}")
     header = (
         f"{'solver':9} {'N':>4} {'springs':>8} {'sub':>4} {'it':>3} {'first s':>8} {'frames/s':>9} "
         f"{'Mproj/s':>8} {'peak MB':>8} {'RSS MB':>7} {'stretch':>8} {'last':>7} {'rest':>5}"
@@ -153,7 +189,7 @@ def main() -> None:
             if name == "springs" and n > 64:
                 print(f"{name:9} {n:>4}  skipped: explicit, its stable step shrinks with 1 / N (springs.py)")
                 continue
-            r = run(name, n, args.frames)
+            r = run(name, n, args.frames) if args.no_isolate else run_isolated(name, n, args.frames)
             print(
                 f"{r['solver']:9} {r['n']:>4} {r['springs']:>8} {r['substeps']:>4} {r['iterations']:>3} "
                 f"{r['cold']:>8.3f} {r['fps']:>9.1f} {r['proj'] / 1e6:>8.1f} {r['peak_mb']:>8.1f} "
@@ -167,8 +203,9 @@ def main() -> None:
         for name in ("xpbd", "verlet"):
             if name in names:
                 rate = kernel_rate(name, n)
-                line += f"; {name} kernel {rate / 1e6:.1f} M proj/s ({rate / ref:.1f}x)"
+                line += f"; {name} step {rate / 1e6:.1f} M proj/s ({rate / ref:.1f}x)"
         print(line, flush=True)
+    print(load())
 
 
 if __name__ == "__main__":

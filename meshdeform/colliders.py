@@ -277,6 +277,11 @@ class Collider:
             normal = normal @ self.keys.rotation(time).T
         return dist, normal
 
+    def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
+        """After a tear (`index_map`: new vertex -> old): copies remember their original's side."""
+        if self._side is not None and self._side.shape[0] > int(index_map.max(initial=-1)):
+            self._side = self._side[index_map]
+
     # -- the constraint -------------------------------------------------------------------------
     def _candidates(self, x: np.ndarray, prev: np.ndarray, time: float, dt: float) -> np.ndarray:
         """Vertices whose path this substep comes near the shape's bounds (cheap culling)."""

@@ -91,6 +91,10 @@ class Plasticity:
         if self.damping > 0:
             out -= self.damping * state.velocities
 
+    def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
+        """After a tear (`index_map`: new vertex -> old): copies inherit their rest copy."""
+        self.rest = self.rest[index_map]
+
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
         d = state.positions - self.rest
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
@@ -111,9 +115,18 @@ class Tethers:
     """
 
     def __init__(self, model: SpringModel, anchors: np.ndarray, max_stretch: float = 1.05) -> None:
-        anchors = np.unique(np.asarray(anchors, dtype=np.int64))
-        n = model.vertex_count
         self.max_stretch = float(max_stretch)
+        self._attach(model, anchors)
+
+    def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
+        """After a tear: copies of anchors anchor too, and the distances are measured again over
+        the springs left (a torn-off piece is no longer held)."""
+        self._attach(model, np.flatnonzero(np.isin(index_map, self.anchors)))
+
+    def _attach(self, model: SpringModel, anchors: np.ndarray) -> None:
+        anchors = np.unique(np.asarray(anchors, dtype=np.int64))
+        self.anchors = anchors
+        n = model.vertex_count
         if anchors.size == 0 or model.spring_count == 0:
             self.vertices = np.zeros(0, dtype=np.int64)
             self.anchor = np.zeros(0, dtype=np.int64)

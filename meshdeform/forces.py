@@ -189,6 +189,10 @@ class Wind:
             self.noise.add(points, time, self.gust, w)
         return w
 
+    def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
+        """After a tear: masses changed, recompute the inverse masses."""
+        self._inv_mass = None
+
     def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
         x = state.positions
         tri = model.triangles
@@ -343,6 +347,11 @@ class Impact:
             normal = -normal
         self._current = _Occurrence(k, np.asarray(point, dtype=np.float64), normal)
         return self._current
+
+    def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
+        """After a tear (`index_map`: new vertex -> old): copies inherit the mask."""
+        if self.mask is not None:
+            self.mask = self.mask[index_map]
 
     def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
         k, weight = self._weight(time)

@@ -181,6 +181,17 @@ class SoftPins:
     def targets(self, time: float) -> np.ndarray:
         return self.rest if self.keys is None else self.keys.apply(self.rest, time)
 
+    def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
+        """Follow a tear (`index_map`: new vertex -> old): copies of a pinned vertex are pulled
+        toward the same target."""
+        slot = np.full(int(max(index_map.max(initial=-1), self.indices.max(initial=-1))) + 1, -1, dtype=np.int64)
+        slot[self.indices] = np.arange(self.indices.shape[0])
+        source = slot[index_map]
+        rows = np.flatnonzero(source >= 0)
+        self.indices = rows.astype(np.int64)
+        self.rest = self.rest[source[rows]]
+        self.rate = self.rate[source[rows]]
+
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
         idx = self.indices
         free = model.inv_mass[idx] > 0

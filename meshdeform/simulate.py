@@ -13,21 +13,34 @@ the frame, the solver and a hint. No frame with non-finite positions is ever yie
 Each frame reports its largest vertex speed and whether the model is at rest
 (`max_speed < Settings.rest_speed`, default 1e-4 m/s); `rest_frame` is the first frame of the
 current run of frames at rest (None while moving), and `rest_frame(frames)` finds it in a list.
+
+Tearing (`Scene.tearing`, a `meshdeform.tearing.Tearer`): after each substep the tearer tests
+the springs, applies due cuts and, when the mesh opens, returns a new model and an index map
+(new vertex -> old vertex); the loop then continues with that model (the state was resized in
+place), re-derives its per-vertex arrays (pins, accelerations) and calls `remap(model,
+index_map)` on every force and constraint that has one, so per-vertex data follow the split.
+Hard-pinned vertices that a cut splits stay pinned to their original's target. Frames then
+carry positions in the grown output layout, the output `mesh` when it changed, the `model` in
+force, and the springs broken, vertices added and connected pieces.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from meshdeform.errors import SimulationDiverged
+from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers import kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions, make_solver, solver_class
 from meshdeform.solvers.common import structural_mask
+
+if TYPE_CHECKING:
+    from meshdeform.tearing import Tearer
 
 
 class Force(Protocol):
@@ -40,6 +53,13 @@ class Constraint(Protocol):
     """Projects positions after each solver substep (colliders, soft pins)."""
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None: ...
+
+
+class Remappable(Protocol):
+    """A force or constraint with per-vertex data follows a tear: `index_map` (W',) gives the
+    previous vertex of every vertex of the new `model` (copies appended after the old ones)."""
+
+    def remap(self, model: SpringModel, index_map: np.ndarray) -> None: ...
 
 
 #: maps a time in seconds to target positions (P, 3) of the model's pinned vertices, in
@@ -55,6 +75,7 @@ class Scene:
     forces: list[Force] = field(default_factory=list)
     constraints: list[Constraint] = field(default_factory=list)
     pin_motion: PinMotion | None = None
+    tearing: Tearer | None = None
 
 
 @dataclass(frozen=True)
@@ -96,6 +117,12 @@ class Frame:
     max_stretch: largest structural spring length / rest length. max_speed: m/s.
     at_rest: max_speed below `Settings.rest_speed`. rest_frame: the first frame of the
     current run of frames at rest, None when this frame is not at rest.
+    With tearing (`Scene.tearing`): positions are in the output layout (the input's vertices,
+    then the copies tearing added); mesh: the output mesh when its topology changed during
+    this frame, else None (the last one given stays in force); model: the model in force at the
+    end of the frame (welded_positions are its vertices); broken_springs / split_vertices: how
+    many springs broke and vertices were added during the frame; pieces: connected pieces of
+    the mesh at the end of it (None without tearing).
     """
 
     index: int
@@ -106,6 +133,11 @@ class Frame:
     max_speed: float
     at_rest: bool = False
     rest_frame: int | None = None
+    mesh: Mesh | None = None
+    model: SpringModel | None = None
+    broken_springs: int = 0
+    split_vertices: int = 0
+    pieces: int | None = None
 
 
 def rest_frame(frames: Iterable[Frame]) -> int | None:
@@ -157,10 +189,12 @@ def simulate(
     constraints = list(scene.constraints)
     pin_motion = scene.pin_motion if pinned_idx.size else None
     center = model.rest_positions.mean(axis=0) if model.vertex_count else np.zeros(3)
-    structural = np.flatnonzero(structural_mask(model))
-    sa = np.ascontiguousarray(model.springs[structural, 0], dtype=np.int64)
-    sb = np.ascontiguousarray(model.springs[structural, 1], dtype=np.int64)
-    srest = np.ascontiguousarray(np.maximum(model.rest_lengths[structural], 1e-300), dtype=np.float64)
+    sa, sb, srest = _structural_arrays(model)
+    tearing = scene.tearing
+    pin_slot: np.ndarray | None = None  # after a cut splits pins: current pinned -> original pin target
+    if tearing is not None:
+        tearing.start(model)
+        original_pins = np.flatnonzero(tearing.initial_model.pinned)
     step = solver.step
     step_count = 0
     resting_since: int | None = None
@@ -175,6 +209,8 @@ def simulate(
                     force.accumulate(model, state, t0, accelerations)
             if pin_motion is not None:
                 targets = np.asarray(pin_motion(t1), dtype=np.float64)
+                if pin_slot is not None:
+                    targets = targets[pin_slot]
                 state.previous[pinned_idx] = state.positions[pinned_idx]
                 state.positions[pinned_idx] = targets
             step(model, state, dt, control)
@@ -185,6 +221,21 @@ def simulate(
             elif pinned_idx.size:
                 state.positions[pinned_idx] = pinned_rest
             state.time = t1
+            if tearing is not None:
+                event = tearing.after_substep(model, state, t1)
+                if event is not None:
+                    model = event.model
+                    for item in (*forces, *constraints):
+                        remap = getattr(item, "remap", None)
+                        if remap is not None:
+                            remap(model, event.index_map)
+                    pinned_idx = np.flatnonzero(model.pinned)
+                    pinned_rest = np.array(model.rest_positions[pinned_idx])
+                    pin_slot = np.searchsorted(original_pins, tearing.origin[pinned_idx])
+                    accelerations = np.empty_like(state.positions)
+                    accelerations[:] = gravity
+                    control = Control(accelerations=accelerations)
+                    sa, sb, srest = _structural_arrays(model)
         positions = state.positions
         finite, reach, speed = kernels.guard_figures(positions, state.velocities, center)
         if not finite:
@@ -207,6 +258,15 @@ def simulate(
         elif resting_since is None:
             resting_since = frame
         welded = positions.copy()
+        torn: dict = {}
+        if tearing is not None:
+            broken, split, changed = tearing.frame_stats()
+            torn = {
+                "mesh": tearing.mesh if changed else None,
+                "broken_springs": broken,
+                "split_vertices": split,
+                "pieces": tearing.pieces,
+            }
         yield Frame(
             index=frame,
             time=state.time,
@@ -216,4 +276,15 @@ def simulate(
             max_speed=float(speed),
             at_rest=at_rest,
             rest_frame=resting_since,
+            model=model,
+            **torn,
         )
+
+
+def _structural_arrays(model: SpringModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ends and rest lengths of the structural springs (for the frames' max_stretch)."""
+    structural = np.flatnonzero(structural_mask(model))
+    sa = np.ascontiguousarray(model.springs[structural, 0], dtype=np.int64)
+    sb = np.ascontiguousarray(model.springs[structural, 1], dtype=np.int64)
+    srest = np.ascontiguousarray(np.maximum(model.rest_lengths[structural], 1e-300), dtype=np.float64)
+    return sa, sb, srest

@@ -6,6 +6,7 @@ naming its key path and line), then carried to the welded vertices the model liv
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,7 @@ from meshdeform.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
 from meshdeform.simulate import Constraint, Force, Scene, Settings
 from meshdeform.solvers.base import SOLVERS
+from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
 from meshdeform.topology import SpringKind, Springs, Welding, build_springs
 from pipeline.recipe import (
     ColliderSpec,
@@ -40,7 +42,7 @@ class BuiltSimulation:
     """Everything `meshdeform.simulate` needs, plus figures for reports.
 
     selections: key path of each selection (e.g. "pins[0].select") -> input vertices it selects.
-    warnings: what the recipe asks for that this build does not do (tearing), one sentence each.
+    warnings: what in the recipe will have no effect (a cut after the last frame), one sentence each.
     start_frame / up_axis: from the recipe, for the exporters.
     """
 
@@ -183,6 +185,70 @@ def _collider(spec: ColliderSpec, i: int, recipe: Recipe, res: _Resolver) -> col
     return col.Collider(shape, spec.friction, spec.thickness, _keyframes(spec.animate, pivot, spec.loop))
 
 
+def _tearing(
+    recipe: Recipe, res: _Resolver, mesh: Mesh, model: SpringModel, settings: Settings, warnings: list[str]
+) -> Tearer | None:
+    """The Tearer for [[tears]] and [[cuts]] (None when the recipe has neither)."""
+    if not recipe.changes_topology:
+        return None
+    vmap = model.vertex_map
+    n = model.vertex_count
+    regions = []
+    for i, tear in enumerate(recipe.tears):
+        path: tuple[str | int, ...] = ("tears", i)
+        selected = res.select(tear.select, (*path, "select"))
+        mask = np.zeros(n, dtype=bool)
+        mask[vmap[selected]] = True
+        vertex_max = None
+        if tear.map is not None:
+            m = tear.map
+            values = m.offset + m.scale * res.property(m.attribute, m.channel, (*path, "map", "attribute"))
+            vertex_max = np.full(n, np.inf)
+            np.minimum.at(vertex_max, vmap, values)  # the weakest input copy of a welded vertex
+            if not np.any(mask & np.isfinite(vertex_max) & (vertex_max > 1.0)):
+                raise recipe.error((*path, "map"), "gives no selected vertex a break stretch above 1: nothing can tear")
+        try:
+            regions.append(TearRegion(mask, tear.kind_stretch(), vertex_max, tear.average))
+        except ValueError as exc:
+            raise recipe.error(path, str(exc)) from None
+    tear_settings = None
+    if regions:
+        interval, burst = recipe.simulation.tear_interval, recipe.simulation.tear_burst
+        tear_settings = TearSettings.from_regions(
+            model,
+            regions,
+            DEFAULT_INTERVAL if interval is None else interval,
+            DEFAULT_BURST if burst is None else burst,
+        )
+        if not tear_settings.tearable.any():
+            warnings.append("tears: every selected vertex is hard-pinned, and pinned vertices never tear")
+    cuts = []
+    duration = settings.frames / settings.fps
+    for i, spec in enumerate(recipe.cuts):
+        path = ("cuts", i)
+        rel = spec.relative
+        mask = None
+        if spec.select is not None:
+            selected = res.select(spec.select, (*path, "select"), rel)
+            mask = np.zeros(n, dtype=bool)
+            mask[vmap[selected]] = True
+        if spec.plane is not None:
+            normal = np.asarray(spec.plane.normal, dtype=np.float64)
+            if rel:
+                normal = normal / res.frame.scale  # planes map with the inverse transpose
+            cuts.append(Cut.plane(spec.time, res.point(spec.plane.point, rel), normal, mask))
+        else:
+            assert spec.polyline is not None
+            points = np.array([res.point(p, rel) for p in spec.polyline.points])
+            direction = np.asarray(spec.polyline.direction, dtype=np.float64)
+            if rel:
+                direction = direction * res.frame.scale
+            cuts.append(Cut.polyline(spec.time, points, direction, mask))
+        if spec.time > duration:
+            warnings.append(f"cuts[{i}] at {spec.time:g} s is after the last frame ({duration:g} s): it never happens")
+    return Tearer(mesh, model, tear_settings, cuts)
+
+
 def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     """Resolve the recipe on a mesh: material, model with hard pins, forces, colliders, effects, settings."""
     sim = recipe.simulation
@@ -193,9 +259,13 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
             ("simulation", "solver"),
             f"solver {sim.solver!r} is not available in this build (available: {', '.join(sorted(SOLVERS))})",
         )
-    settings = Settings(
-        solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=sim.solver_options()
-    )
+    options = sim.solver_options()
+    if recipe.tears and "tethers" not in sim.option_values():
+        # the solvers' tethers tie every vertex to every pin group within its rest distance: with
+        # pins moving apart they stretch the cloth at the pins without limit and yank torn pieces,
+        # so a recipe that tears runs without them unless it asks for them
+        options = dataclasses.replace(options, tethers=None)
+    settings = Settings(solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=options)
     res = _Resolver(recipe, mesh)
     material = recipe.material.to_material()
     welding, springs = build_springs(mesh)
@@ -324,16 +394,11 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
             raise recipe.error(("material", "tethers"), "tethers need pins to attach to; the recipe pins nothing")
         constraints.append(Tethers(model, anchor_idx, spec.tethers.max_stretch))
 
-    # -- tears: validated and counted here; the tearing engine comes later ----------------------------
-    for i, tear in enumerate(recipe.tears):
-        res.select(tear.select, ("tears", i, "select"))
-    if recipe.tears:
-        warnings.append("tearing is not implemented yet: [[tears]] are validated but have no effect")
-
     # -- colliders last, so nothing is left inside one after a substep --------------------------------
     constraints.extend(_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders))
 
     scene = Scene(gravity=sim.gravity_vector, forces=forces, constraints=constraints, pin_motion=pin_motion)
+    scene.tearing = _tearing(recipe, res, mesh, model, settings, warnings)
     return BuiltSimulation(
         model=model,
         scene=scene,

@@ -103,6 +103,7 @@ def run_job(
     from pipeline.build import build_simulation
 
     started = time.perf_counter()
+    recipe.check_fixed_topology_formats()  # before anything is read, run or written
     mesh_path = Path(mesh_path)
     mesh = mesh if mesh is not None else load(mesh_path)
     built = build_simulation(recipe, mesh)
@@ -115,6 +116,12 @@ def run_job(
     max_stretch: list[float] = []
     max_speed: list[float] = []
     rest_frame: int | None = None
+    broken_springs: list[int] = []
+    split_vertices: list[int] = []
+    pieces: list[int] = []
+    first_tear_frame: int | None = None
+    output_vertices = mesh.vertex_count
+    strain_model = model
     sim_seconds = 0.0
     export_seconds = 0.0
     with staged_directory(out_dir) as stage:
@@ -137,12 +144,23 @@ def run_job(
                 max_stretch.append(round(frame.max_stretch, 9))
                 max_speed.append(round(frame.max_speed, 9))
                 rest_frame = frame.rest_frame  # first frame of the still run that lasts to the end
+                if frame.pieces is not None:  # tearing: what broke, what came apart
+                    broken_springs.append(frame.broken_springs)
+                    split_vertices.append(frame.split_vertices)
+                    pieces.append(frame.pieces)
+                    if first_tear_frame is None and frame.mesh is not None:
+                        first_tear_frame = frame.index
+                    output_vertices = int(frame.positions.shape[0])
                 tick = time.perf_counter()
+                frame_model = frame.model if frame.model is not None else model
+                if frame_model is not strain_model:  # the mesh opened: strain over the new springs
+                    strain, strain_model = VertexStrain(frame_model), frame_model
                 data = FrameData(
                     index=frame.index,
                     time=frame.time,
                     positions=frame.positions,
-                    point_data=_point_data(model, strain, frame),
+                    mesh=frame.mesh,
+                    point_data=_point_data(frame_model, strain, frame),
                 )
                 for exporter in opened:
                     exporter.write(data)
@@ -188,6 +206,18 @@ def run_job(
             "max_stretch": max_stretch,
             "max_speed": max_speed,
             "rest_frame": rest_frame,
+            **(
+                {
+                    "first_tear_frame": first_tear_frame,
+                    "broken_springs": broken_springs,
+                    "split_vertices": split_vertices,
+                    "pieces": pieces,
+                    "output_vertices": output_vertices,
+                    "topology_updates": built.scene.tearing.updates if built.scene.tearing is not None else 0,
+                }
+                if recipe.changes_topology
+                else {}
+            ),
             "formats": formats,
             "outputs": [*relative, "report.json"],
             "warnings": list(mesh.warnings),

@@ -65,7 +65,9 @@ __all__ = [
 DESIGN_SOLVERS = ("anchor", "verlet", "xpbd", "springs", "implicit")
 #: output formats the exporters provide (meshdeform/export)
 KNOWN_FORMATS = ("obj", "ply", "pc2", "mdd", "usd", "vtk", "xdmf", "npz")
-SECTIONS = ("simulation", "material", "pins", "impacts", "wind", "colliders", "tears", "output", "assets")
+SECTIONS = ("simulation", "material", "pins", "impacts", "wind", "colliders", "tears", "cuts", "output", "assets")
+#: formats that need a fixed vertex count: refused when the recipe tears or cuts
+POINT_CACHE_FORMATS = ("pc2", "mdd", "xdmf", "npz")
 
 Path_ = tuple[str | int, ...]
 
@@ -276,6 +278,8 @@ class SimulationSpec(_Model):
     up: Literal["y", "z"] = "y"
     seed: StrictInt = Field(0, ge=0)
     start_frame: StrictInt = Field(1, ge=0)
+    tear_interval: Float | None = Field(None, ge=0)
+    tear_burst: StrictInt | None = Field(None, ge=1)
 
     @field_validator("solver")
     @classmethod
@@ -568,9 +572,86 @@ class ColliderSpec(_Model):
         return self
 
 
+SPRING_KINDS = ("structural", "shear", "bending")
+
+
+class KindStretchSpec(_Model):
+    """Break stretch per spring kind; kinds left out never break by themselves."""
+
+    structural: Float | None = Field(None, gt=1)
+    shear: Float | None = Field(None, gt=1)
+    bending: Float | None = Field(None, gt=1)
+
+    def as_mapping(self) -> dict[str, float]:
+        return {k: float(v) for k in SPRING_KINDS if (v := getattr(self, k)) is not None}
+
+
+def _stretch(value: Any) -> Any:
+    """max_stretch: a number > 1 (structural springs) or a table of numbers > 1 per spring kind."""
+    if _is_number(value):
+        if not value > 1:
+            raise ValueError(f"must be greater than 1 (1 is the rest length), got {show(value)}")
+        return float(value)
+    if isinstance(value, dict):
+        for key, v in value.items():
+            if key not in SPRING_KINDS:
+                close = difflib.get_close_matches(str(key), SPRING_KINDS, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise ValueError(f"unknown spring kind {key!r}{hint}; allowed keys: {', '.join(SPRING_KINDS)}")
+            if not _is_number(v):
+                raise ValueError(f"{key}: expected a number, got {toml_type(v)} {show(v)}")
+            if not v > 1:
+                raise ValueError(f"{key}: must be greater than 1 (1 is the rest length), got {show(v)}")
+        if not value:
+            raise ValueError("the table needs at least one of structural, shear, bending")
+        return KindStretchSpec(**{k: float(v) for k, v in value.items()})
+    raise ValueError(f"expected a number or a table {{ structural = ..., shear = ... }}, got {show(value)}")
+
+
 class TearSpec(_Model):
+    """[[tears]]: where the cloth may tear and at what stretch (see meshdeform.tearing)."""
+
     select: SelectSpec | None = None
-    max_stretch: Float = Field(gt=1)
+    max_stretch: Annotated[Float | KindStretchSpec | None, BeforeValidator(_stretch)] = None
+    map: Annotated[PropertyMap | None, BeforeValidator(_property_map)] = None
+    average: StrictInt = Field(1, ge=1, le=64)
+
+    @model_validator(mode="after")
+    def _threshold_given(self) -> TearSpec:
+        if self.max_stretch is None and self.map is None:
+            raise ValueError("a tear needs max_stretch (a number or a per-kind table) or a map")
+        return self
+
+    def kind_stretch(self) -> float | dict[str, float] | None:
+        """max_stretch for the engine: a number (structural) or {kind: ratio}."""
+        if isinstance(self.max_stretch, KindStretchSpec):
+            return self.max_stretch.as_mapping()
+        return self.max_stretch
+
+
+class CutPlaneSpec(_Model):
+    point: Vec3
+    normal: Direction3
+
+
+class CutPolylineSpec(_Model):
+    points: tuple[Vec3, ...] = Field(min_length=2)
+    direction: Direction3
+
+
+class CutSpec(_Model):
+    """[[cuts]]: a scripted cut at a time along a plane or a polyline swept along a direction."""
+
+    time: Float = Field(ge=0)
+    plane: CutPlaneSpec | None = None
+    polyline: CutPolylineSpec | None = None
+    select: SelectSpec | None = None
+    relative: StrictBool = False
+
+    @model_validator(mode="after")
+    def _one_shape(self) -> CutSpec:
+        _one_of(self, ("plane", "polyline"), "a cut")
+        return self
 
 
 class PreviewSpec(BaseModel):
@@ -629,6 +710,7 @@ class AssetRuleSpec(_Model):
     wind: dict[str, Any] | None = None
     colliders: list[Any] | None = None
     tears: list[Any] | None = None
+    cuts: list[Any] | None = None
     output: dict[str, Any] | None = None
 
 
@@ -658,6 +740,7 @@ class Recipe(_Model):
     wind: WindSpec | None = None
     colliders: tuple[ColliderSpec, ...] = ()
     tears: tuple[TearSpec, ...] = ()
+    cuts: tuple[CutSpec, ...] = ()
     output: OutputSpec = Field(default_factory=OutputSpec)
     assets: tuple[AssetRuleSpec, ...] = ()
     source: Path | None = Field(None, exclude=True)
@@ -687,6 +770,24 @@ class Recipe(_Model):
     @property
     def up_axis(self) -> str:
         return self.output.up_axis or self.simulation.up
+
+    @property
+    def changes_topology(self) -> bool:
+        """Whether the mesh may open during the run ([[tears]] or [[cuts]])."""
+        return bool(self.tears or self.cuts)
+
+    def check_fixed_topology_formats(self) -> None:
+        """RecipeError naming output.formats when a point cache is asked of a recipe that tears."""
+        if not self.changes_topology:
+            return
+        for i, name in enumerate(self.output.formats):
+            if name in POINT_CACHE_FORMATS:
+                what = "[[tears]]" if self.tears else "[[cuts]]"
+                raise self.error(
+                    ("output", "formats", i),
+                    f"{name} needs a fixed vertex count, but this recipe opens the mesh ({what}) and adds "
+                    "vertices where it tears; write obj, ply, usd or vtk instead, or remove the tearing",
+                )
 
     @property
     def asset_rules(self) -> tuple[AssetRule, ...]:

@@ -44,3 +44,42 @@ class ModelCache:
             return True
         self._model = model
         return False
+
+
+def aligned_zeros(shape: tuple[int, ...], dtype: type = np.float64, align: int = 64) -> np.ndarray:
+    """A C-contiguous zero array whose data starts on an `align`-byte boundary (a cache line)."""
+    dt = np.dtype(dtype)
+    count = int(np.prod(shape))
+    raw = np.zeros(count * dt.itemsize + align, dtype=np.uint8)
+    start = (-raw.ctypes.data) % align
+    return raw[start : start + count * dt.itemsize].view(dt).reshape(shape)
+
+
+def kernel_tethers(
+    model: SpringModel,
+    rank: np.ndarray,
+    ratio: float | None,
+    kinds: tuple[int, ...] | None = None,
+    slack: float = 1.0,
+) -> np.ndarray:
+    """Tethers (see `layout.tethers`, paths over springs of `kinds`) as `kernels.TETHER` records.
+
+    In a layout's kernel numbering (rank: model vertex -> kernel vertex); limits times `slack`.
+
+    Sorted by kernel vertex (stably, so a vertex's tethers keep their order); empty when
+    `ratio` is None or not positive.
+    """
+    from meshdeform.solvers.kernels import TETHER
+    from meshdeform.solvers.layout import tethers
+
+    if ratio is None or ratio <= 0:
+        return np.zeros(0, dtype=TETHER)
+    t = tethers(model, ratio) if kinds is None else tethers(model, ratio, kinds=kinds)
+    vertex = rank[t.vertex]
+    order = np.argsort(vertex, kind="stable")
+    out = np.zeros(order.shape[0], dtype=TETHER)
+    out["v"] = vertex[order]
+    out["p"] = rank[t.pin][order]
+    out["lim"] = t.limit[order] * float(slack)
+    return out
+

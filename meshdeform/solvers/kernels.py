@@ -1,9 +1,9 @@
 """Numba kernels shared by the solvers, on the general spring list (no grid assumption).
 
-All take structure-of-arrays spring data in a `SpringLayout` order: slabs 0..P-1 are swept
-in parallel (`prange` over slabs, they share no vertex), the separator after them.
-Positions and velocities are the State's (W, 3) float64 arrays, updated in place.
-Compiled with `cache=True` and `error_model="numpy"` (no divide-by-zero checks in the loops).
+All take spring data in a `SpringLayout` order: slabs 0..P-1 are swept in parallel (`prange`
+over slabs, they share no vertex), the separator after them. Positions and velocities are the
+State's (W, 3) float64 arrays, updated in place. Compiled with `cache=True` and
+`error_model="numpy"` (no divide-by-zero checks in the loops).
 """
 
 from __future__ import annotations
@@ -15,157 +15,322 @@ _JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 _FAST = {**_JIT, "fastmath": True}
 
 
-# --------------------------------------------------------------------------- integration
+# --------------------------------------------------------------------------- layout
 
 
 @nb.njit(**_JIT)
-def predict_verlet(x, prev, inv_mass, accel, retention, dt2):  # pragma: no cover - compiled
-    """Verlet prediction x' = x + (x - prev) * retention + a dt^2 for free vertices; prev = x."""
-    for i in range(x.shape[0]):
-        if inv_mass[i] == 0.0:
-            continue
-        for k in range(3):
-            xi = x[i, k]
-            x[i, k] = xi + (xi - prev[i, k]) * retention + accel[i, k] * dt2
-            prev[i, k] = xi
+def sweep_levels(a, b, n):  # pragma: no cover - compiled
+    """Level of each spring in list order: 1 + the highest level of earlier springs sharing an end."""
+    last = np.zeros(n, dtype=np.int64)
+    level = np.empty(a.shape[0], dtype=np.int64)
+    for s in range(a.shape[0]):
+        ia = a[s]
+        ib = b[s]
+        lv = max(last[ia], last[ib]) + 1
+        level[s] = lv
+        last[ia] = lv
+        last[ib] = lv
+    return level
 
 
 @nb.njit(**_JIT)
-def velocities_from_positions(x, prev, v, inv_dt):  # pragma: no cover - compiled
-    """v = (x - prev) / dt for every vertex."""
-    for i in range(x.shape[0]):
-        for k in range(3):
-            v[i, k] = (x[i, k] - prev[i, k]) * inv_dt
+def first_touch(a, b, n):  # pragma: no cover - compiled
+    """Vertices 0..n-1 in the order springs (a, b) first reach them, untouched ones after (ascending)."""
+    seen = np.zeros(n, dtype=np.bool_)
+    order = np.empty(n, dtype=np.int64)
+    k = 0
+    for s in range(a.shape[0]):
+        for v in (a[s], b[s]):
+            if not seen[v]:
+                seen[v] = True
+                order[k] = v
+                k += 1
+    for v in range(n):
+        if not seen[v]:
+            order[k] = v
+            k += 1
+    return order
 
 
-# --------------------------------------------------------------------------- verlet
+# --------------------------------------------------------------------------- position-based substeps
+#
+# verlet and xpbd run a whole substep in one compiled call on a scratch copy of the vertices in
+# the layout's kernel numbering, one 64-byte record (a cache line) per vertex: position,
+# inverse mass and previous position, so the two positions a spring reads arrive together.
+# Per spring one record of precomputed constants (see the solvers), so a projection does one
+# square root and one division and no gather of masses. Record fields compile to constant
+# offsets and unsigned indices need no negative-index wraparound, which keeps the loop short.
+# Only free vertices are written back: pinned positions stay bit-identical.
+# Sweep kernels use fast-math flags without reassociation, so the serial and the parallel
+# build compute every spring bit for bit alike.
+
+_SWEEP = {**_JIT, "fastmath": {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}}
+
+#: squared length below which a spring's direction is taken as undefined (no division by zero)
+_TINY2 = 1e-24
+
+#: scratch vertex: position, inverse mass, previous position (64 bytes)
+VERTEX = np.dtype(
+    [("x", "f8"), ("y", "f8"), ("z", "f8"), ("w", "f8"), ("px", "f8"), ("py", "f8"), ("pz", "f8"), ("pad", "f8")],
+    align=True,
+)
+#: spring ends in kernel vertex numbering
+ENDS = np.dtype([("a", "u4"), ("b", "u4")], align=True)
+#: xpbd spring: rest length, inverse masses, compliance / dt^2 and 1 / denominator under tension
+#: and compression, damping factor gamma (64 bytes)
+XPBD_SPRING = np.dtype(
+    [("rest", "f8"), ("wa", "f8"), ("wb", "f8"), ("at", "f8"), ("ac", "f8"), ("it", "f8"), ("ic", "f8"), ("g", "f8")],
+    align=True,
+)
+#: verlet spring: rest length, k w_a / w and k w_b / w under tension and compression
+RELAX_SPRING = np.dtype([("rest", "f8"), ("at", "f8"), ("bt", "f8"), ("ac", "f8"), ("bc", "f8")], align=True)
+#: tether: kernel vertex, kernel pin vertex, largest distance
+TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
 
 
-@nb.njit(inline="always", **_FAST)
-def _relax_range(x, a, b, rest, inv_mass, kt, kc, lo, hi, backward):  # pragma: no cover - compiled
-    n = hi - lo
-    for j in range(n):
-        s = hi - 1 - j if backward else lo + j
-        ia = a[s]
-        ib = b[s]
-        wa = inv_mass[ia]
-        wb = inv_mass[ib]
-        w = wa + wb
-        if w == 0.0:
-            continue
-        dx = x[ib, 0] - x[ia, 0]
-        dy = x[ib, 1] - x[ia, 1]
-        dz = x[ib, 2] - x[ia, 2]
-        length = np.sqrt(dx * dx + dy * dy + dz * dz)
-        if length < 1e-12:
-            continue
-        c = length - rest[s]
-        k = kt[s] if c > 0.0 else kc[s]
-        f = k * c / (length * w)
-        fa = f * wa
-        fb = f * wb
-        x[ia, 0] += dx * fa
-        x[ia, 1] += dy * fa
-        x[ia, 2] += dz * fa
-        x[ib, 0] -= dx * fb
-        x[ib, 1] -= dy * fb
-        x[ib, 2] -= dz * fb
+@nb.njit(inline="always", **_JIT)
+def _load(X, x, prev, inv_mass, accel, rank, retention, dt2):  # pragma: no cover - compiled
+    """Scratch copy with the Verlet prediction x' = x + (x - prev) retention + a dt^2 of free vertices.
 
-
-@nb.njit(parallel=True, **_FAST)
-def relax_springs(x, a, b, rest, inv_mass, kt, kc, offsets, parts, iterations, start):  # pragma: no cover
-    """Jakobsen relaxation, `iterations` Gauss-Seidel sweeps alternating direction (from `start`)."""
-    for it in range(iterations):
-        backward = ((it + start) % 2) == 1
-        for p in nb.prange(parts):
-            _relax_range(x, a, b, rest, inv_mass, kt, kc, offsets[p], offsets[p + 1], backward)
-        _relax_range(x, a, b, rest, inv_mass, kt, kc, offsets[parts], offsets[parts + 1], backward)
-
-
-@nb.njit(**_FAST)
-def relax_springs_serial(x, a, b, rest, inv_mass, kt, kc, offsets, parts, iterations, start):  # pragma: no cover
-    """`relax_springs` on one thread (no parallel runtime started)."""
-    for it in range(iterations):
-        backward = ((it + start) % 2) == 1
-        for p in range(parts + 1):
-            _relax_range(x, a, b, rest, inv_mass, kt, kc, offsets[p], offsets[p + 1], backward)
-
-
-# --------------------------------------------------------------------------- xpbd
-
-
-@nb.njit(inline="always", **_FAST)
-def _xpbd_range(x, prev, a, b, rest, inv_mass, at, ac, gamma, lam, lo, hi, backward):  # pragma: no cover - compiled
-    n = hi - lo
-    for j in range(n):
-        s = hi - 1 - j if backward else lo + j
-        ia = a[s]
-        ib = b[s]
-        wa = inv_mass[ia]
-        wb = inv_mass[ib]
-        w = wa + wb
-        if w == 0.0:
-            continue
-        dx = x[ib, 0] - x[ia, 0]
-        dy = x[ib, 1] - x[ia, 1]
-        dz = x[ib, 2] - x[ia, 2]
-        length = np.sqrt(dx * dx + dy * dy + dz * dz)
-        if length < 1e-12:
-            continue
-        c = length - rest[s]
-        alpha = at[s] if c > 0.0 else ac[s]
-        if alpha < 0.0:
-            continue
-        inv_l = 1.0 / length
-        nx = dx * inv_l
-        ny = dy * inv_l
-        nz = dz * inv_l
-        g = gamma[s]
-        # damping: gamma * grad C . (x - x_prev)
-        rel = 0.0
-        if g > 0.0:
-            rel = (
-                nx * ((x[ib, 0] - prev[ib, 0]) - (x[ia, 0] - prev[ia, 0]))
-                + ny * ((x[ib, 1] - prev[ib, 1]) - (x[ia, 1] - prev[ia, 1]))
-                + nz * ((x[ib, 2] - prev[ib, 2]) - (x[ia, 2] - prev[ia, 2]))
-            )
-        dlam = (-c - alpha * lam[s] - g * rel) / ((1.0 + g) * w + alpha)
-        lam[s] += dlam
-        pa = dlam * wa
-        pb = dlam * wb
-        x[ia, 0] -= nx * pa
-        x[ia, 1] -= ny * pa
-        x[ia, 2] -= nz * pa
-        x[ib, 0] += nx * pb
-        x[ib, 1] += ny * pb
-        x[ib, 2] += nz * pb
-
-
-@nb.njit(parallel=True, **_FAST)
-def xpbd_solve(x, prev, a, b, rest, inv_mass, at, ac, gamma, lam, offsets, parts, iterations, start):
-    """XPBD distance constraints (Macklin et al. 2016): lam reset, then Gauss-Seidel sweeps.
-
-    at / ac: compliance / dt^2 under tension / compression (negative: no constraint);
-    gamma: damping factor alpha~ * beta~ per constraint (eq. 26 of the paper).
+    Walks the State's arrays in order (rank: model vertex -> scratch record), so only the
+    scratch is written out of order, one cache line per vertex.
     """
-    lam[:] = 0.0
-    for it in range(iterations):
-        backward = ((it + start) % 2) == 1
-        for p in nb.prange(parts):
-            _xpbd_range(x, prev, a, b, rest, inv_mass, at, ac, gamma, lam, offsets[p], offsets[p + 1], backward)
-        _xpbd_range(x, prev, a, b, rest, inv_mass, at, ac, gamma, lam, offsets[parts], offsets[parts + 1], backward)
+    for i in range(rank.shape[0]):
+        r = X[rank[i]]
+        w = inv_mass[i]
+        x0 = x[i, 0]
+        x1 = x[i, 1]
+        x2 = x[i, 2]
+        r.w = w
+        r.pad = 0.0
+        if w == 0.0:
+            r.x = x0
+            r.y = x1
+            r.z = x2
+            r.px = prev[i, 0]
+            r.py = prev[i, 1]
+            r.pz = prev[i, 2]
+        else:
+            r.x = x0 + (x0 - prev[i, 0]) * retention + accel[i, 0] * dt2
+            r.y = x1 + (x1 - prev[i, 1]) * retention + accel[i, 1] * dt2
+            r.z = x2 + (x2 - prev[i, 2]) * retention + accel[i, 2] * dt2
+            r.px = x0
+            r.py = x1
+            r.pz = x2
 
 
-@nb.njit(**_FAST)
-def xpbd_solve_serial(
-    x, prev, a, b, rest, inv_mass, at, ac, gamma, lam, offsets, parts, iterations, start
-):  # pragma: no cover
-    """`xpbd_solve` on one thread (no parallel runtime started)."""
+@nb.njit(inline="always", **_JIT)
+def _store(X, x, prev, v, rank, inv_dt):  # pragma: no cover - compiled
+    """Free vertices back from the scratch copy; v = (x - prev) / dt for every vertex."""
+    for i in range(rank.shape[0]):
+        r = X[rank[i]]
+        if r.w != 0.0:
+            x0 = r.x
+            x1 = r.y
+            x2 = r.z
+            p0 = r.px
+            p1 = r.py
+            p2 = r.pz
+            x[i, 0] = x0
+            x[i, 1] = x1
+            x[i, 2] = x2
+            prev[i, 0] = p0
+            prev[i, 1] = p1
+            prev[i, 2] = p2
+        else:
+            x0 = x[i, 0]
+            x1 = x[i, 1]
+            x2 = x[i, 2]
+            p0 = prev[i, 0]
+            p1 = prev[i, 1]
+            p2 = prev[i, 2]
+        v[i, 0] = (x0 - p0) * inv_dt
+        v[i, 1] = (x1 - p1) * inv_dt
+        v[i, 2] = (x2 - p2) * inv_dt
+
+
+@nb.njit(inline="always", **_SWEEP)
+def _tethers(X, tethers):  # pragma: no cover - compiled
+    """Pull each tethered vertex back to within its limit of its pin (the pin does not move)."""
+    for t in range(tethers.shape[0]):
+        te = tethers[t]
+        vi = X[te.v]
+        pin = X[te.p]
+        dx = vi.x - pin.x
+        dy = vi.y - pin.y
+        dz = vi.z - pin.z
+        d2 = dx * dx + dy * dy + dz * dz
+        lim = te.lim
+        if d2 > lim * lim:
+            s = lim / np.sqrt(d2)
+            vi.x = pin.x + dx * s
+            vi.y = pin.y + dy * s
+            vi.z = pin.z + dz * s
+
+
+@nb.njit(inline="always", **_SWEEP)
+def _xpbd_spring(X, ends, P, lam, s, damped):  # pragma: no cover - compiled
+    """One XPBD distance constraint (P[s]: see XPBD_SPRING).
+
+    dlam = (-C - a~ lam - gamma n . (dx - dx_prev)) / ((1 + gamma) w + a~), written as
+    (L - l - gamma (l - d . dp / l) - a~ lam) / den with d = x_b - x_a, dp = prev_b - prev_a.
+    """
+    e = ends[s]
+    va = X[e.a]
+    vb = X[e.b]
+    c = P[s]
+    dx = vb.x - va.x
+    dy = vb.y - va.y
+    dz = vb.z - va.z
+    length = np.sqrt(max(dx * dx + dy * dy + dz * dz, _TINY2))
+    inv_l = 1.0 / length
+    rest = c.rest
+    tension = length > rest
+    alpha = c.at if tension else c.ac
+    inv_den = c.it if tension else c.ic
+    num = rest - length - alpha * lam[s]
+    if damped:
+        px = vb.px - va.px
+        py = vb.py - va.py
+        pz = vb.pz - va.pz
+        num -= c.g * (length - (dx * px + dy * py + dz * pz) * inv_l)
+    dlam = num * inv_den
+    lam[s] += dlam
+    q = dlam * inv_l
+    qa = q * c.wa
+    qb = q * c.wb
+    va.x -= dx * qa
+    va.y -= dy * qa
+    va.z -= dz * qa
+    vb.x += dx * qb
+    vb.y += dy * qb
+    vb.z += dz * qb
+
+
+@nb.njit(inline="always", **_SWEEP)
+def _xpbd_range(X, ends, P, lam, lo, hi, backward, damped):  # pragma: no cover - compiled
+    """Springs lo..hi-1 (unsigned offsets: no wraparound code), forward or backward."""
+    one = np.uint64(1)
+    if damped:
+        if backward:
+            for j in range(hi - lo):
+                _xpbd_spring(X, ends, P, lam, hi - one - j, True)
+        else:
+            for s in range(lo, hi):
+                _xpbd_spring(X, ends, P, lam, s, True)
+    elif backward:
+        for j in range(hi - lo):
+            _xpbd_spring(X, ends, P, lam, hi - one - j, False)
+    else:
+        for s in range(lo, hi):
+            _xpbd_spring(X, ends, P, lam, s, False)
+
+
+@nb.njit(inline="always", **_SWEEP)
+def _relax_spring(X, ends, P, s):  # pragma: no cover - compiled
+    """One Jakobsen relaxation (P[s]: see RELAX_SPRING)."""
+    e = ends[s]
+    va = X[e.a]
+    vb = X[e.b]
+    c = P[s]
+    dx = vb.x - va.x
+    dy = vb.y - va.y
+    dz = vb.z - va.z
+    length = np.sqrt(max(dx * dx + dy * dy + dz * dz, _TINY2))
+    rest = c.rest
+    tension = length > rest
+    ka = c.at if tension else c.ac
+    kb = c.bt if tension else c.bc
+    f = 1.0 - rest / length
+    fa = f * ka
+    fb = f * kb
+    va.x += dx * fa
+    va.y += dy * fa
+    va.z += dz * fa
+    vb.x -= dx * fb
+    vb.y -= dy * fb
+    vb.z -= dz * fb
+
+
+@nb.njit(inline="always", **_SWEEP)
+def _relax_range(X, ends, P, lo, hi, backward):  # pragma: no cover - compiled
+    one = np.uint64(1)
+    if backward:
+        for j in range(hi - lo):
+            _relax_spring(X, ends, P, hi - one - j)
+    else:
+        for s in range(lo, hi):
+            _relax_spring(X, ends, P, s)
+
+
+@nb.njit(**_SWEEP)
+def xpbd_substep(
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, lam, offsets, parts, iterations, damped, tethers,
+):  # pragma: no cover - compiled
+    """One XPBD substep on one thread: predict, tethers, `iterations` sweeps, tethers, velocities.
+
+    Sweeps alternate direction, the first forward (from the pins outward); slabs then the
+    separator, in layout order.
+    offsets: (parts + 2,) uint64 (see `SpringLayout`).
+    """
+    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt)
+    _tethers(X, tethers)
     lam[:] = 0.0
     for it in range(iterations):
-        backward = ((it + start) % 2) == 1
+        backward = (it % 2) == 1
         for p in range(parts + 1):
-            _xpbd_range(x, prev, a, b, rest, inv_mass, at, ac, gamma, lam, offsets[p], offsets[p + 1], backward)
+            _xpbd_range(X, ends, P, lam, offsets[p], offsets[p + 1], backward, damped)
+    _tethers(X, tethers)
+    _store(X, x, prev, v, rank, 1.0 / dt)
+
+
+@nb.njit(parallel=True, **_SWEEP)
+def xpbd_substep_parallel(
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, lam, offsets, parts, iterations, damped, tethers,
+):  # pragma: no cover - compiled
+    """`xpbd_substep` with the slabs of each sweep in parallel (bit for bit the same result)."""
+    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt)
+    _tethers(X, tethers)
+    for s in range(lam.shape[0]):
+        lam[s] = 0.0
+    for it in range(iterations):
+        backward = (it % 2) == 1
+        for p in nb.prange(parts):
+            _xpbd_range(X, ends, P, lam, offsets[p], offsets[p + 1], backward, damped)
+        _xpbd_range(X, ends, P, lam, offsets[parts], offsets[parts + 1], backward, damped)
+    _tethers(X, tethers)
+    _store(X, x, prev, v, rank, 1.0 / dt)
+
+
+@nb.njit(**_SWEEP)
+def verlet_substep(
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, offsets, parts, iterations, tethers,
+):  # pragma: no cover - compiled
+    """One Verlet substep on one thread: predict, tethers, relaxation sweeps, tethers, velocities."""
+    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt)
+    _tethers(X, tethers)
+    for it in range(iterations):
+        backward = (it % 2) == 1
+        for p in range(parts + 1):
+            _relax_range(X, ends, P, offsets[p], offsets[p + 1], backward)
+    _tethers(X, tethers)
+    _store(X, x, prev, v, rank, 1.0 / dt)
+
+
+@nb.njit(parallel=True, **_SWEEP)
+def verlet_substep_parallel(
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, offsets, parts, iterations, tethers,
+):  # pragma: no cover - compiled
+    """`verlet_substep` with the slabs of each sweep in parallel (bit for bit the same result)."""
+    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt)
+    _tethers(X, tethers)
+    for it in range(iterations):
+        backward = (it % 2) == 1
+        for p in nb.prange(parts):
+            _relax_range(X, ends, P, offsets[p], offsets[p + 1], backward)
+        _relax_range(X, ends, P, offsets[parts], offsets[parts + 1], backward)
+    _tethers(X, tethers)
+    _store(X, x, prev, v, rank, 1.0 / dt)
 
 
 # --------------------------------------------------------------------------- explicit springs
@@ -429,25 +594,3 @@ def start_step(x, prev, v, inv_mass, inv_dt):  # pragma: no cover - compiled
         else:
             for k in range(3):
                 prev[i, k] = x[i, k]
-
-
-@nb.njit(**_FAST)
-def apply_tethers(x, vertex, pin, limit):  # pragma: no cover - compiled
-    """Pull each tethered vertex back to within `limit` of its pin (the pin does not move)."""
-    for t in range(vertex.shape[0]):
-        _tether(x, vertex, pin, limit, t)
-
-
-@nb.njit(inline="always", **_FAST)
-def _tether(x, vertex, pin, limit, t):  # pragma: no cover - compiled
-    i = vertex[t]
-    p = pin[t]
-    dx = x[i, 0] - x[p, 0]
-    dy = x[i, 1] - x[p, 1]
-    dz = x[i, 2] - x[p, 2]
-    length = np.sqrt(dx * dx + dy * dy + dz * dz)
-    if length > limit[t]:
-        s = limit[t] / length
-        x[i, 0] = x[p, 0] + dx * s
-        x[i, 1] = x[p, 1] + dy * s
-        x[i, 2] = x[p, 2] + dz * s

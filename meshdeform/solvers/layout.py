@@ -4,10 +4,21 @@ Vertices are split into P slabs of equal count along the rest shape's longest ax
 whose two ends lie in the same slab belongs to that slab; the few that cross slabs form a
 separator. Slabs share no vertex, so Gauss-Seidel sweeps over them run in parallel without
 locks (one thread per slab) and give the same result whatever the number of threads; the
-separator is swept serially after them. Inside a slab, springs are sorted by their rest
-distance from the nearest pin (so a forward sweep carries the pins' hold across the whole
-cloth in one pass, and the alternating backward sweep carries the load back), or by their
-first vertex when nothing is pinned, so that neighbours sit near each other in memory.
+separator is swept serially after them. P depends only on the option and the model (never
+on the thread count), so results are byte-identical on any machine and in any worker.
+
+Inside a slab, springs are sorted by their rest distance from the nearest pin (so a forward
+sweep carries the pins' hold across the whole cloth in one pass, and the alternating backward
+sweep carries the load back), or by their first vertex when nothing is pinned. That order is
+then *levelled*: each spring's level is one more than the highest level of the earlier springs
+sharing one of its vertices, and springs are stably re-sorted by level. Springs of one level
+share no vertex, so a Gauss-Seidel sweep in level order gives bit for bit the result of the
+sweep in the sorted order (and the reversed level order that of the reversed sweep), while
+consecutive springs no longer wait for each other's results: the CPU overlaps several spring
+projections instead of one long chain of dependent loads and stores (1.5-2x faster).
+
+Vertices are renumbered for the kernels in the order the sweep first touches them
+(`vertex_order`), so the gathered vertices of consecutive springs sit close in memory.
 Works for any spring list (no grid assumption).
 """
 
@@ -20,6 +31,7 @@ import numpy as np
 
 from meshdeform.arrays import argsort_int
 from meshdeform.model import SpringModel
+from meshdeform.solvers.kernels import ENDS, first_touch, sweep_levels
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,7 +40,9 @@ class SpringLayout:
 
     a, b: (S,) int64 end vertices in the new order; rest: (S,) rest lengths;
     offsets: (P + 2,) slab p is order[offsets[p]:offsets[p + 1]], the separator is
-    order[offsets[P]:offsets[P + 1]].
+    order[offsets[P]:offsets[P + 1]]. vertex_order: (W,) kernel vertex k -> model vertex, in
+    the order the sweep first touches them; vertex_rank: its inverse; ends: (S,) `kernels.ENDS`
+    records, the springs' ends (a, b) in kernel numbering.
     """
 
     order: np.ndarray
@@ -37,25 +51,42 @@ class SpringLayout:
     rest: np.ndarray
     offsets: np.ndarray
     parts: int
+    vertex_order: np.ndarray
+    vertex_rank: np.ndarray
+    ends: np.ndarray
 
     def take(self, per_spring: np.ndarray) -> np.ndarray:
         """A per-spring model array in this layout's order (contiguous float64)."""
         return np.ascontiguousarray(np.asarray(per_spring, dtype=np.float64)[self.order])
 
 
-#: springs from which `partitions = 0` (auto) solves two slabs in parallel: below it a parallel
-#: launch per sweep costs more than it saves (and far more on an oversubscribed machine)
+#: springs from which `partitions = 0` (auto) makes two slabs (swept serially, see
+#: `parallel_sweeps`); kept so that auto keeps the spring order it always had
 AUTO_PARALLEL_SPRINGS = 100_000
 
 
 def resolve_parts(parts: int, springs: int) -> int:
     """Slab count: the option, or for 0 (auto) 2 from AUTO_PARALLEL_SPRINGS springs up, else 1.
 
-    Auto never looks at the thread count, so results are the same on every machine.
+    Depends only on the option and the spring count, never on the thread count, so a model
+    gets the same spring order (and bit for bit the same results) on every machine and in a
+    worker with one Numba thread as in the main process.
     """
     if parts > 0:
         return int(parts)
-    return 2 if springs >= AUTO_PARALLEL_SPRINGS and nb.get_num_threads() > 1 else 1
+    return 2 if springs >= AUTO_PARALLEL_SPRINGS else 1
+
+
+def parallel_sweeps(options: object, layout: SpringLayout) -> bool:
+    """Whether to sweep the slabs on several threads: only when `partitions` was set above 1.
+
+    The result is the same either way (bit for bit); only the speed differs. Automatic
+    partitions sweep serially: measured on the shared 2-vCPU machine (load 1.3-1.9, Numba's
+    OpenMP layer), the simulate loop with two threads ran at 1.5-1.6 frames/s against 1.9
+    serially at N = 256, and at 5.8 against 46 frames/s with two slabs at N = 64 (each
+    parallel launch waits for a second CPU the other processes hold).
+    """
+    return int(getattr(options, "partitions", 0)) > 1 and layout.parts > 1 and nb.get_num_threads() > 1
 
 
 def pin_distance(model: SpringModel) -> np.ndarray | None:
@@ -111,17 +142,32 @@ def spring_layout(model: SpringModel, parts: int, mask: np.ndarray | None = None
     else:
         key = (group * n + lo) * n + hi if (parts + 1) * n * n < 2**62 else group * n + lo
         order_local = argsort_int(key)
+    # level the sorted order (same sweep result, independent neighbours): see the module docstring
+    level = sweep_levels(a[order_local], b[order_local], n)
+    sorted_group = group[order_local]
+    order_local = order_local[np.lexsort((hi[order_local], lo[order_local], level, sorted_group))]
     order = index[order_local]
     counts = np.bincount(group, minlength=parts + 1)
     offsets = np.zeros(parts + 2, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
+    oa = np.ascontiguousarray(springs[order, 0])
+    ob = np.ascontiguousarray(springs[order, 1])
+    vertex_order = first_touch(oa, ob, model.vertex_count)
+    vertex_rank = np.empty_like(vertex_order)
+    vertex_rank[vertex_order] = np.arange(vertex_order.shape[0], dtype=np.int64)
+    ends = np.zeros(order.shape[0], dtype=ENDS)
+    ends["a"] = vertex_rank[oa]
+    ends["b"] = vertex_rank[ob]
     return SpringLayout(
         order=order,
-        a=np.ascontiguousarray(springs[order, 0]),
-        b=np.ascontiguousarray(springs[order, 1]),
+        a=oa,
+        b=ob,
         rest=np.ascontiguousarray(np.asarray(model.rest_lengths, dtype=np.float64)[order]),
         offsets=offsets,
         parts=parts,
+        vertex_order=vertex_order,
+        vertex_rank=vertex_rank,
+        ends=ends,
     )
 
 
@@ -138,11 +184,15 @@ class Tethers:
     limit: np.ndarray
 
 
-def tethers(model: SpringModel, ratio: float, groups: int = 4) -> Tethers:
+def tethers(model: SpringModel, ratio: float, groups: int = 4, kinds: tuple[int, ...] = (0,)) -> Tethers:
     """Tethers from every free vertex to the nearest pin of each of its `groups` nearest pin groups.
 
     A pin group is a connected set of pinned vertices (a pinned corner, a pinned edge), so a
     cloth held at two corners gets two tethers per vertex, one held along an edge one.
+    Distances run along springs of `kinds` (default structural only: on a grid the Manhattan
+    distance, which lets a vertex diagonal from a pin stretch up to 41 % before its tether
+    acts; with shear springs too it is the octile distance, within 8 % of the straight line).
+    Every path is at least the straight rest distance, so the rest shape never violates a tether.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components, dijkstra
@@ -156,8 +206,10 @@ def tethers(model: SpringModel, ratio: float, groups: int = 4) -> Tethers:
         return Tethers(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
     structural = np.asarray(model.kinds) == SpringKind.STRUCTURAL
     pairs = np.asarray(model.springs)[structural]
-    length = np.maximum(np.asarray(model.rest_lengths)[structural], 1e-12)
-    graph = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    path_kinds = np.isin(np.asarray(model.kinds), np.asarray(kinds, dtype=np.int64))
+    path_pairs = np.asarray(model.springs)[path_kinds]
+    length = np.maximum(np.asarray(model.rest_lengths)[path_kinds], 1e-12)
+    graph = coo_matrix((length, (path_pairs[:, 0], path_pairs[:, 1])), shape=(n, n)).tocsr()
     both = pinned[pairs[:, 0]] & pinned[pairs[:, 1]]
     pin_graph = coo_matrix(
         (np.ones(int(both.sum())), (pairs[both, 0], pairs[both, 1])), shape=(n, n)

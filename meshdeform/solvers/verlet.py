@@ -1,8 +1,13 @@
 """Verlet cloth (Jakobsen 2001, Mosegaard): Verlet integration, springs as distance constraints.
 
 Each substep integrates positions from the previous ones (x' = x + (x - x_prev) * retention +
-a dt^2) and then relaxes every spring toward its rest length in `iterations` symmetric
-Gauss-Seidel sweeps (alternating direction), slabs of the mesh in parallel (see `layout`).
+a dt^2) and then relaxes every spring toward its rest length in `iterations` Gauss-Seidel
+sweeps (alternating direction, the first forward: from the pins outward, which carries their
+hold across the cloth in one pass), slabs of the mesh in parallel (see `layout`). Default:
+2 sweeps (a symmetric forward + backward step) and 20 substeps per frame: on a 64 x 64 cloth
+hanging from two corners max structural stretch 1.16 over 100 frames, against 1.25 with 16
+substeps. A single forward sweep per substep (1 x 24: 1.21 for less work) is not symmetric
+and can pump energy into the cloth (see `xpbd`).
 
 Per-kind stiffness: a kind's stiffness s (0..1, compression separately) is the fraction of a
 spring's length error removed per substep; each sweep uses 1 - (1 - s) ** (1 / iterations)
@@ -10,7 +15,12 @@ spring's length error removed per substep; each sweep uses 1 - (1 - s) ** (1 / i
 material. s = 1 makes a spring as stiff as the sweeps can make it. Velocities are
 (x - x_prev) / dt. Material spring damping is not used; air damping is `options.damping`.
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
-the sweeps so that a cloth hanging from a few pins does not stretch far near them.
+the sweeps so that a cloth hanging from a few pins does not stretch far near them; their
+distances run along structural springs only (tighter, octile tethers as in `xpbd` fight the
+fully stiff relaxation here and raised the stretch from 1.25 to 1.40 at 2 x 16).
+
+Speed: a whole substep is one compiled call (`kernels.verlet_substep`); per spring the factors
+k w_a / w and k w_b / w (tension and compression) are precomputed into one row.
 """
 
 from __future__ import annotations
@@ -22,8 +32,8 @@ import numpy as np
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers import kernels
 from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
-from meshdeform.solvers.common import ModelCache
-from meshdeform.solvers.layout import spring_layout, tethers
+from meshdeform.solvers.common import ModelCache, aligned_zeros, kernel_tethers
+from meshdeform.solvers.layout import parallel_sweeps, spring_layout
 
 
 def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
@@ -38,38 +48,45 @@ class VerletSolver(ModelCache):
     """Position-based Verlet cloth with per-kind relaxation factors."""
 
     name: ClassVar[str] = "verlet"
-    default_substeps: ClassVar[int] = 16
+    default_substeps: ClassVar[int] = 20
     default_iterations: ClassVar[int] = 2
 
     def __init__(self, options: SolverOptions) -> None:
         self.options = options
         self.iterations = options.iterations_for(self)
+        self._dt = -1.0
 
     def _prepare(self, model: SpringModel) -> None:
-        self.layout = spring_layout(model, self.options.partitions)
-        self.kt = self.layout.take(per_iteration(model.stiffness, self.iterations))
-        self.kc = self.layout.take(per_iteration(model.compression, self.iterations))
+        lay = self.layout = spring_layout(model, self.options.partitions)
+        self.kt = lay.take(per_iteration(model.stiffness, self.iterations))
+        self.kc = lay.take(per_iteration(model.compression, self.iterations))
         self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
-        ratio = self.options.tethers
-        self.tethers = tethers(model, ratio) if ratio is not None and ratio > 0 else None
+        wa = self.inv_mass[lay.a]
+        wb = self.inv_mass[lay.b]
+        w = wa + wb
+        share_a = np.where(w > 0.0, wa / np.where(w > 0.0, w, 1.0), 0.0)
+        share_b = np.where(w > 0.0, wb / np.where(w > 0.0, w, 1.0), 0.0)
+        p = self.params = aligned_zeros((lay.a.shape[0],), kernels.RELAX_SPRING)
+        p["rest"] = lay.rest
+        p["at"] = self.kt * share_a
+        p["bt"] = self.kt * share_b
+        p["ac"] = self.kc * share_a
+        p["bc"] = self.kc * share_b
+        self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers)
+        self.scratch = aligned_zeros((model.vertex_count,), kernels.VERTEX)
+        self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
+        self._dt = -1.0
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         if not self._prepared(model):
             self._prepare(model)
+        if dt != self._dt:
+            self.retention = velocity_retention(self.options.damping, dt)
+            self._dt = dt
         lay = self.layout
-        kernels.predict_verlet(
-            state.positions, state.previous, self.inv_mass, control.accelerations,
-            velocity_retention(self.options.damping, dt), dt * dt,
+        run = kernels.verlet_substep_parallel if parallel_sweeps(self.options, lay) else kernels.verlet_substep
+        run(
+            state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
+            self.retention, dt, self.scratch, lay.vertex_rank, lay.ends, self.params,
+            self.offsets, lay.parts, self.iterations, self.tethers,
         )
-        if self.tethers is not None:
-            t = self.tethers
-            kernels.apply_tethers(state.positions, t.vertex, t.pin, t.limit)
-        solve = kernels.relax_springs if lay.parts > 1 else kernels.relax_springs_serial
-        solve(
-            state.positions, lay.a, lay.b, lay.rest, self.inv_mass, self.kt, self.kc,
-            lay.offsets, lay.parts, self.iterations, 0,
-        )
-        if self.tethers is not None:
-            t = self.tethers
-            kernels.apply_tethers(state.positions, t.vertex, t.pin, t.limit)
-        kernels.velocities_from_positions(state.positions, state.previous, state.velocities, 1.0 / dt)
