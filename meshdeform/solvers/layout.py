@@ -206,10 +206,10 @@ def tethers(model: SpringModel, ratio: float, groups: int = 4, kinds: tuple[int,
         return Tethers(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
     structural = np.asarray(model.kinds) == SpringKind.STRUCTURAL
     pairs = np.asarray(model.springs)[structural]
-    path_kinds = np.isin(np.asarray(model.kinds), np.asarray(kinds, dtype=np.int64))
-    path_pairs = np.asarray(model.springs)[path_kinds]
-    length = np.maximum(np.asarray(model.rest_lengths)[path_kinds], 1e-12)
-    graph = coo_matrix((length, (path_pairs[:, 0], path_pairs[:, 1])), shape=(n, n)).tocsr()
+    along = np.isin(np.asarray(model.kinds), np.asarray(kinds, dtype=np.int64))
+    ends = np.asarray(model.springs)[along]
+    length = np.maximum(np.asarray(model.rest_lengths)[along], 1e-12)
+    graph = coo_matrix((length, (ends[:, 0], ends[:, 1])), shape=(n, n)).tocsr()
     both = pinned[pairs[:, 0]] & pinned[pairs[:, 1]]
     pin_graph = coo_matrix(
         (np.ones(int(both.sum())), (pairs[both, 0], pairs[both, 1])), shape=(n, n)

@@ -4,10 +4,10 @@ Each substep integrates positions from the previous ones (x' = x + (x - x_prev) 
 a dt^2) and then relaxes every spring toward its rest length in `iterations` Gauss-Seidel
 sweeps (alternating direction, the first forward: from the pins outward, which carries their
 hold across the cloth in one pass), slabs of the mesh in parallel (see `layout`). Default:
-2 sweeps (a symmetric forward + backward step) and 20 substeps per frame: on a 64 x 64 cloth
-hanging from two corners max structural stretch 1.16 over 100 frames, against 1.25 with 16
-substeps. A single forward sweep per substep (1 x 24: 1.21 for less work) is not symmetric
-and can pump energy into the cloth (see `xpbd`).
+2 sweeps (a symmetric forward + backward step) and 18 substeps per frame: on a 64 x 64 cloth
+hanging from two corners max structural stretch 1.21 over 100 frames (Blender's cloth: 1.245),
+against 1.25 with 16 substeps and 1.16 with 20. A single forward sweep per substep (1 x 24:
+1.21) is not symmetric and can pump energy into the cloth (see `xpbd`).
 
 Per-kind stiffness: a kind's stiffness s (0..1, compression separately) is the fraction of a
 spring's length error removed per substep; each sweep uses 1 - (1 - s) ** (1 / iterations)
@@ -48,7 +48,7 @@ class VerletSolver(ModelCache):
     """Position-based Verlet cloth with per-kind relaxation factors."""
 
     name: ClassVar[str] = "verlet"
-    default_substeps: ClassVar[int] = 20
+    default_substeps: ClassVar[int] = 18
     default_iterations: ClassVar[int] = 2
 
     def __init__(self, options: SolverOptions) -> None:

@@ -14,20 +14,22 @@ kind's damping ratio z.
 Springs are ordered from the pins outward (see `layout`), so a forward sweep carries the pins'
 hold across the whole cloth in one pass. Sweeps alternate direction inside a substep, the
 first forward; the default is the "small steps" style (Macklin et al. 2019): 2 sweeps (one
-forward, one backward: a symmetric Gauss-Seidel step) and 24 substeps per frame. Measured on a
+forward, one backward: a symmetric Gauss-Seidel step) and 22 substeps per frame. Measured on a
 64 x 64 cloth hanging from two corners (max structural stretch over 100 frames): 2 x 16 1.65
-(1.41 with the tethers below), 2 x 20 1.32, 2 x 24 1.24. One forward sweep per substep
-(1 x 32: 1.16 for less work) looks better but is not symmetric and pumps energy into stiff
-cloth: a 32 x 32 cloth of stretch_modulus 1e4..1e6 hanging from two corners still moved at
-0.1-0.3 m/s after 10 s where 2 x 24 comes to rest (1e-4 m/s); alternating the single sweep's
+(1.41 with the tethers below), 2 x 20 1.27, 2 x 22 1.23, 2 x 24 1.22 (Blender's cloth: 1.245).
+One forward sweep per substep (1 x 32: 1.16 for less work) looks better but is not symmetric
+and pumps energy into stiff cloth: a 32 x 32 cloth of stretch_modulus 1e4..1e6 hanging from two corners still moved at
+0.1-0.3 m/s after 10 s where 2 x 22 comes to rest (1e-4 m/s); alternating the single sweep's
 direction from substep to substep is worse still (stretch 3.2).
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
 the sweeps; their distances run along structural and shear springs (the octile distance on a
 grid: a vertex diagonal from a pin cannot stretch 41 % before its tether acts, as it can
-along structural springs only), times 1.01: tethers of two pins that are both exact along
-straight lines (a corner below one pin and diagonal from the other) make the alternating
-projections onto two spheres through the rest position ratchet the vertex upward (0.6 mm
-in 5 steps of 1/96 s); 1 % slack removes that (and lowers the stretch a little). They cap
+along structural springs only), times 1.03: tethers to two pins that are both nearly exact
+(a vertex straight below one pin and diagonal from the other) make the alternating
+projections onto two spheres through the rest position ratchet it upward (0.6 mm in 5 steps
+of 1/96 s without slack) and neighbours near the line between the pins fight (N = 256: a
+spring at 3.4x its rest length 4 frames in with 1 % slack, 1.8x with 3 %); 3 % removes both
+and gives 1.22 at 2 x 24 (1.24 with 1 %, 1.48 with structural paths only). They cap
 stretch along paths from the pins (set them off to see the compliance alone).
 
 Speed: a whole substep (prediction, tethers, sweeps, velocities) is one compiled call
@@ -35,6 +37,7 @@ Speed: a whole substep (prediction, tethers, sweeps, velocities) is one compiled
 (masses, compliances, 1 / denominators, damping) are precomputed once per step size into one
 64-byte record, so a projection costs one square root and one division.
 """
+
 from __future__ import annotations
 
 from typing import ClassVar
@@ -56,7 +59,7 @@ from meshdeform.topology import SpringKind
 
 #: tether paths run along these spring kinds, with this slack (see the module docstring)
 TETHER_KINDS = (int(SpringKind.STRUCTURAL), int(SpringKind.SHEAR))
-TETHER_SLACK = 1.01
+TETHER_SLACK = 1.03
 
 
 def _ratio(num: float | np.ndarray, den: np.ndarray, where: np.ndarray) -> np.ndarray:
@@ -71,7 +74,7 @@ class XPBDSolver(ModelCache):
     """Extended position-based dynamics with per-kind compliance and constraint damping."""
 
     name: ClassVar[str] = "xpbd"
-    default_substeps: ClassVar[int] = 24
+    default_substeps: ClassVar[int] = 22
     default_iterations: ClassVar[int] = 2
 
     def __init__(self, options: SolverOptions) -> None:
