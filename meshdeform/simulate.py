@@ -83,7 +83,7 @@ class Settings:
     """Time stepping: frames at fps, each split into substeps, and the solver's options.
 
     substeps: solver steps per frame; None (the default) takes the solver's own default
-        (anchor 8, verlet 16, xpbd 16, springs 8, implicit 1) and is resolved on construction,
+        (anchor 8, verlet 18, xpbd 22, springs 8, implicit 1) and is resolved on construction,
         so `settings.substeps` is always an int afterwards. Iterations likewise come from
         `options.iterations` or the solver's default (see `Settings.iterations`).
     rest_speed: m/s; a frame whose largest vertex speed is below it is at rest.
