@@ -9,16 +9,17 @@ import pytest
 
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
 
+from shared_meshes import MESHES
+
 REPO = Path(__file__).resolve().parents[1]
-SHARED_MESHES = Path(os.environ.get("MESHDEFORM_SHARED_MESHES", REPO.parent / "shared" / "meshes"))
 
 
 @pytest.fixture(scope="session")
 def shared_meshes() -> Path:
     """../shared/meshes (with real/ and broken/); tests using it skip only when it is absent."""
-    if not SHARED_MESHES.is_dir():
-        pytest.skip(f"shared meshes folder not found at {SHARED_MESHES}")
-    return SHARED_MESHES
+    if MESHES is None:
+        pytest.skip("shared meshes folder not found beside the repo nor at $MESHDEFORM_SHARED_MESHES")
+    return MESHES
 
 
 @pytest.fixture(scope="session")

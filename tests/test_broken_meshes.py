@@ -38,27 +38,17 @@ nancolor.obj                            loads: 8 V, 12 F, NaN colour kept, no wa
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_meshes import MESHES
 
 from meshdeform.errors import MeshLoadError
 from meshdeform.io import load
 from meshdeform.mesh import Mesh
 
-
-def _shared_meshes() -> Path | None:
-    here = Path(__file__).resolve().parents[2] / "shared" / "meshes"
-    if here.is_dir():
-        return here
-    env = os.environ.get("MESHDEFORM_SHARED_MESHES")
-    return Path(env) if env and Path(env).is_dir() else None
-
-
-MESHES = _shared_meshes()
 pytestmark = pytest.mark.skipif(MESHES is None, reason="shared test meshes not found")
 
 CRASH = "crash-30d6d0f7c529b3b66b4131700b7a4580cd7082df.ply"

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
+from shared_meshes import MESHES, needs_meshes
 
 from meshdeform.geometry import (
     clean_polygons,
@@ -17,18 +15,6 @@ from meshdeform.geometry import (
     vertex_normals,
 )
 from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
-
-
-def _shared_meshes() -> Path | None:
-    here = Path(__file__).resolve().parents[2] / "shared" / "meshes"
-    if here.is_dir():
-        return here
-    env = os.environ.get("MESHDEFORM_SHARED_MESHES")
-    return Path(env) if env and Path(env).is_dir() else None
-
-
-MESHES = _shared_meshes()
-needs_meshes = pytest.mark.skipif(MESHES is None, reason="shared test meshes not found")
 
 
 def _mesh(positions, polygons, **kwargs) -> Mesh:

@@ -2,28 +2,16 @@
 
 from __future__ import annotations
 
-import os
 import struct
 from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_meshes import MESHES, needs_meshes
 
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.io import PlyWriter, load, read_ply, save, write_ply
 from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
-
-
-def _shared_meshes() -> Path | None:
-    here = Path(__file__).resolve().parents[2] / "shared" / "meshes"
-    if here.is_dir():
-        return here
-    env = os.environ.get("MESHDEFORM_SHARED_MESHES")
-    return Path(env) if env and Path(env).is_dir() else None
-
-
-MESHES = _shared_meshes()
-needs_meshes = pytest.mark.skipif(MESHES is None, reason="shared test meshes not found")
 
 _STRUCT = {"char": "b", "int8": "b", "uchar": "B", "uint8": "B", "short": "h", "int16": "h", "ushort": "H",
            "uint16": "H", "int": "i", "int32": "i", "uint": "I", "uint32": "I", "float": "f", "float32": "f",
