@@ -70,7 +70,7 @@ from scipy.sparse.csgraph import connected_components
 from meshdeform.arrays import argsort_int, run_lengths
 from meshdeform.mesh import Mesh, fan_triangulate
 from meshdeform.model import SpringModel, State
-from meshdeform.topology import KIND_NAMES, SpringKind, bending_pairs, shear_pairs, structural_pairs
+from meshdeform.topology import KIND_NAMES, SpringKind, derive_springs
 
 __all__ = ["Cut", "TearEvent", "TearRegion", "TearSettings", "Tearer", "mesh_pieces"]
 
@@ -1077,19 +1077,8 @@ class Tearer:
             line_indices=line_indices,
             line_offsets=line_offsets,
         )
-        ident = np.arange(n, dtype=np.int64)
-        structural = structural_pairs(local, ident, n)
-        shear = shear_pairs(local, ident, n, structural)
-        bending = bending_pairs(rest, structural, np.concatenate([structural, shear]), n)
-        pairs = np.concatenate([structural, shear, bending]).astype(np.int64)
-        kinds = np.concatenate(
-            [
-                np.full(structural.shape[0], SpringKind.STRUCTURAL, np.int64),
-                np.full(shear.shape[0], SpringKind.SHEAR, np.int64),
-                np.full(bending.shape[0], SpringKind.BENDING, np.int64),
-            ]
-        )
-        return pairs, kinds
+        springs = derive_springs(local, np.arange(n, dtype=np.int64), rest)
+        return springs.pairs.astype(np.int64), springs.kinds.astype(np.int64)
 
     def _masses(
         self, cv: np.ndarray, index_map: np.ndarray, split: np.ndarray, rest: np.ndarray, triangles: np.ndarray

@@ -249,15 +249,16 @@ def bending_pairs(positions: np.ndarray, structural: np.ndarray, existing: np.nd
     return pairs[~isin_int(_pair_keys(pairs, n), _pair_keys(existing, n))]
 
 
-def build_springs(mesh: Mesh, welding: Welding | None = None) -> tuple[Welding, Springs]:
-    """Weld the mesh and derive its structural, shear and bending springs (welded indices)."""
-    welding = welding or weld(mesh.positions)
-    n = max(welding.count, 1)
-    vmap = welding.vertex_map
-    welded_positions = mesh.positions[welding.representative]
-    structural = structural_pairs(mesh, vmap, n)
-    shear = shear_pairs(mesh, vmap, n, structural)
-    bending = bending_pairs(welded_positions, structural, np.concatenate([structural, shear]), n)
+def derive_springs(mesh: Mesh, vertex_map: np.ndarray, positions: np.ndarray) -> Springs:
+    """Structural, shear and bending springs over the vertices `vertex_map` maps the mesh's onto.
+
+    positions: (n, 3) rest positions of those n vertices (welded ones, or the mesh's own when
+    the map is the identity, as tearing uses it on already-split vertices).
+    """
+    n = max(int(positions.shape[0]), 1)
+    structural = structural_pairs(mesh, vertex_map, n)
+    shear = shear_pairs(mesh, vertex_map, n, structural)
+    bending = bending_pairs(positions, structural, np.concatenate([structural, shear]), n)
     pairs = np.concatenate([structural, shear, bending]).astype(np.int32)
     kinds = np.concatenate(
         [
@@ -266,7 +267,13 @@ def build_springs(mesh: Mesh, welding: Welding | None = None) -> tuple[Welding, 
             np.full(bending.shape[0], SpringKind.BENDING, np.int8),
         ]
     )
-    return welding, Springs(pairs=pairs.reshape(-1, 2), kinds=kinds)
+    return Springs(pairs=pairs.reshape(-1, 2), kinds=kinds)
+
+
+def build_springs(mesh: Mesh, welding: Welding | None = None) -> tuple[Welding, Springs]:
+    """Weld the mesh and derive its structural, shear and bending springs (welded indices)."""
+    welding = welding or weld(mesh.positions)
+    return welding, derive_springs(mesh, welding.vertex_map, mesh.positions[welding.representative])
 
 
 @dataclass(frozen=True)
