@@ -1183,7 +1183,7 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
     )
 
 
-def render_result_previews(
+def render_result(
     result_dir: str | Path,
     options: PreviewOptions | Mapping[str, Any] | None = None,
     *,
@@ -1191,12 +1191,13 @@ def render_result_previews(
     model: Any = None,
     out_dir: str | Path | None = None,
     up_axis: str | None = None,
-) -> list[Path]:
+) -> tuple[ResultSequence, PreviewResult]:
     """Render previews of a result folder's frames (see `open_result`) into it (or `out_dir`).
 
     With the SpringModel of the run (`model`), pinned vertices and strain come from it exactly
     (strain: the largest stretch of each vertex's structural springs, as in the VTK output).
     `up_axis` is the convention point caches were written in (default: detected).
+    Returns the sequence read and what was rendered.
     """
     seq = open_result(result_dir, mesh=mesh, up_axis=up_axis)
     pinned = seq.pinned
@@ -1219,6 +1220,20 @@ def render_result_previews(
         pinned=pinned,
         strain=strain,
     )
+    return seq, result
+
+
+def render_result_previews(
+    result_dir: str | Path,
+    options: PreviewOptions | Mapping[str, Any] | None = None,
+    *,
+    mesh: Mesh | None = None,
+    model: Any = None,
+    out_dir: str | Path | None = None,
+    up_axis: str | None = None,
+) -> list[Path]:
+    """`render_result`, returning only the files written."""
+    _, result = render_result(result_dir, options, mesh=mesh, model=model, out_dir=out_dir, up_axis=up_axis)
     return result.files
 
 

@@ -62,7 +62,7 @@ def register(app: typer.Typer) -> None:
         up: str = typer.Option("y", help="Up axis of the meshes for the named views: y | z."),
     ) -> None:
         """Render preview PNGs, a contact sheet and an MP4/GIF of a result folder without re-simulating."""
-        from meshdeform.preview import PreviewOptions, open_result, render_previews
+        from meshdeform.preview import PreviewOptions, render_result
 
         frame_list = parse_frames(frames) if frames else None
         width, height = parse_size(size)
@@ -85,18 +85,7 @@ def register(app: typer.Typer) -> None:
             )
             if not (pngs or contact_sheet or options.video):
                 raise fail("nothing to render: --no-png without --contact-sheet or --video")
-            seq = open_result(result_dir)
-            result = render_previews(
-                seq.mesh,
-                seq.frames,
-                out if out is not None else result_dir,
-                options,
-                frame_numbers=seq.frame_numbers,
-                fps=seq.fps,
-                rest_positions=seq.rest_positions,
-                pinned=seq.pinned,
-                strain=seq.strain,
-            )
+            seq, result = render_result(result_dir, options, out_dir=out)
         parts = [f"{len(result.images)} PNG" + ("" if len(result.images) == 1 else "s")]
         if result.contact_sheet is not None:
             parts.append("a contact sheet")
