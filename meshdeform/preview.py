@@ -31,11 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from meshdeform.arrays import argsort_int, isin_int, run_lengths
+from meshdeform.arrays import isin_int, run_lengths
 from meshdeform.atomic import atomic_path
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.export.base import frame_file_name
 from meshdeform.mesh import Mesh
+from meshdeform.strain import SegmentStretch
 
 VIEWS = ("iso", "front", "side", "top")
 COLORS = ("strain", "flat", "displacement")
@@ -207,7 +208,7 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     return np.stack([single // n, single % n], axis=1)
 
 
-class EdgeStrain:
+class EdgeStrain(SegmentStretch):
     """Per-vertex stretch ratio: the largest current / rest length of the edges at each vertex.
 
     Edges are the mesh's polygon sides and polyline segments; rest lengths come from `rest`
@@ -227,23 +228,7 @@ class EdgeStrain:
         d = rest[b] - rest[a]
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
         ok = length > 0
-        self._a, self._b, self._rest = a[ok], b[ok], length[ok]
-        ends = np.concatenate([self._a, self._b])
-        self._order = argsort_int(ends)
-        sorted_ends = ends[self._order]
-        self._starts, _ = run_lengths(sorted_ends)
-        self._vertices = sorted_ends[self._starts]
-        self._count = mesh.vertex_count
-
-    def __call__(self, positions: np.ndarray) -> np.ndarray:
-        out = np.ones(self._count)
-        if self._a.shape[0] == 0:
-            return out
-        d = positions[self._b] - positions[self._a]
-        ratio = np.sqrt(np.einsum("ij,ij->i", d, d)) / self._rest
-        both = np.concatenate([ratio, ratio])[self._order]
-        out[self._vertices] = np.maximum.reduceat(both, self._starts)
-        return out
+        super().__init__(a[ok], b[ok], length[ok], mesh.vertex_count)
 
 
 class _Scalars:

@@ -25,3 +25,14 @@ def shared_meshes() -> Path:
 @pytest.fixture(scope="session")
 def samples_dir() -> Path:
     return REPO / "samples"
+
+
+@pytest.fixture(scope="module")
+def one_numba_thread():
+    """Tiny meshes: parallel kernels only add thread hand-offs (slow on a busy machine)."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(before)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import numba
 import numpy as np
 import pytest
 
@@ -14,13 +13,7 @@ from meshdeform.simulate import simulate
 from pipeline.build import build_simulation
 from pipeline.recipe import parse_recipe
 
-
-@pytest.fixture(autouse=True, scope="module")
-def one_numba_thread():
-    before = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def test_keyframes_interpolate_hold_and_carry_channels_forward() -> None:
