@@ -148,10 +148,17 @@ def rest_frame(frames: Iterable[Frame]) -> int | None:
     return last.rest_frame if last is not None else None
 
 
-def _runaway_limit(model: SpringModel, gravity: np.ndarray, time: float) -> float:
-    extent = model.rest_positions.max(axis=0) - model.rest_positions.min(axis=0) if model.vertex_count else np.ones(3)
-    diag = float(np.linalg.norm(extent)) or 1.0
-    return 1000.0 * diag + float(np.linalg.norm(gravity)) * time * time + 100.0
+def _rest_diagonal(model: SpringModel) -> float:
+    """Bounding-box diagonal of the rest shape (1.0 for an empty or point-like model)."""
+    if not model.vertex_count:
+        return 1.0
+    extent = model.rest_positions.max(axis=0) - model.rest_positions.min(axis=0)
+    return float(np.linalg.norm(extent)) or 1.0
+
+
+def _runaway_limit(diagonal: float, gravity: np.ndarray, time: float) -> float:
+    """How far from the rest centre positions may get before the run counts as exploded."""
+    return 1000.0 * diagonal + float(np.linalg.norm(gravity)) * time * time + 100.0
 
 
 _HINTS = {
@@ -180,6 +187,7 @@ def simulate(
     dt = 1.0 / (settings.fps * substeps)
     start_time = state.time
     gravity = np.asarray(scene.gravity, dtype=np.float64)
+    diagonal = _rest_diagonal(model)  # tearing splits vertices but keeps the rest shape
     pinned_idx = np.flatnonzero(model.pinned)
     pinned_rest = np.array(model.rest_positions[pinned_idx])
     accelerations = np.empty_like(state.positions)
@@ -245,7 +253,7 @@ def simulate(
                 frame=frame,
                 solver=name,
             )
-        if reach > _runaway_limit(model, gravity, state.time - start_time):
+        if reach > _runaway_limit(diagonal, gravity, state.time - start_time):
             raise SimulationDiverged(
                 f"simulation diverged at frame {frame} with solver {name!r}: positions ran away "
                 f"({reach:.3g} from the mesh centre); try: {_HINTS.get(name, 'more substeps or lower stiffness')}",
