@@ -74,12 +74,15 @@ VERTEX = np.dtype(
     [("x", "f8"), ("y", "f8"), ("z", "f8"), ("w", "f8"), ("px", "f8"), ("py", "f8"), ("pz", "f8"), ("pad", "f8")],
     align=True,
 )
+#: verlet scratch vertex: position and inverse mass (32 bytes; the relaxation needs no previous
+#: position, and the write-back takes it from the State's positions before overwriting them)
+POINT = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("w", "f8")], align=True)
 #: spring ends in kernel vertex numbering
 ENDS = np.dtype([("a", "u4"), ("b", "u4")], align=True)
-#: xpbd spring: rest length, inverse masses, compliance / dt^2 and 1 / denominator under tension
-#: and compression, damping factor gamma (64 bytes)
+#: xpbd spring: rest length, compliance / dt^2 and 1 / denominator under tension and
+#: compression, damping factor gamma (48 bytes; the inverse masses come from the vertices)
 XPBD_SPRING = np.dtype(
-    [("rest", "f8"), ("wa", "f8"), ("wb", "f8"), ("at", "f8"), ("ac", "f8"), ("it", "f8"), ("ic", "f8"), ("g", "f8")],
+    [("rest", "f8"), ("at", "f8"), ("ac", "f8"), ("it", "f8"), ("ic", "f8"), ("g", "f8")],
     align=True,
 )
 #: verlet spring: rest length, k w_a / w and k w_b / w under tension and compression
@@ -89,13 +92,13 @@ TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
 
 
 @nb.njit(inline="always", **_JIT)
-def _load(X, x, prev, inv_mass, accel, rank, retention, dt2):  # pragma: no cover - compiled
+def _load(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
     """Scratch copy with the Verlet prediction x' = x + (x - prev) retention + a dt^2 of free vertices.
 
-    Walks the State's arrays in order (rank: model vertex -> scratch record), so only the
-    scratch is written out of order, one cache line per vertex.
+    Model vertices lo..hi-1. Walks the State's arrays in order (rank: model vertex -> scratch
+    record), so only the scratch is written out of order, one cache line per vertex.
     """
-    for i in range(rank.shape[0]):
+    for i in range(lo, hi):
         r = X[rank[i]]
         w = inv_mass[i]
         x0 = x[i, 0]
@@ -120,9 +123,9 @@ def _load(X, x, prev, inv_mass, accel, rank, retention, dt2):  # pragma: no cove
 
 
 @nb.njit(inline="always", **_JIT)
-def _store(X, x, prev, v, rank, inv_dt):  # pragma: no cover - compiled
-    """Free vertices back from the scratch copy; v = (x - prev) / dt for every vertex."""
-    for i in range(rank.shape[0]):
+def _store(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
+    """Free model vertices lo..hi-1 back from the scratch copy; v = (x - prev) / dt for each."""
+    for i in range(lo, hi):
         r = X[rank[i]]
         if r.w != 0.0:
             x0 = r.x
@@ -149,10 +152,60 @@ def _store(X, x, prev, v, rank, inv_dt):  # pragma: no cover - compiled
         v[i, 2] = (x2 - p2) * inv_dt
 
 
+@nb.njit(inline="always", **_JIT)
+def _load_points(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
+    """`_load` for `POINT` records: predicted positions of free vertices, pinned ones as they are."""
+    for i in range(lo, hi):
+        r = X[rank[i]]
+        w = inv_mass[i]
+        x0 = x[i, 0]
+        x1 = x[i, 1]
+        x2 = x[i, 2]
+        r.w = w
+        if w == 0.0:
+            r.x = x0
+            r.y = x1
+            r.z = x2
+        else:
+            r.x = x0 + (x0 - prev[i, 0]) * retention + accel[i, 0] * dt2
+            r.y = x1 + (x1 - prev[i, 1]) * retention + accel[i, 1] * dt2
+            r.z = x2 + (x2 - prev[i, 2]) * retention + accel[i, 2] * dt2
+
+
+@nb.njit(inline="always", **_JIT)
+def _store_points(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
+    """`_store` for `POINT` records: free vertices prev = x (before the substep), x = scratch."""
+    for i in range(lo, hi):
+        r = X[rank[i]]
+        if r.w != 0.0:
+            p0 = x[i, 0]
+            p1 = x[i, 1]
+            p2 = x[i, 2]
+            x0 = r.x
+            x1 = r.y
+            x2 = r.z
+            x[i, 0] = x0
+            x[i, 1] = x1
+            x[i, 2] = x2
+            prev[i, 0] = p0
+            prev[i, 1] = p1
+            prev[i, 2] = p2
+        else:
+            x0 = x[i, 0]
+            x1 = x[i, 1]
+            x2 = x[i, 2]
+            p0 = prev[i, 0]
+            p1 = prev[i, 1]
+            p2 = prev[i, 2]
+        v[i, 0] = (x0 - p0) * inv_dt
+        v[i, 1] = (x1 - p1) * inv_dt
+        v[i, 2] = (x2 - p2) * inv_dt
+
+
 @nb.njit(inline="always", **_SWEEP)
-def _tethers(X, tethers):  # pragma: no cover - compiled
-    """Pull each tethered vertex back to within its limit of its pin (the pin does not move)."""
-    for t in range(tethers.shape[0]):
+def _tethers(X, tethers, lo, hi):  # pragma: no cover - compiled
+    """Pull vertices of tethers lo..hi-1 back to within their limit of their pin (pins do not move)."""
+    for t in range(lo, hi):
         te = tethers[t]
         vi = X[te.v]
         pin = X[te.p]
@@ -169,7 +222,7 @@ def _tethers(X, tethers):  # pragma: no cover - compiled
 
 
 @nb.njit(inline="always", **_SWEEP)
-def _xpbd_spring(X, ends, P, lam, s, damped):  # pragma: no cover - compiled
+def _xpbd_spring(X, ends, P, lam, s, damped, first):  # pragma: no cover - compiled
     """One XPBD distance constraint (P[s]: see XPBD_SPRING).
 
     dlam = (-C - a~ lam - gamma n . (dx - dx_prev)) / ((1 + gamma) w + a~), written as
@@ -182,23 +235,27 @@ def _xpbd_spring(X, ends, P, lam, s, damped):  # pragma: no cover - compiled
     dx = vb.x - va.x
     dy = vb.y - va.y
     dz = vb.z - va.z
-    length = np.sqrt(max(dx * dx + dy * dy + dz * dz, _TINY2))
-    inv_l = 1.0 / length
+    d2 = max(dx * dx + dy * dy + dz * dz, _TINY2)
+    # 1 / d2 runs beside the square root instead of 1 / length after it: a shorter chain
+    inv_d2 = 1.0 / d2
+    length = np.sqrt(d2)
+    inv_l = length * inv_d2
     rest = c.rest
     tension = length > rest
     alpha = c.at if tension else c.ac
     inv_den = c.it if tension else c.ic
-    num = rest - length - alpha * lam[s]
+    lam_s = 0.0 if first else lam[s]
+    num = rest - length - alpha * lam_s
     if damped:
         px = vb.px - va.px
         py = vb.py - va.py
         pz = vb.pz - va.pz
         num -= c.g * (length - (dx * px + dy * py + dz * pz) * inv_l)
     dlam = num * inv_den
-    lam[s] += dlam
+    lam[s] = lam_s + dlam
     q = dlam * inv_l
-    qa = q * c.wa
-    qb = q * c.wb
+    qa = q * va.w
+    qb = q * vb.w
     va.x -= dx * qa
     va.y -= dy * qa
     va.z -= dz * qa
@@ -208,22 +265,32 @@ def _xpbd_spring(X, ends, P, lam, s, damped):  # pragma: no cover - compiled
 
 
 @nb.njit(inline="always", **_SWEEP)
-def _xpbd_range(X, ends, P, lam, lo, hi, backward, damped):  # pragma: no cover - compiled
-    """Springs lo..hi-1 (unsigned offsets: no wraparound code), forward or backward."""
+def _xpbd_range(X, ends, P, lam, lo, hi, backward, damped, first):  # pragma: no cover - compiled
+    """Springs lo..hi-1 (unsigned offsets: no wraparound code), forward or backward.
+
+    first: the substep's first sweep (forward), whose multipliers start at zero: written, not read.
+    """
     one = np.uint64(1)
-    if damped:
-        if backward:
-            for j in range(hi - lo):
-                _xpbd_spring(X, ends, P, lam, hi - one - j, True)
+    if first:
+        if damped:
+            for s in range(lo, hi):
+                _xpbd_spring(X, ends, P, lam, s, True, True)
         else:
             for s in range(lo, hi):
-                _xpbd_spring(X, ends, P, lam, s, True)
+                _xpbd_spring(X, ends, P, lam, s, False, True)
+    elif damped:
+        if backward:
+            for j in range(hi - lo):
+                _xpbd_spring(X, ends, P, lam, hi - one - j, True, False)
+        else:
+            for s in range(lo, hi):
+                _xpbd_spring(X, ends, P, lam, s, True, False)
     elif backward:
         for j in range(hi - lo):
-            _xpbd_spring(X, ends, P, lam, hi - one - j, False)
+            _xpbd_spring(X, ends, P, lam, hi - one - j, False, False)
     else:
         for s in range(lo, hi):
-            _xpbd_spring(X, ends, P, lam, s, False)
+            _xpbd_spring(X, ends, P, lam, s, False, False)
 
 
 @nb.njit(inline="always", **_SWEEP)
@@ -236,12 +303,14 @@ def _relax_spring(X, ends, P, s):  # pragma: no cover - compiled
     dx = vb.x - va.x
     dy = vb.y - va.y
     dz = vb.z - va.z
-    length = np.sqrt(max(dx * dx + dy * dy + dz * dz, _TINY2))
+    d2 = max(dx * dx + dy * dy + dz * dz, _TINY2)
+    inv_d2 = 1.0 / d2
+    length = np.sqrt(d2)
     rest = c.rest
     tension = length > rest
     ka = c.at if tension else c.ac
     kb = c.bt if tension else c.bc
-    f = 1.0 - rest / length
+    f = 1.0 - rest * length * inv_d2
     fa = f * ka
     fb = f * kb
     va.x += dx * fa
@@ -265,72 +334,94 @@ def _relax_range(X, ends, P, lo, hi, backward):  # pragma: no cover - compiled
 
 @nb.njit(**_SWEEP)
 def xpbd_substep(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, lam, offsets, parts, iterations, damped, tethers,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, lam, offsets, parts, iterations, damped,
+    tethers, vchunks, tchunks,
 ):  # pragma: no cover - compiled
     """One XPBD substep on one thread: predict, tethers, `iterations` sweeps, tethers, velocities.
 
     Sweeps alternate direction, the first forward (from the pins outward); slabs then the
-    separator, in layout order.
-    offsets: (parts + 2,) uint64 (see `SpringLayout`).
+    separator, in layout order. offsets: (parts + 2,) uint64 (see `SpringLayout`); vchunks,
+    tchunks: the vertex and tether chunks of the parallel build (unused here).
     """
-    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt)
-    _tethers(X, tethers)
-    lam[:] = 0.0
+    n = np.uint64(rank.shape[0])
+    nt = np.uint64(tethers.shape[0])
+    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt, np.uint64(0), n)
+    _tethers(X, tethers, np.uint64(0), nt)
     for it in range(iterations):
         backward = (it % 2) == 1
         for p in range(parts + 1):
-            _xpbd_range(X, ends, P, lam, offsets[p], offsets[p + 1], backward, damped)
-    _tethers(X, tethers)
-    _store(X, x, prev, v, rank, 1.0 / dt)
+            _xpbd_range(X, ends, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
+    _tethers(X, tethers, np.uint64(0), nt)
+    _store(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
 
 
 @nb.njit(parallel=True, **_SWEEP)
 def xpbd_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, lam, offsets, parts, iterations, damped, tethers,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, lam, offsets, parts, iterations, damped,
+    tethers, vchunks, tchunks,
 ):  # pragma: no cover - compiled
-    """`xpbd_substep` with the slabs of each sweep in parallel (bit for bit the same result)."""
-    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt)
-    _tethers(X, tethers)
-    for s in range(lam.shape[0]):
-        lam[s] = 0.0
+    """`xpbd_substep` with every phase split over `parts` threads (bit for bit the same result).
+
+    Prediction and write-back run over vertex chunks (vchunks), tethers over tether chunks
+    that never split one vertex's tethers (tchunks), sweeps over the slabs; the separator follows
+    serially.
+    """
+    dt2 = dt * dt
+    for p in nb.prange(parts):
+        _load(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
+    for p in nb.prange(parts):
+        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     for it in range(iterations):
         backward = (it % 2) == 1
         for p in nb.prange(parts):
-            _xpbd_range(X, ends, P, lam, offsets[p], offsets[p + 1], backward, damped)
-        _xpbd_range(X, ends, P, lam, offsets[parts], offsets[parts + 1], backward, damped)
-    _tethers(X, tethers)
-    _store(X, x, prev, v, rank, 1.0 / dt)
+            _xpbd_range(X, ends, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
+        _xpbd_range(X, ends, P, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
+    for p in nb.prange(parts):
+        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+    inv_dt = 1.0 / dt
+    for p in nb.prange(parts):
+        _store(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
 
 
 @nb.njit(**_SWEEP)
 def verlet_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, offsets, parts, iterations, tethers,
+    vchunks, tchunks,
 ):  # pragma: no cover - compiled
     """One Verlet substep on one thread: predict, tethers, relaxation sweeps, tethers, velocities."""
-    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt)
-    _tethers(X, tethers)
+    n = np.uint64(rank.shape[0])
+    nt = np.uint64(tethers.shape[0])
+    _load_points(X, x, prev, inv_mass, accel, rank, retention, dt * dt, np.uint64(0), n)
+    _tethers(X, tethers, np.uint64(0), nt)
     for it in range(iterations):
         backward = (it % 2) == 1
         for p in range(parts + 1):
             _relax_range(X, ends, P, offsets[p], offsets[p + 1], backward)
-    _tethers(X, tethers)
-    _store(X, x, prev, v, rank, 1.0 / dt)
+    _tethers(X, tethers, np.uint64(0), nt)
+    _store_points(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
 
 
 @nb.njit(parallel=True, **_SWEEP)
 def verlet_substep_parallel(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, offsets, parts, iterations, tethers,
+    vchunks, tchunks,
 ):  # pragma: no cover - compiled
-    """`verlet_substep` with the slabs of each sweep in parallel (bit for bit the same result)."""
-    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt)
-    _tethers(X, tethers)
+    """`verlet_substep` with every phase split over `parts` threads (see `xpbd_substep_parallel`)."""
+    dt2 = dt * dt
+    for p in nb.prange(parts):
+        _load_points(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
+    for p in nb.prange(parts):
+        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     for it in range(iterations):
         backward = (it % 2) == 1
         for p in nb.prange(parts):
             _relax_range(X, ends, P, offsets[p], offsets[p + 1], backward)
         _relax_range(X, ends, P, offsets[parts], offsets[parts + 1], backward)
-    _tethers(X, tethers)
-    _store(X, x, prev, v, rank, 1.0 / dt)
+    for p in nb.prange(parts):
+        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+    inv_dt = 1.0 / dt
+    for p in nb.prange(parts):
+        _store_points(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
 
 
 # --------------------------------------------------------------------------- explicit springs

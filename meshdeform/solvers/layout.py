@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
 from meshdeform.arrays import argsort_int
@@ -60,9 +59,9 @@ class SpringLayout:
         return np.ascontiguousarray(np.asarray(per_spring, dtype=np.float64)[self.order])
 
 
-#: springs from which `partitions = 0` (auto) makes two slabs (swept serially, see
-#: `parallel_sweeps`); kept so that auto keeps the spring order it always had
-AUTO_PARALLEL_SPRINGS = 100_000
+#: springs from which `partitions = 0` (auto) makes two slabs; below it one parallel sweep
+#: would cost more in launches and separator than it saves
+AUTO_PARALLEL_SPRINGS = 4096
 
 
 def resolve_parts(parts: int, springs: int) -> int:
@@ -77,16 +76,22 @@ def resolve_parts(parts: int, springs: int) -> int:
     return 2 if springs >= AUTO_PARALLEL_SPRINGS else 1
 
 
-def parallel_sweeps(options: object, layout: SpringLayout) -> bool:
-    """Whether to sweep the slabs on several threads: only when `partitions` was set above 1.
+@dataclass(frozen=True, eq=False)
+class KernelChunks:
+    """Per-thread work of a parallel substep: vertex chunks and tether chunks (uint64 bounds)."""
 
-    The result is the same either way (bit for bit); only the speed differs. Automatic
-    partitions sweep serially: measured on the shared 2-vCPU machine (load 1.3-1.9, Numba's
-    OpenMP layer), the simulate loop with two threads ran at 1.5-1.6 frames/s against 1.9
-    serially at N = 256, and at 5.8 against 46 frames/s with two slabs at N = 64 (each
-    parallel launch waits for a second CPU the other processes hold).
-    """
-    return int(getattr(options, "partitions", 0)) > 1 and layout.parts > 1 and nb.get_num_threads() > 1
+    vertices: np.ndarray
+    tethers: np.ndarray
+
+
+def kernel_chunks(layout: SpringLayout, tether_vertices: np.ndarray) -> KernelChunks:
+    """One chunk of vertices and one of tethers per slab (tethers sorted by vertex, never split)."""
+    from meshdeform.solvers.dispatch import chunk_bounds, grouped_chunk_bounds
+
+    return KernelChunks(
+        vertices=chunk_bounds(layout.vertex_order.shape[0], layout.parts),
+        tethers=grouped_chunk_bounds(np.asarray(tether_vertices), layout.parts),
+    )
 
 
 def pin_distance(model: SpringModel) -> np.ndarray | None:

@@ -33,7 +33,8 @@ from meshdeform.model import SpringModel, State
 from meshdeform.solvers import kernels
 from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
 from meshdeform.solvers.common import ModelCache, aligned_zeros, kernel_tethers
-from meshdeform.solvers.layout import parallel_sweeps, spring_layout
+from meshdeform.solvers.dispatch import KernelPicker
+from meshdeform.solvers.layout import kernel_chunks, spring_layout
 
 
 def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
@@ -73,8 +74,10 @@ class VerletSolver(ModelCache):
         p["ac"] = self.kc * share_a
         p["bc"] = self.kc * share_b
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers)
-        self.scratch = aligned_zeros((model.vertex_count,), kernels.VERTEX)
+        self.scratch = aligned_zeros((model.vertex_count,), kernels.POINT)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
+        self.chunks = kernel_chunks(lay, self.tethers["v"])
+        self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, lay.parts > 1)
         self._dt = -1.0
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
@@ -84,9 +87,8 @@ class VerletSolver(ModelCache):
             self.retention = velocity_retention(self.options.damping, dt)
             self._dt = dt
         lay = self.layout
-        run = kernels.verlet_substep_parallel if parallel_sweeps(self.options, lay) else kernels.verlet_substep
-        run(
+        self.substep(
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, lay.vertex_rank, lay.ends, self.params,
-            self.offsets, lay.parts, self.iterations, self.tethers,
+            self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
         )

@@ -54,7 +54,8 @@ from meshdeform.solvers.common import (
     kernel_tethers,
     spring_constants,
 )
-from meshdeform.solvers.layout import parallel_sweeps, spring_layout
+from meshdeform.solvers.dispatch import KernelPicker
+from meshdeform.solvers.layout import kernel_chunks, spring_layout
 from meshdeform.topology import SpringKind
 
 #: tether paths run along these spring kinds, with this slack (see the module docstring)
@@ -92,10 +93,11 @@ class XPBDSolver(ModelCache):
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers, TETHER_KINDS, TETHER_SLACK)
         self.scratch = aligned_zeros((model.vertex_count,), kernels.VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
+        self.chunks = kernel_chunks(lay, self.tethers["v"])
+        self.substep = KernelPicker(kernels.xpbd_substep, kernels.xpbd_substep_parallel, lay.parts > 1)
         self.params = aligned_zeros((lay.a.shape[0],), kernels.XPBD_SPRING)
         self.params["rest"] = lay.rest
-        self.params["wa"] = self.inv_mass[lay.a]
-        self.params["wb"] = self.inv_mass[lay.b]
+        self.w = self.inv_mass[lay.a] + self.inv_mass[lay.b]
         self.lam = np.zeros(lay.a.shape[0])
         self._dt = -1.0
 
@@ -106,8 +108,7 @@ class XPBDSolver(ModelCache):
         p["at"] = _ratio(1.0 / (dt * dt), kt, kt > 0.0)
         p["ac"] = _ratio(1.0 / (dt * dt), kc, kc > 0.0)
         p["g"] = _ratio(self.c, kt * dt, kt > 0.0)
-        w = p["wa"] + p["wb"]
-        base = (1.0 + p["g"]) * w
+        base = (1.0 + p["g"]) * self.w
         den = base + p["at"]
         p["it"] = _ratio(1.0, den, (kt > 0.0) & (den > 0.0))
         np.add(base, p["ac"], out=den)
@@ -123,10 +124,9 @@ class XPBDSolver(ModelCache):
         if dt != self._dt:
             self._coefficients(dt)
         lay = self.layout
-        run = kernels.xpbd_substep_parallel if parallel_sweeps(self.options, lay) else kernels.xpbd_substep
-        run(
+        self.substep(
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, lay.vertex_rank, lay.ends, self.params, self.lam,
             self.offsets, lay.parts, self.iterations, self.damped,
-            self.tethers,
+            self.tethers, self.chunks.vertices, self.chunks.tethers,
         )
