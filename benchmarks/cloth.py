@@ -165,6 +165,28 @@ def kernel_rate(name: str, n: int, steps: int = 0, repeats: int = 5) -> float:
     return best
 
 
+def start_times(mesh: Path, solver: str, frames: int = 24) -> tuple[float, float, float]:
+    """(import, cold, warm) seconds: `import meshdeform.simulate`, then `meshdeform simulate` on a
+    small mesh with an empty Numba cache (every kernel compiled) and again with that cache."""
+    import tempfile
+
+    exe = Path(sys.executable).with_name("meshdeform")
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp) / "numba")}
+
+        def timed(cmd: list[str]) -> float:
+            t0 = time.perf_counter()
+            subprocess.run(cmd, env=env, check=True, capture_output=True)
+            return time.perf_counter() - t0
+
+        base = timed([sys.executable, "-c", "import meshdeform.simulate, meshdeform.io, pipeline.cli"])
+        cmd = [str(exe), "simulate", str(mesh), "--solver", solver, "--frames", str(frames), "-q",
+               "--pin", "box:0,0.95,0,1,1,1", "--out", str(Path(tmp) / "out")]
+        cold = timed(cmd)
+        warm = timed(cmd)
+    return base, cold, warm
+
+
 def load() -> str:
     return "load average " + " ".join(f"{v:.2f}" for v in os.getloadavg())
 
@@ -205,6 +227,16 @@ def main() -> None:
                 rate = kernel_rate(name, n)
                 line += f"; {name} step {rate / 1e6:.1f} M proj/s ({rate / ref:.1f}x)"
         print(line, flush=True)
+    mesh = Path(__file__).resolve().parents[1] / "samples" / "meshes" / "flag.obj"
+    if mesh.exists():
+        for name in ("xpbd", "verlet"):
+            if name in names:
+                base, cold, warm = start_times(mesh, name)
+                print(
+                    f"start, `meshdeform simulate {mesh.name} --solver {name} --frames 24`: cold (empty Numba "
+                    f"cache) {cold:.1f} s, warm {warm:.1f} s; importing alone {base:.1f} s",
+                    flush=True,
+                )
     print(load())
 
 

@@ -153,6 +153,18 @@ def test_guard_names_the_frame_of_a_non_finite_blow_up(name: str) -> None:
     assert len(yielded) == 12 and all(np.isfinite(f.positions).all() for f in yielded)
 
 
+@pytest.mark.parametrize("name", ["verlet", "xpbd"])
+def test_guard_stops_an_absurd_gravity_on_a_tethered_cloth(name: str) -> None:
+    """Gravity of 1e300 m/s^2 on a pinned cloth: stopped at frame 1, not pulled back onto the pins.
+
+    (The tethers once projected the overflowed vertices onto their pins: finite, calm, wrong.)
+    """
+    _, model, _ = hanging_cloth(8)
+    with pytest.raises(SimulationDiverged) as info:
+        list(simulate(model, Scene(gravity=(0.0, -1e300, 0.0)), Settings(solver=name, frames=3)))
+    assert info.value.frame == 1 and info.value.solver == name
+
+
 def test_guard_stops_an_unstable_explicit_setup() -> None:
     """Explicit springs far too stiff for the step, stability splitting off: stopped, never yields NaN."""
     _, model, _ = hanging_cloth(8, Material(stretch_modulus=1e5))

@@ -85,9 +85,9 @@ class SolverOptions:
     partitions: `verlet` / `xpbd`: slabs of springs swept in parallel, one thread each
         (Gauss-Seidel inside each, the springs between slabs after them); results depend on
         this number, not on the thread count, so runs are reproducible on any machine.
-        1 runs serially (no parallel runtime); 0 (default, auto) uses 2 slabs from 100k
-        springs up (about a 128 x 128 grid) and 1 below, where a parallel launch per sweep
-        costs more than it saves.
+        1 runs serially (no parallel runtime); 0 (default, auto) uses 2 slabs from 4096
+        springs up (about a 27 x 27 grid) and 1 below. Whether a step then runs on one thread
+        or several is measured while it runs (`dispatch.KernelPicker`), never a result change.
     tethers: `verlet` and `xpbd`: long range attachments (Kim, Tang, Mueller 2012): after the
         sweeps, every vertex connected to a pin is kept within this ratio of its rest distance
         along the mesh to the nearest pin (1.0: no stretch along that path). Plain sweeps

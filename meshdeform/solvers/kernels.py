@@ -66,6 +66,8 @@ def first_touch(a, b, n):  # pragma: no cover - compiled
 
 _SWEEP = {**_JIT, "fastmath": {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}}
 
+#: squared distance ratio past which a tether no longer pulls a vertex back (see `_tethers`)
+_RUNAWAY2 = 1e30
 #: squared length below which a spring's direction is taken as undefined (no division by zero)
 _TINY2 = 1e-24
 
@@ -213,9 +215,11 @@ def _tethers(X, tethers, lo, hi):  # pragma: no cover - compiled
         dy = vi.y - pin.y
         dz = vi.z - pin.z
         d2 = dx * dx + dy * dy + dz * dz
-        lim = te.lim
-        if d2 > lim * lim:
-            s = lim / np.sqrt(d2)
+        lim2 = te.lim * te.lim
+        # a vertex 1e15 times past its limit (or overflowed) has blown up: left where it is for
+        # the divergence guard to report, not quietly pulled back onto its pin
+        if lim2 < d2 < lim2 * _RUNAWAY2:
+            s = te.lim / np.sqrt(d2)
             vi.x = pin.x + dx * s
             vi.y = pin.y + dy * s
             vi.z = pin.z + dz * s

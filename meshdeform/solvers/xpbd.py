@@ -33,9 +33,12 @@ and gives 1.22 at 2 x 24 (1.24 with 1 %, 1.48 with structural paths only). They 
 stretch along paths from the pins (set them off to see the compliance alone).
 
 Speed: a whole substep (prediction, tethers, sweeps, velocities) is one compiled call
-(`kernels.xpbd_substep`) on a cache-line-per-vertex scratch copy; per spring the constants
-(masses, compliances, 1 / denominators, damping) are precomputed once per step size into one
-64-byte record, so a projection costs one square root and one division.
+(`kernels.xpbd_substep`, or its parallel build on both cores: `dispatch.KernelPicker` runs
+whichever is faster on the machine at the time, the results are bit for bit the same) on a
+cache-line-per-vertex scratch copy (position, inverse mass, previous position); per spring
+the constants (compliances, 1 / denominators, damping) are precomputed once per step size
+into one 48-byte record, so a projection costs one square root and one division. The first
+sweep of a substep writes the multipliers without reading them (they start at zero).
 """
 
 from __future__ import annotations

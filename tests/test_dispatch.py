@@ -1,0 +1,116 @@
+"""Serial or parallel substep builds: same bytes, chunks that split safely, a picker that measures."""
+
+from __future__ import annotations
+
+import time
+
+import numba as nb
+import numpy as np
+import pytest
+
+from meshdeform.mesh import grid_mesh
+from meshdeform.model import SpringModel, State
+from meshdeform.solvers import Control, SolverOptions, dispatch, kernels, make_solver
+from meshdeform.solvers.dispatch import KernelPicker, chunk_bounds, grouped_chunk_bounds
+
+two_threads = pytest.mark.skipif(nb.config.NUMBA_NUM_THREADS < 2, reason="needs 2 Numba threads")
+
+
+@pytest.mark.parametrize(("count", "parts"), [(0, 2), (1, 2), (7, 2), (4096, 2), (10, 3), (5, 8)])
+def test_chunk_bounds_cover_the_range_in_order(count: int, parts: int) -> None:
+    bounds = chunk_bounds(count, parts)
+    assert bounds.dtype == np.uint64 and bounds.shape == (parts + 1,)
+    assert bounds[0] == 0 and bounds[-1] == count
+    sizes = np.diff(bounds.astype(np.int64))
+    assert (sizes >= 0).all() and sizes.max() - sizes.min() <= 1
+
+
+@pytest.mark.parametrize("parts", [2, 3, 5])
+def test_grouped_chunks_never_split_a_key(parts: int) -> None:
+    rng = np.random.default_rng(4)
+    keys = np.sort(rng.integers(0, 40, size=301))
+    bounds = grouped_chunk_bounds(keys, parts).astype(np.int64)
+    assert bounds[0] == 0 and bounds[-1] == keys.shape[0]
+    assert (np.diff(bounds) >= 0).all()
+    for b in bounds[1:-1]:
+        if 0 < b < keys.shape[0]:
+            assert keys[b - 1] != keys[b], f"bound {b} splits key {keys[b]}"
+    # one key only: everything in one chunk, the others empty
+    same = grouped_chunk_bounds(np.zeros(9, dtype=np.int64), 2).astype(np.int64)
+    assert list(same) == [0, 0, 9] or list(same) == [0, 9, 9]
+    assert list(grouped_chunk_bounds(np.zeros(0, dtype=np.int64), 2)) == [0, 0, 0]
+
+
+def test_picker_runs_the_faster_build_and_measures_again(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(nb, "get_num_threads", lambda: 2)
+    monkeypatch.setattr(dispatch, "PROBE_EVERY", 40)
+    calls: list[str] = []
+    slow = {"serial": 0.004, "parallel": 0.0}
+
+    def build(name: str):
+        def run() -> None:
+            calls.append(name)
+            time.sleep(slow[name])
+
+        return run
+
+    picker = KernelPicker(build("serial"), build("parallel"), parallel_ok=True)
+    for _ in range(40):
+        picker()
+    probe = 2 * (dispatch.PROBE_CALLS + 1)
+    assert calls[:probe].count("serial") == calls[:probe].count("parallel") == probe // 2
+    assert set(calls[probe:40]) == {"parallel"} and picker.uses_parallel
+    # the machine changes: the next probe picks the serial build
+    slow.update(serial=0.0, parallel=0.004)
+    calls.clear()
+    for _ in range(40):
+        picker()
+    assert set(calls[probe:]) == {"serial"} and not picker.uses_parallel
+
+
+def test_picker_without_parallel_runs_serial_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[str] = []
+    picker = KernelPicker(lambda: calls.append("s"), lambda: calls.append("p"), parallel_ok=False)
+    for _ in range(20):
+        picker()
+    assert calls == ["s"] * 20 and not picker.uses_parallel
+    # one Numba thread: no parallel build either, whatever the layout allows
+    monkeypatch.setattr(nb, "get_num_threads", lambda: 1)
+    picker = KernelPicker(lambda: calls.append("s"), lambda: calls.append("p"), parallel_ok=True)
+    calls.clear()
+    for _ in range(20):
+        picker()
+    assert calls == ["s"] * 20
+
+
+def cloth(n: int) -> SpringModel:
+    mesh = grid_mesh(n, n, plane="xy")
+    pinned = np.zeros(n * n, dtype=bool)
+    pinned[[n * (n - 1), n * n - 1]] = True
+    return SpringModel.from_mesh(mesh, pinned_input=pinned)
+
+
+def advance(name: str, build: str, steps: int = 30) -> np.ndarray:
+    """Positions after `steps` substeps forcing the serial or the parallel build."""
+    model = cloth(24)
+    solver = make_solver(name, SolverOptions(partitions=2))
+    state = State.at_rest(model)
+    control = Control(np.tile(np.array([0.0, -9.81, 0.0]), (model.vertex_count, 1)))
+    dt = 1.0 / 24 / 20
+    solver.step(model, state, dt, control)  # prepares; the picker's first call is serial
+    assert solver.layout.parts == 2 and solver.tethers.shape[0] > 0
+    solver.substep = getattr(kernels, f"{name}_substep" + ("_parallel" if build == "parallel" else ""))
+    for _ in range(steps):
+        solver.step(model, state, dt, control)
+    return np.concatenate([state.positions, state.velocities, state.previous])
+
+
+@two_threads
+@pytest.mark.parametrize("name", ["xpbd", "verlet"])
+def test_parallel_build_gives_the_serial_bytes(name: str) -> None:
+    serial = advance(name, "serial")
+    parallel = advance(name, "parallel")
+    assert np.isfinite(serial).all()
+    assert serial.tobytes() == parallel.tobytes()
+    # and the cloth did move (a test of nothing would pass too)
+    assert np.abs(serial[: serial.shape[0] // 3] - cloth(24).rest_positions).max() > 1e-4
