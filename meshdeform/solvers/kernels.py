@@ -81,14 +81,17 @@ VERTEX = np.dtype(
 POINT = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("w", "f8")], align=True)
 #: spring ends in kernel vertex numbering
 ENDS = np.dtype([("a", "u4"), ("b", "u4")], align=True)
-#: xpbd spring: rest length, compliance / dt^2 and 1 / denominator under tension and
-#: compression, damping factor gamma (48 bytes; the inverse masses come from the vertices)
+#: xpbd spring: ends (kernel numbering), rest length, compliance / dt^2 and 1 / denominator
+#: under tension and compression, damping factor gamma (56 bytes, one stream per sweep; the
+#: inverse masses come from the vertex records)
 XPBD_SPRING = np.dtype(
-    [("rest", "f8"), ("at", "f8"), ("ac", "f8"), ("it", "f8"), ("ic", "f8"), ("g", "f8")],
+    [("a", "u4"), ("b", "u4"), ("rest", "f8"), ("at", "f8"), ("ac", "f8"), ("it", "f8"), ("ic", "f8"), ("g", "f8")],
     align=True,
 )
-#: verlet spring: rest length, k w_a / w and k w_b / w under tension and compression
-RELAX_SPRING = np.dtype([("rest", "f8"), ("at", "f8"), ("bt", "f8"), ("ac", "f8"), ("bc", "f8")], align=True)
+#: verlet spring: ends (kernel numbering), rest length, k w_a / w and k w_b / w under tension and compression
+RELAX_SPRING = np.dtype(
+    [("a", "u4"), ("b", "u4"), ("rest", "f8"), ("at", "f8"), ("bt", "f8"), ("ac", "f8"), ("bc", "f8")], align=True
+)
 #: tether: kernel vertex, kernel pin vertex, largest distance
 TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
 
@@ -226,16 +229,15 @@ def _tethers(X, tethers, lo, hi):  # pragma: no cover - compiled
 
 
 @nb.njit(inline="always", **_SWEEP)
-def _xpbd_spring(X, ends, P, lam, s, damped, first):  # pragma: no cover - compiled
+def _xpbd_spring(X, P, lam, s, damped, first):  # pragma: no cover - compiled
     """One XPBD distance constraint (P[s]: see XPBD_SPRING).
 
     dlam = (-C - a~ lam - gamma n . (dx - dx_prev)) / ((1 + gamma) w + a~), written as
     (L - l - gamma (l - d . dp / l) - a~ lam) / den with d = x_b - x_a, dp = prev_b - prev_a.
     """
-    e = ends[s]
-    va = X[e.a]
-    vb = X[e.b]
     c = P[s]
+    va = X[c.a]
+    vb = X[c.b]
     dx = vb.x - va.x
     dy = vb.y - va.y
     dz = vb.z - va.z
@@ -269,7 +271,7 @@ def _xpbd_spring(X, ends, P, lam, s, damped, first):  # pragma: no cover - compi
 
 
 @nb.njit(inline="always", **_SWEEP)
-def _xpbd_range(X, ends, P, lam, lo, hi, backward, damped, first):  # pragma: no cover - compiled
+def _xpbd_range(X, P, lam, lo, hi, backward, damped, first):  # pragma: no cover - compiled
     """Springs lo..hi-1 (unsigned offsets: no wraparound code), forward or backward.
 
     first: the substep's first sweep (forward), whose multipliers start at zero: written, not read.
@@ -278,32 +280,31 @@ def _xpbd_range(X, ends, P, lam, lo, hi, backward, damped, first):  # pragma: no
     if first:
         if damped:
             for s in range(lo, hi):
-                _xpbd_spring(X, ends, P, lam, s, True, True)
+                _xpbd_spring(X, P, lam, s, True, True)
         else:
             for s in range(lo, hi):
-                _xpbd_spring(X, ends, P, lam, s, False, True)
+                _xpbd_spring(X, P, lam, s, False, True)
     elif damped:
         if backward:
             for j in range(hi - lo):
-                _xpbd_spring(X, ends, P, lam, hi - one - j, True, False)
+                _xpbd_spring(X, P, lam, hi - one - j, True, False)
         else:
             for s in range(lo, hi):
-                _xpbd_spring(X, ends, P, lam, s, True, False)
+                _xpbd_spring(X, P, lam, s, True, False)
     elif backward:
         for j in range(hi - lo):
-            _xpbd_spring(X, ends, P, lam, hi - one - j, False, False)
+            _xpbd_spring(X, P, lam, hi - one - j, False, False)
     else:
         for s in range(lo, hi):
-            _xpbd_spring(X, ends, P, lam, s, False, False)
+            _xpbd_spring(X, P, lam, s, False, False)
 
 
 @nb.njit(inline="always", **_SWEEP)
-def _relax_spring(X, ends, P, s):  # pragma: no cover - compiled
+def _relax_spring(X, P, s):  # pragma: no cover - compiled
     """One Jakobsen relaxation (P[s]: see RELAX_SPRING)."""
-    e = ends[s]
-    va = X[e.a]
-    vb = X[e.b]
     c = P[s]
+    va = X[c.a]
+    vb = X[c.b]
     dx = vb.x - va.x
     dy = vb.y - va.y
     dz = vb.z - va.z
@@ -326,19 +327,19 @@ def _relax_spring(X, ends, P, s):  # pragma: no cover - compiled
 
 
 @nb.njit(inline="always", **_SWEEP)
-def _relax_range(X, ends, P, lo, hi, backward):  # pragma: no cover - compiled
+def _relax_range(X, P, lo, hi, backward):  # pragma: no cover - compiled
     one = np.uint64(1)
     if backward:
         for j in range(hi - lo):
-            _relax_spring(X, ends, P, hi - one - j)
+            _relax_spring(X, P, hi - one - j)
     else:
         for s in range(lo, hi):
-            _relax_spring(X, ends, P, s)
+            _relax_spring(X, P, s)
 
 
 @nb.njit(**_SWEEP)
 def xpbd_substep(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, lam, offsets, parts, iterations, damped,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, P, lam, offsets, parts, iterations, damped,
     tethers, vchunks, tchunks,
 ):  # pragma: no cover - compiled
     """One XPBD substep on one thread: predict, tethers, `iterations` sweeps, tethers, velocities.
@@ -354,14 +355,14 @@ def xpbd_substep(
     for it in range(iterations):
         backward = (it % 2) == 1
         for p in range(parts + 1):
-            _xpbd_range(X, ends, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
+            _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
     _tethers(X, tethers, np.uint64(0), nt)
     _store(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
 
 
 @nb.njit(parallel=True, **_SWEEP)
 def xpbd_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, lam, offsets, parts, iterations, damped,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, P, lam, offsets, parts, iterations, damped,
     tethers, vchunks, tchunks,
 ):  # pragma: no cover - compiled
     """`xpbd_substep` with every phase split over `parts` threads (bit for bit the same result).
@@ -378,8 +379,8 @@ def xpbd_substep_parallel(
     for it in range(iterations):
         backward = (it % 2) == 1
         for p in nb.prange(parts):
-            _xpbd_range(X, ends, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
-        _xpbd_range(X, ends, P, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
+            _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
+        _xpbd_range(X, P, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
     for p in nb.prange(parts):
         _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     inv_dt = 1.0 / dt
@@ -389,7 +390,7 @@ def xpbd_substep_parallel(
 
 @nb.njit(**_SWEEP)
 def verlet_substep(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, offsets, parts, iterations, tethers,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, P, offsets, parts, iterations, tethers,
     vchunks, tchunks,
 ):  # pragma: no cover - compiled
     """One Verlet substep on one thread: predict, tethers, relaxation sweeps, tethers, velocities."""
@@ -400,14 +401,14 @@ def verlet_substep(
     for it in range(iterations):
         backward = (it % 2) == 1
         for p in range(parts + 1):
-            _relax_range(X, ends, P, offsets[p], offsets[p + 1], backward)
+            _relax_range(X, P, offsets[p], offsets[p + 1], backward)
     _tethers(X, tethers, np.uint64(0), nt)
     _store_points(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
 
 
 @nb.njit(parallel=True, **_SWEEP)
 def verlet_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, ends, P, offsets, parts, iterations, tethers,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, P, offsets, parts, iterations, tethers,
     vchunks, tchunks,
 ):  # pragma: no cover - compiled
     """`verlet_substep` with every phase split over `parts` threads (see `xpbd_substep_parallel`)."""
@@ -419,8 +420,8 @@ def verlet_substep_parallel(
     for it in range(iterations):
         backward = (it % 2) == 1
         for p in nb.prange(parts):
-            _relax_range(X, ends, P, offsets[p], offsets[p + 1], backward)
-        _relax_range(X, ends, P, offsets[parts], offsets[parts + 1], backward)
+            _relax_range(X, P, offsets[p], offsets[p + 1], backward)
+        _relax_range(X, P, offsets[parts], offsets[parts + 1], backward)
     for p in nb.prange(parts):
         _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     inv_dt = 1.0 / dt

@@ -71,6 +71,8 @@ class VerletSolver(ModelCache):
         share_a = np.where(w > 0.0, wa / np.where(w > 0.0, w, 1.0), 0.0)
         share_b = np.where(w > 0.0, wb / np.where(w > 0.0, w, 1.0), 0.0)
         p = self.params = aligned_zeros((lay.a.shape[0],), kernels.RELAX_SPRING)
+        p["a"] = lay.ends["a"]
+        p["b"] = lay.ends["b"]
         p["rest"] = lay.rest
         p["at"] = self.kt * share_a
         p["bt"] = self.kt * share_b
@@ -92,6 +94,6 @@ class VerletSolver(ModelCache):
         lay = self.layout
         self.substep(
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
-            self.retention, dt, self.scratch, lay.vertex_rank, lay.ends, self.params,
+            self.retention, dt, self.scratch, lay.vertex_rank, self.params,
             self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
         )

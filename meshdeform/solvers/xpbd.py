@@ -37,8 +37,9 @@ Speed: a whole substep (prediction, tethers, sweeps, velocities) is one compiled
 whichever is faster on the machine at the time, the results are bit for bit the same) on a
 cache-line-per-vertex scratch copy (position, inverse mass, previous position); per spring
 the constants (compliances, 1 / denominators, damping) are precomputed once per step size
-into one 48-byte record, so a projection costs one square root and one division. The first
-sweep of a substep writes the multipliers without reading them (they start at zero).
+into one 56-byte record beside the spring's ends, so a projection streams one array and costs
+one square root and one division. The first sweep of a substep writes the multipliers
+without reading them (they start at zero).
 """
 
 from __future__ import annotations
@@ -99,6 +100,8 @@ class XPBDSolver(ModelCache):
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.substep = KernelPicker(kernels.xpbd_substep, kernels.xpbd_substep_parallel, lay.parts > 1)
         self.params = aligned_zeros((lay.a.shape[0],), kernels.XPBD_SPRING)
+        self.params["a"] = lay.ends["a"]
+        self.params["b"] = lay.ends["b"]
         self.params["rest"] = lay.rest
         self.w = self.inv_mass[lay.a] + self.inv_mass[lay.b]
         self.lam = np.zeros(lay.a.shape[0])
@@ -129,7 +132,7 @@ class XPBDSolver(ModelCache):
         lay = self.layout
         self.substep(
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
-            self.retention, dt, self.scratch, lay.vertex_rank, lay.ends, self.params, self.lam,
+            self.retention, dt, self.scratch, lay.vertex_rank, self.params, self.lam,
             self.offsets, lay.parts, self.iterations, self.damped,
             self.tethers, self.chunks.vertices, self.chunks.tethers,
         )
