@@ -128,36 +128,6 @@ def _load(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma:
 
 
 @nb.njit(inline="always", **_JIT)
-def _store(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
-    """Free model vertices lo..hi-1 back from the scratch copy; v = (x - prev) / dt for each."""
-    for i in range(lo, hi):
-        r = X[rank[i]]
-        if r.w != 0.0:
-            x0 = r.x
-            x1 = r.y
-            x2 = r.z
-            p0 = r.px
-            p1 = r.py
-            p2 = r.pz
-            x[i, 0] = x0
-            x[i, 1] = x1
-            x[i, 2] = x2
-            prev[i, 0] = p0
-            prev[i, 1] = p1
-            prev[i, 2] = p2
-        else:
-            x0 = x[i, 0]
-            x1 = x[i, 1]
-            x2 = x[i, 2]
-            p0 = prev[i, 0]
-            p1 = prev[i, 1]
-            p2 = prev[i, 2]
-        v[i, 0] = (x0 - p0) * inv_dt
-        v[i, 1] = (x1 - p1) * inv_dt
-        v[i, 2] = (x2 - p2) * inv_dt
-
-
-@nb.njit(inline="always", **_JIT)
 def _load_points(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
     """`_load` for `POINT` records: predicted positions of free vertices, pinned ones as they are."""
     for i in range(lo, hi):
@@ -178,8 +148,9 @@ def _load_points(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # 
 
 
 @nb.njit(inline="always", **_JIT)
-def _store_points(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
-    """`_store` for `POINT` records: free vertices prev = x (before the substep), x = scratch."""
+def _store(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
+    """Free model vertices lo..hi-1 back from the scratch (`VERTEX` or `POINT` records): prev = x
+    as it was before the substep, x = scratch; v = (x - prev) / dt for each."""
     for i in range(lo, hi):
         r = X[rank[i]]
         if r.w != 0.0:
@@ -403,7 +374,7 @@ def verlet_substep(
         for p in range(parts + 1):
             _relax_range(X, P, offsets[p], offsets[p + 1], backward)
     _tethers(X, tethers, np.uint64(0), nt)
-    _store_points(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
+    _store(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
 
 
 @nb.njit(parallel=True, **_SWEEP)
@@ -426,7 +397,7 @@ def verlet_substep_parallel(
         _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     inv_dt = 1.0 / dt
     for p in nb.prange(parts):
-        _store_points(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
+        _store(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
 
 
 # --------------------------------------------------------------------------- explicit springs
