@@ -200,6 +200,29 @@ def _tethers(X, tethers, lo, hi):  # pragma: no cover - compiled
 
 
 @nb.njit(inline="always", **_SWEEP)
+def _span(va, vb):  # pragma: no cover - compiled
+    """d = x_b - x_a, |d| and 1 / |d|^2 (the division runs beside the square root, not after it:
+    a shorter dependency chain per spring)."""
+    dx = vb.x - va.x
+    dy = vb.y - va.y
+    dz = vb.z - va.z
+    d2 = max(dx * dx + dy * dy + dz * dz, _TINY2)
+    inv_d2 = 1.0 / d2
+    return dx, dy, dz, np.sqrt(d2), inv_d2
+
+
+@nb.njit(inline="always", **_SWEEP)
+def _pull(va, vb, dx, dy, dz, fa, fb):  # pragma: no cover - compiled
+    """x_a += d fa, x_b -= d fb."""
+    va.x += dx * fa
+    va.y += dy * fa
+    va.z += dz * fa
+    vb.x -= dx * fb
+    vb.y -= dy * fb
+    vb.z -= dz * fb
+
+
+@nb.njit(inline="always", **_SWEEP)
 def _xpbd_spring(X, P, lam, s, damped, first):  # pragma: no cover - compiled
     """One XPBD distance constraint (P[s]: see XPBD_SPRING).
 
@@ -209,13 +232,7 @@ def _xpbd_spring(X, P, lam, s, damped, first):  # pragma: no cover - compiled
     c = P[s]
     va = X[c.a]
     vb = X[c.b]
-    dx = vb.x - va.x
-    dy = vb.y - va.y
-    dz = vb.z - va.z
-    d2 = max(dx * dx + dy * dy + dz * dz, _TINY2)
-    # 1 / d2 runs beside the square root instead of 1 / length after it: a shorter chain
-    inv_d2 = 1.0 / d2
-    length = np.sqrt(d2)
+    dx, dy, dz, length, inv_d2 = _span(va, vb)
     inv_l = length * inv_d2
     rest = c.rest
     tension = length > rest
@@ -230,15 +247,8 @@ def _xpbd_spring(X, P, lam, s, damped, first):  # pragma: no cover - compiled
         num -= c.g * (length - (dx * px + dy * py + dz * pz) * inv_l)
     dlam = num * inv_den
     lam[s] = lam_s + dlam
-    q = dlam * inv_l
-    qa = q * va.w
-    qb = q * vb.w
-    va.x -= dx * qa
-    va.y -= dy * qa
-    va.z -= dz * qa
-    vb.x += dx * qb
-    vb.y += dy * qb
-    vb.z += dz * qb
+    q = -dlam * inv_l
+    _pull(va, vb, dx, dy, dz, q * va.w, q * vb.w)
 
 
 @nb.njit(inline="always", **_SWEEP)
@@ -276,25 +286,13 @@ def _relax_spring(X, P, s):  # pragma: no cover - compiled
     c = P[s]
     va = X[c.a]
     vb = X[c.b]
-    dx = vb.x - va.x
-    dy = vb.y - va.y
-    dz = vb.z - va.z
-    d2 = max(dx * dx + dy * dy + dz * dz, _TINY2)
-    inv_d2 = 1.0 / d2
-    length = np.sqrt(d2)
+    dx, dy, dz, length, inv_d2 = _span(va, vb)
     rest = c.rest
     tension = length > rest
     ka = c.at if tension else c.ac
     kb = c.bt if tension else c.bc
     f = 1.0 - rest * length * inv_d2
-    fa = f * ka
-    fb = f * kb
-    va.x += dx * fa
-    va.y += dy * fa
-    va.z += dz * fa
-    vb.x -= dx * fb
-    vb.y -= dy * fb
-    vb.z -= dz * fb
+    _pull(va, vb, dx, dy, dz, f * ka, f * kb)
 
 
 @nb.njit(inline="always", **_SWEEP)
