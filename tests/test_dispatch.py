@@ -43,7 +43,8 @@ def test_grouped_chunks_never_split_a_key(parts: int) -> None:
 
 def test_picker_runs_the_faster_build_and_measures_again(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(nb, "get_num_threads", lambda: 2)
-    monkeypatch.setattr(dispatch, "PROBE_EVERY", 40)
+    monkeypatch.setattr(dispatch, "PROBE_EVERY", 60)
+    monkeypatch.setattr(dispatch, "PROBE_AGAIN", 12)
     calls: list[str] = []
     slow = {"serial": 0.004, "parallel": 0.0}
 
@@ -54,18 +55,36 @@ def test_picker_runs_the_faster_build_and_measures_again(monkeypatch: pytest.Mon
 
         return run
 
-    picker = KernelPicker(build("serial"), build("parallel"), parallel_ok=True)
-    for _ in range(40):
-        picker()
+    def probes(count: int) -> list[int]:
+        """Make `count` calls; the indices of those that start a probe."""
+        starts = []
+        for k in range(count):
+            if picker._phase == 0:
+                starts.append(k)
+            picker()
+        return starts
+
     probe = 2 * (dispatch.PROBE_CALLS + 1)
+    picker = KernelPicker(build("serial"), build("parallel"), parallel_ok=True)
+    # parallel faster: one probe, then the parallel build until the next probe PROBE_EVERY calls on
+    assert probes(60) == [0]
     assert calls[:probe].count("serial") == calls[:probe].count("parallel") == probe // 2
-    assert set(calls[probe:40]) == {"parallel"} and picker.uses_parallel
-    # the machine changes: the next probe picks the serial build
+    assert set(calls[probe:60]) == {"parallel"} and picker.uses_parallel
+    # the machine changes: the next probe picks the serial build and probes again soon,
+    # 12 calls later, then 24, 48 and at most PROBE_EVERY while serial keeps winning
     slow.update(serial=0.0, parallel=0.004)
     calls.clear()
-    for _ in range(40):
-        picker()
-    assert set(calls[probe:]) == {"serial"} and not picker.uses_parallel
+    assert probes(12 + 24 + 48 + 60 + 1) == [0, 12, 36, 84, 144]
+    assert not picker.uses_parallel
+    assert set(calls[probe:12]) == {"serial"}
+    # it changes back: the short period finds the parallel build again within PROBE_AGAIN calls
+    picker = KernelPicker(build("serial"), build("parallel"), parallel_ok=True)
+    slow.update(serial=0.0, parallel=0.004)
+    probes(probe)
+    assert not picker.uses_parallel
+    slow.update(serial=0.004, parallel=0.0)
+    probes(2 * dispatch.PROBE_AGAIN)
+    assert picker.uses_parallel
 
 
 def test_picker_without_parallel_runs_serial_only(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -7,8 +7,9 @@ measuring, not guessed: on an idle 2-core machine the parallel build runs a 64 x
 1.5-1.9x faster, while on a machine whose other core is busy (another job, another user)
 each parallel launch waits for it and the same step can run 8x slower. `KernelPicker` times
 a few calls of each build (the fastest call of each counts, so one interrupted call does not
-decide), runs the faster one, and measures again every so often, so a run
-follows the machine's load as it changes.
+decide), runs the faster one, and measures again: every PROBE_EVERY calls while the parallel
+build wins, sooner while the serial one does (a probe spoiled by a moment of load on the other
+core is corrected within PROBE_AGAIN calls), so a run follows the machine's load as it changes.
 """
 
 from __future__ import annotations
@@ -21,8 +22,11 @@ import numpy as np
 
 #: calls of each build timed per probe (after one untimed warm-up call of each)
 PROBE_CALLS = 3
-#: calls between probes
+#: calls between probes while the parallel build wins
 PROBE_EVERY = 1500
+#: calls until the next probe after the serial build won; doubled each time it wins again (up to
+#: PROBE_EVERY), so a probe spoiled by a moment of load on the other core is soon corrected
+PROBE_AGAIN = 50
 
 
 def chunk_bounds(count: int, parts: int) -> np.ndarray:
@@ -56,15 +60,16 @@ class KernelPicker:
         self.parallel = parallel
         self.parallel_ok = parallel_ok and nb.get_num_threads() > 1
         self.choice: Callable[..., None] = serial
-        self._calls = 0
+        self._phase = 0  # calls since the current probe started
+        self._period = PROBE_AGAIN  # calls from one probe's start to the next
         self._probe: list[float] = [np.inf, np.inf]
 
     def __call__(self, *args: object) -> None:
         if not self.parallel_ok:
             self.serial(*args)
             return
-        phase = self._calls % PROBE_EVERY
-        self._calls += 1
+        phase = self._phase
+        self._phase = phase + 1 if phase + 1 < self._period else 0
         if phase >= 2 * (PROBE_CALLS + 1):
             self.choice(*args)
             return
@@ -77,7 +82,12 @@ class KernelPicker:
         if phase >= 2:
             self._probe[use_parallel] = min(self._probe[use_parallel], elapsed)
         if phase == 2 * (PROBE_CALLS + 1) - 1:
-            self.choice = self.parallel if self._probe[1] < self._probe[0] else self.serial
+            if self._probe[1] < self._probe[0]:
+                self.choice, self._period = self.parallel, PROBE_EVERY
+            else:
+                again = self.choice is self.serial
+                self.choice = self.serial
+                self._period = min(2 * self._period, PROBE_EVERY) if again else PROBE_AGAIN
             self._probe = [np.inf, np.inf]
 
     @property
