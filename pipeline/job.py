@@ -202,6 +202,7 @@ def run_job(
             "faces": mesh.face_count,
             "springs": model.spring_counts(),
             "pinned_vertices": int(np.count_nonzero(model.pinned_input_mask())),
+            "pinned": np.flatnonzero(model.pinned_input_mask()).tolist(),
             "selections": built.selections,
             "max_stretch": max_stretch,
             "max_speed": max_speed,

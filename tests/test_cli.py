@@ -126,6 +126,11 @@ def test_simulate_box_pin_is_relative_to_bounds(tmp_path: Path) -> None:
     top = rest[:, 2] == rest[:, 2].max()  # the far edge of the flat sheet
     np.testing.assert_array_equal(moved[top], rest[top])
     assert (moved[~top, 1] < rest[~top, 1]).all()
+    # the report lists the pinned input vertices, so a later `preview` of OBJ frames alone can show them
+    assert report["pinned"] == np.flatnonzero(top).tolist()
+    from meshdeform.preview import open_result
+
+    np.testing.assert_array_equal(open_result(out).pinned, top)
 
 
 def test_simulate_ply_output_keeps_vertex_count(tmp_path: Path, samples_dir: Path) -> None:
