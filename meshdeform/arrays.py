@@ -33,6 +33,42 @@ def argsort_int(values: np.ndarray) -> np.ndarray:
     return np.argsort(v, kind="stable")
 
 
+def lexsort_int(keys: tuple[np.ndarray, ...]) -> np.ndarray:
+    """`np.lexsort(keys)` (the last key primary, stable) for non-negative integer keys.
+
+    The keys are packed into one int64 (mixed radix) when their ranges allow, and sorted with
+    `argsort_int`; np.lexsort is 10x slower than that with this NumPy (250 ms vs 20 ms for
+    390k springs and 4 keys), and it runs every time the solvers lay out springs.
+    """
+    cols = [np.asarray(k, dtype=np.int64) for k in keys]
+    n = cols[0].shape[0] if cols else 0
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    packed = np.zeros(n, dtype=np.int64)
+    span = 1
+    for col in cols:  # least significant first
+        top = int(col.max()) + 1
+        if int(col.min()) < 0 or span * top >= 2**62:
+            return np.lexsort(tuple(cols))
+        packed += col * span
+        span *= top
+    return argsort_int(packed)
+
+
+def dense_rank(values: np.ndarray) -> np.ndarray:
+    """0-based rank of each value among the distinct values (equal values share a rank)."""
+    v = np.asarray(values)
+    order = np.argsort(v)
+    ordered = v[order]
+    step = np.empty(v.shape[0], dtype=np.int64)
+    if v.shape[0]:
+        step[0] = 0
+        np.not_equal(ordered[1:], ordered[:-1], out=step[1:], casting="unsafe")
+    rank = np.empty(v.shape[0], dtype=np.int64)
+    rank[order] = np.cumsum(step)
+    return rank
+
+
 def isin_int(values: np.ndarray, pool: np.ndarray) -> np.ndarray:
     """Boolean mask: which of `values` occur in `pool` (both integer arrays)."""
     pool_sorted = unique_int(pool)

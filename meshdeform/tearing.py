@@ -67,7 +67,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from meshdeform.arrays import argsort_int, run_lengths
+from meshdeform.arrays import argsort_int, lexsort_int, run_lengths
 from meshdeform.mesh import Mesh, fan_triangulate
 from meshdeform.model import SpringModel, State
 from meshdeform.topology import KIND_NAMES, SpringKind, derive_springs
@@ -351,7 +351,7 @@ def split_vertices(
     first[label[rev]] = rev
     comp_corner = corners[first]
     comp_vertex = cv[comp_corner]
-    order = np.lexsort((comp_corner, comp_vertex))
+    order = lexsort_int((comp_corner, comp_vertex))
     sv = comp_vertex[order]
     is_first = np.ones(ncomp, dtype=bool)
     is_first[1:] = sv[1:] != sv[:-1]

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshdeform.arrays import argsort_int
+from meshdeform.arrays import dense_rank, lexsort_int
 from meshdeform.model import SpringModel
 from meshdeform.solvers.kernels import ENDS, first_touch, sweep_levels
 
@@ -142,15 +142,14 @@ def spring_layout(model: SpringModel, parts: int, mask: np.ndarray | None = None
     dist = pin_distance(model)
     if dist is not None:
         # from the pins outward: a forward sweep carries a pin's hold all the way in one pass
-        dspring = np.minimum(dist[a], dist[b])
-        order_local = np.lexsort((hi, lo, dspring, group))
+        rank = dense_rank(dist)  # orders and ties exactly as the distances do
+        order_local = lexsort_int((hi, lo, np.minimum(rank[a], rank[b]), group))
     else:
-        key = (group * n + lo) * n + hi if (parts + 1) * n * n < 2**62 else group * n + lo
-        order_local = argsort_int(key)
+        order_local = lexsort_int((hi, lo, group))
     # level the sorted order (same sweep result, independent neighbours): see the module docstring
     level = sweep_levels(a[order_local], b[order_local], n)
     sorted_group = group[order_local]
-    order_local = order_local[np.lexsort((hi[order_local], lo[order_local], level, sorted_group))]
+    order_local = order_local[lexsort_int((hi[order_local], lo[order_local], level, sorted_group))]
     order = index[order_local]
     counts = np.bincount(group, minlength=parts + 1)
     offsets = np.zeros(parts + 2, dtype=np.int64)
