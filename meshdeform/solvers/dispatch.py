@@ -90,6 +90,10 @@ class KernelPicker:
                 self._period = min(2 * self._period, PROBE_EVERY) if again else PROBE_AGAIN
             self._probe = [np.inf, np.inf]
 
+    def allow_parallel(self, parallel_ok: bool) -> None:
+        """A new layout (after a tear, say): keep what was measured, change only what is allowed."""
+        self.parallel_ok = parallel_ok and nb.get_num_threads() > 1
+
     @property
     def uses_parallel(self) -> bool:
         """Whether the build chosen at the last probe is the parallel one."""

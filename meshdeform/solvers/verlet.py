@@ -59,6 +59,7 @@ class VerletSolver(ModelCache):
         self.options = options
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
+        self.substep: KernelPicker | None = None
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self.layout = spring_layout(model, self.options.partitions)
@@ -82,7 +83,10 @@ class VerletSolver(ModelCache):
         self.scratch = aligned_zeros((model.vertex_count,), kernels.POINT)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
-        self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, lay.parts > 1)
+        if self.substep is None:  # kept across models (tearing): the machine has not changed
+            self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, lay.parts > 1)
+        else:
+            self.substep.allow_parallel(lay.parts > 1)
         self._dt = -1.0
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
