@@ -9,8 +9,10 @@ peak of Python/NumPy allocations over a second, traced run of a few frames, and 
 of the process, which runs that one solver and size only unless --no-isolate), and the
 structural max stretch over all frames and at the last frame. A vectorised-NumPy Jacobi
 reference kernel (np.bincount scatter) and each position-based solver's `step` alone (best
-of 5 repeats, no simulate loop) are measured at the end. The machine is shared: the load
-average is printed at the start and the end, put it beside any figure you quote.
+of 5 repeats, no simulate loop) are measured at the end, then the cold and warm start of
+`meshdeform simulate` on the flag sample (an empty Numba cache, then that cache). The machine
+is shared: the load average is printed at the start and the end, put it beside any figure
+you quote.
 
     .venv/bin/python benchmarks/cloth.py [--sizes 64,128,256] [--solvers xpbd,verlet,...] [--frames 100]
 """
