@@ -59,7 +59,8 @@ class VerletSolver(ModelCache):
         self.options = options
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
-        self.substep: KernelPicker | None = None
+        # one picker for the solver's life: what it measured holds for every model (tearing)
+        self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self.layout = spring_layout(model, self.options.partitions)
@@ -83,10 +84,7 @@ class VerletSolver(ModelCache):
         self.scratch = aligned_zeros((model.vertex_count,), kernels.POINT)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
-        if self.substep is None:  # kept across models (tearing): the machine has not changed
-            self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, lay.parts > 1)
-        else:
-            self.substep.allow_parallel(lay.parts > 1)
+        self.substep.allow_parallel(lay.parts > 1)
         self._dt = -1.0
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
