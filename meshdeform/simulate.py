@@ -3,7 +3,10 @@
 Per substep: external accelerations (gravity plus every force of the scene; filled once when
 the scene has no forces) are evaluated, animated hard pins are moved to their targets, the
 solver steps, then the scene's constraints (colliders, soft pins) are projected and hard pins
-are restored exactly (bit-identical to the input, or to their animation targets).
+are restored exactly (bit-identical to the input, or to their animation targets). When nothing
+happens between substeps (gravity only: no forces, constraints, pin animation or tearing), a
+solver with an `advance(model, state, dt, control, count)` method (verlet, xpbd) runs the
+frame's substeps in one call, which keeps the vertices in its own scratch between them.
 
 After every frame, before it is yielded, one compiled pass checks the positions: non-finite
 values or a vertex farther from the mesh centre than a generous bound (1000 mesh diagonals
@@ -206,8 +209,18 @@ def simulate(
     step = solver.step
     step_count = 0
     resting_since: int | None = None
+    # nothing between the substeps (no forces, constraints, pin motion or tearing): a solver
+    # that can runs a whole frame in one call, with the same result as substep by substep
+    advance = getattr(solver, "advance", None)
+    whole_frames = advance is not None and not forces and not constraints and pin_motion is None and tearing is None
     for frame in range(1, settings.frames + 1):
-        for _ in range(substeps):
+        if whole_frames:
+            advance(model, state, dt, control, substeps)
+            if pinned_idx.size:
+                state.positions[pinned_idx] = pinned_rest
+            step_count += substeps
+            state.time = start_time + step_count * dt
+        for _ in range(0 if whole_frames else substeps):
             t0 = state.time
             step_count += 1
             t1 = start_time + step_count * dt

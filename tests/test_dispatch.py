@@ -109,8 +109,8 @@ def cloth(n: int) -> SpringModel:
     return SpringModel.from_mesh(mesh, pinned_input=pinned)
 
 
-def advance(name: str, build: str, steps: int = 30) -> np.ndarray:
-    """Positions after `steps` substeps forcing the serial or the parallel build."""
+def advance(name: str, build: str, steps: int = 30, per_call: int = 1) -> np.ndarray:
+    """Positions after `steps` substeps, `per_call` at a time, forcing the serial or the parallel build."""
     model = cloth(24)
     solver = make_solver(name, SolverOptions(partitions=2))
     state = State.at_rest(model)
@@ -118,9 +118,10 @@ def advance(name: str, build: str, steps: int = 30) -> np.ndarray:
     dt = 1.0 / 24 / 20
     solver.step(model, state, dt, control)  # prepares; the picker's first call is serial
     assert solver.layout.parts == 2 and solver.tethers.shape[0] > 0
-    solver.substep = getattr(kernels, f"{name}_substep" + ("_parallel" if build == "parallel" else ""))
-    for _ in range(steps):
-        solver.step(model, state, dt, control)
+    kernel = getattr(kernels, f"{name}_substep" + ("_parallel" if build == "parallel" else ""))
+    solver.substep = solver.frame = kernel
+    for _ in range(steps // per_call):
+        solver.advance(model, state, dt, control, per_call)
     return np.concatenate([state.positions, state.velocities, state.previous])
 
 
@@ -133,3 +134,16 @@ def test_parallel_build_gives_the_serial_bytes(name: str) -> None:
     assert serial.tobytes() == parallel.tobytes()
     # and the cloth did move (a test of nothing would pass too)
     assert np.abs(serial[: serial.shape[0] // 3] - cloth(24).rest_positions).max() > 1e-4
+
+
+@two_threads
+@pytest.mark.parametrize("build", ["serial", "parallel"])
+@pytest.mark.parametrize("name", ["xpbd", "verlet"])
+def test_whole_frame_calls_give_the_bytes_of_single_substeps(name: str, build: str) -> None:
+    """`advance(..., count)` keeps the vertices in the scratch between substeps: same bytes as
+    `count` separate steps (positions, velocities and previous positions)."""
+    single = advance(name, build, steps=30, per_call=1)
+    frames = advance(name, build, steps=30, per_call=6)
+    assert np.isfinite(single).all()
+    assert single.tobytes() == frames.tobytes()
+    assert np.abs(single[: single.shape[0] // 3] - cloth(24).rest_positions).max() > 1e-4

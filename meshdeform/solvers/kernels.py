@@ -128,10 +128,15 @@ def _load(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma:
 
 
 @nb.njit(inline="always", **_JIT)
-def _load_points(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
-    """`_load` for `POINT` records: predicted positions of free vertices, pinned ones as they are."""
+def _load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi, keep):  # pragma: no cover - compiled
+    """`_load` for `POINT` records: predicted positions of free vertices, pinned ones as they are.
+
+    keep: also keep each free vertex's position before the prediction in XP (kernel numbering),
+    for a call that runs more than one substep (`_predict_points`, `_store_points`).
+    """
     for i in range(lo, hi):
-        r = X[rank[i]]
+        k = rank[i]
+        r = X[k]
         w = inv_mass[i]
         x0 = x[i, 0]
         x1 = x[i, 1]
@@ -145,37 +150,95 @@ def _load_points(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # 
             r.x = x0 + (x0 - prev[i, 0]) * retention + accel[i, 0] * dt2
             r.y = x1 + (x1 - prev[i, 1]) * retention + accel[i, 1] * dt2
             r.z = x2 + (x2 - prev[i, 2]) * retention + accel[i, 2] * dt2
+            if keep:
+                XP[k, 0] = x0
+                XP[k, 1] = x1
+                XP[k, 2] = x2
+
+
+@nb.njit(inline="always", **_JIT)
+def _predict(X, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
+    """The next substep's prediction inside `VERTEX` records, model vertices lo..hi-1 (a call
+    running several substeps): x' = x + (x - px) retention + a dt^2, px = x, as in `_load`."""
+    for i in range(lo, hi):
+        r = X[rank[i]]
+        if r.w != 0.0:
+            x0 = r.x
+            x1 = r.y
+            x2 = r.z
+            r.x = x0 + (x0 - r.px) * retention + accel[i, 0] * dt2
+            r.y = x1 + (x1 - r.py) * retention + accel[i, 1] * dt2
+            r.z = x2 + (x2 - r.pz) * retention + accel[i, 2] * dt2
+            r.px = x0
+            r.py = x1
+            r.pz = x2
+
+
+@nb.njit(inline="always", **_JIT)
+def _predict_points(X, XP, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
+    """`_predict` for `POINT` records, the previous positions in XP (kernel numbering)."""
+    for i in range(lo, hi):
+        k = rank[i]
+        r = X[k]
+        if r.w != 0.0:
+            x0 = r.x
+            x1 = r.y
+            x2 = r.z
+            r.x = x0 + (x0 - XP[k, 0]) * retention + accel[i, 0] * dt2
+            r.y = x1 + (x1 - XP[k, 1]) * retention + accel[i, 1] * dt2
+            r.z = x2 + (x2 - XP[k, 2]) * retention + accel[i, 2] * dt2
+            XP[k, 0] = x0
+            XP[k, 1] = x1
+            XP[k, 2] = x2
+
+
+@nb.njit(inline="always", **_JIT)
+def _put(x, prev, v, i, x0, x1, x2, p0, p1, p2, inv_dt):  # pragma: no cover - compiled
+    """x[i] = (x0, x1, x2), prev[i] = (p0, p1, p2), v[i] = (x - prev) / dt."""
+    x[i, 0] = x0
+    x[i, 1] = x1
+    x[i, 2] = x2
+    prev[i, 0] = p0
+    prev[i, 1] = p1
+    prev[i, 2] = p2
+    v[i, 0] = (x0 - p0) * inv_dt
+    v[i, 1] = (x1 - p1) * inv_dt
+    v[i, 2] = (x2 - p2) * inv_dt
+
+
+@nb.njit(inline="always", **_JIT)
+def _put_pinned(x, prev, v, i, inv_dt):  # pragma: no cover - compiled
+    """A pinned vertex keeps x and prev bit for bit; v = (x - prev) / dt."""
+    v[i, 0] = (x[i, 0] - prev[i, 0]) * inv_dt
+    v[i, 1] = (x[i, 1] - prev[i, 1]) * inv_dt
+    v[i, 2] = (x[i, 2] - prev[i, 2]) * inv_dt
 
 
 @nb.njit(inline="always", **_JIT)
 def _store(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
-    """Free model vertices lo..hi-1 back from the scratch (`VERTEX` or `POINT` records): prev = x
-    as it was before the substep, x = scratch; v = (x - prev) / dt for each."""
+    """Model vertices lo..hi-1 back from `VERTEX` records: x = the record, prev = its position
+    before the last substep (px), v = (x - prev) / dt; pinned ones keep x and prev."""
     for i in range(lo, hi):
         r = X[rank[i]]
         if r.w != 0.0:
-            p0 = x[i, 0]
-            p1 = x[i, 1]
-            p2 = x[i, 2]
-            x0 = r.x
-            x1 = r.y
-            x2 = r.z
-            x[i, 0] = x0
-            x[i, 1] = x1
-            x[i, 2] = x2
-            prev[i, 0] = p0
-            prev[i, 1] = p1
-            prev[i, 2] = p2
+            _put(x, prev, v, i, r.x, r.y, r.z, r.px, r.py, r.pz, inv_dt)
         else:
-            x0 = x[i, 0]
-            x1 = x[i, 1]
-            x2 = x[i, 2]
-            p0 = prev[i, 0]
-            p1 = prev[i, 1]
-            p2 = prev[i, 2]
-        v[i, 0] = (x0 - p0) * inv_dt
-        v[i, 1] = (x1 - p1) * inv_dt
-        v[i, 2] = (x2 - p2) * inv_dt
+            _put_pinned(x, prev, v, i, inv_dt)
+
+
+@nb.njit(inline="always", **_JIT)
+def _store_points(X, XP, x, prev, v, rank, inv_dt, lo, hi, kept):  # pragma: no cover - compiled
+    """`_store` for `POINT` records: prev from XP when `kept` (several substeps), else the State's
+    positions before they are overwritten (one substep: they are the positions it started from)."""
+    for i in range(lo, hi):
+        k = rank[i]
+        r = X[k]
+        if r.w == 0.0:
+            _put_pinned(x, prev, v, i, inv_dt)
+        elif kept:
+            _put(x, prev, v, i, r.x, r.y, r.z, XP[k, 0], XP[k, 1], XP[k, 2], inv_dt)
+        else:
+            _put(x, prev, v, i, r.x, r.y, r.z, x[i, 0], x[i, 1], x[i, 2], inv_dt)
 
 
 @nb.njit(inline="always", **_SWEEP)
@@ -309,30 +372,37 @@ def _relax_range(X, P, lo, hi, backward):  # pragma: no cover - compiled
 @nb.njit(**_SWEEP)
 def xpbd_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, P, lam, offsets, parts, iterations, damped,
-    tethers, vchunks, tchunks,
+    tethers, vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
-    """One XPBD substep on one thread: predict, tethers, `iterations` sweeps, tethers, velocities.
+    """`count` XPBD substeps on one thread: predict, tethers, `iterations` sweeps, tethers; then
+    positions, previous positions and velocities back to the State.
 
-    Sweeps alternate direction, the first forward (from the pins outward); slabs then the
-    separator, in layout order. offsets: (parts + 2,) uint64 (see `SpringLayout`); vchunks,
-    tchunks: the vertex and tether chunks of the parallel build (unused here).
+    The vertices stay in the scratch from one substep to the next (`_predict`), so a frame with
+    nothing between its substeps is one call. Sweeps alternate direction, the first forward (from
+    the pins outward); slabs then the separator, in layout order. offsets: (parts + 2,) uint64
+    (see `SpringLayout`); vchunks, tchunks: the vertex and tether chunks of the parallel build
+    (unused here).
     """
     n = np.uint64(rank.shape[0])
     nt = np.uint64(tethers.shape[0])
-    _load(X, x, prev, inv_mass, accel, rank, retention, dt * dt, np.uint64(0), n)
-    _tethers(X, tethers, np.uint64(0), nt)
-    for it in range(iterations):
-        backward = (it % 2) == 1
-        for p in range(parts + 1):
-            _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
-    _tethers(X, tethers, np.uint64(0), nt)
+    dt2 = dt * dt
+    _load(X, x, prev, inv_mass, accel, rank, retention, dt2, np.uint64(0), n)
+    for step in range(count):
+        if step:
+            _predict(X, accel, rank, retention, dt2, np.uint64(0), n)
+        _tethers(X, tethers, np.uint64(0), nt)
+        for it in range(iterations):
+            backward = (it % 2) == 1
+            for p in range(parts + 1):
+                _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
+        _tethers(X, tethers, np.uint64(0), nt)
     _store(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
 
 
 @nb.njit(parallel=True, **_SWEEP)
 def xpbd_substep_parallel(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, P, lam, offsets, parts, iterations, damped,
-    tethers, vchunks, tchunks,
+    tethers, vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
     """`xpbd_substep` with every phase split over `parts` threads (bit for bit the same result).
 
@@ -343,15 +413,19 @@ def xpbd_substep_parallel(
     dt2 = dt * dt
     for p in nb.prange(parts):
         _load(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
-    for p in nb.prange(parts):
-        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
-    for it in range(iterations):
-        backward = (it % 2) == 1
+    for step in range(count):
+        if step:
+            for p in nb.prange(parts):
+                _predict(X, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
         for p in nb.prange(parts):
-            _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
-        _xpbd_range(X, P, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
-    for p in nb.prange(parts):
-        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+            _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+        for it in range(iterations):
+            backward = (it % 2) == 1
+            for p in nb.prange(parts):
+                _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
+            _xpbd_range(X, P, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
+        for p in nb.prange(parts):
+            _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     inv_dt = 1.0 / dt
     for p in nb.prange(parts):
         _store(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
@@ -359,43 +433,54 @@ def xpbd_substep_parallel(
 
 @nb.njit(**_SWEEP)
 def verlet_substep(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, P, offsets, parts, iterations, tethers,
-    vchunks, tchunks,
+    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, P, offsets, parts, iterations, tethers,
+    vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
-    """One Verlet substep on one thread: predict, tethers, relaxation sweeps, tethers, velocities."""
+    """`count` Verlet substeps on one thread: predict, tethers, relaxation sweeps, tethers; then
+    the State. XP: (W, 3) previous positions in kernel numbering, used when count > 1."""
     n = np.uint64(rank.shape[0])
     nt = np.uint64(tethers.shape[0])
-    _load_points(X, x, prev, inv_mass, accel, rank, retention, dt * dt, np.uint64(0), n)
-    _tethers(X, tethers, np.uint64(0), nt)
-    for it in range(iterations):
-        backward = (it % 2) == 1
-        for p in range(parts + 1):
-            _relax_range(X, P, offsets[p], offsets[p + 1], backward)
-    _tethers(X, tethers, np.uint64(0), nt)
-    _store(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
+    dt2 = dt * dt
+    keep = count > 1
+    _load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, np.uint64(0), n, keep)
+    for step in range(count):
+        if step:
+            _predict_points(X, XP, accel, rank, retention, dt2, np.uint64(0), n)
+        _tethers(X, tethers, np.uint64(0), nt)
+        for it in range(iterations):
+            backward = (it % 2) == 1
+            for p in range(parts + 1):
+                _relax_range(X, P, offsets[p], offsets[p + 1], backward)
+        _tethers(X, tethers, np.uint64(0), nt)
+    _store_points(X, XP, x, prev, v, rank, 1.0 / dt, np.uint64(0), n, keep)
 
 
 @nb.njit(parallel=True, **_SWEEP)
 def verlet_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, P, offsets, parts, iterations, tethers,
-    vchunks, tchunks,
+    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, P, offsets, parts, iterations, tethers,
+    vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
     """`verlet_substep` with every phase split over `parts` threads (see `xpbd_substep_parallel`)."""
     dt2 = dt * dt
+    keep = count > 1
     for p in nb.prange(parts):
-        _load_points(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
-    for p in nb.prange(parts):
-        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
-    for it in range(iterations):
-        backward = (it % 2) == 1
+        _load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1], keep)
+    for step in range(count):
+        if step:
+            for p in nb.prange(parts):
+                _predict_points(X, XP, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
         for p in nb.prange(parts):
-            _relax_range(X, P, offsets[p], offsets[p + 1], backward)
-        _relax_range(X, P, offsets[parts], offsets[parts + 1], backward)
-    for p in nb.prange(parts):
-        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+            _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+        for it in range(iterations):
+            backward = (it % 2) == 1
+            for p in nb.prange(parts):
+                _relax_range(X, P, offsets[p], offsets[p + 1], backward)
+            _relax_range(X, P, offsets[parts], offsets[parts + 1], backward)
+        for p in nb.prange(parts):
+            _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     inv_dt = 1.0 / dt
     for p in nb.prange(parts):
-        _store(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
+        _store_points(X, XP, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1], keep)
 
 
 # --------------------------------------------------------------------------- explicit springs

@@ -59,8 +59,10 @@ class VerletSolver(ModelCache):
         self.options = options
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
-        # one picker for the solver's life: what it measured holds for every model (tearing)
+        # pickers for the solver's life: what they measured holds for every model (tearing); one
+        # for single substeps, one for whole frames (their call times are not comparable)
         self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, parallel_ok=False)
+        self.frame = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self.layout = spring_layout(model, self.options.partitions)
@@ -84,18 +86,27 @@ class VerletSolver(ModelCache):
         self.scratch = aligned_zeros((model.vertex_count,), kernels.POINT)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
+        self.previous = np.zeros((model.vertex_count, 3))  # kernel numbering, for several substeps a call
         self.substep.allow_parallel(lay.parts > 1)
+        self.frame.allow_parallel(lay.parts > 1)
         self._dt = -1.0
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
+        self.advance(model, state, dt, control, 1)
+
+    def advance(self, model: SpringModel, state: State, dt: float, control: Control, count: int) -> None:
+        """`count` substeps of dt with the same accelerations, as one compiled call (the same
+        result as `count` calls of `step`, without writing the State back in between)."""
         if not self._prepared(model):
             self._prepare(model)
         if dt != self._dt:
             self.retention = velocity_retention(self.options.damping, dt)
             self._dt = dt
         lay = self.layout
-        self.substep(
+        run = self.substep if count == 1 else self.frame
+        run(
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
-            self.retention, dt, self.scratch, lay.vertex_rank, self.params,
+            self.retention, dt, self.scratch, self.previous, lay.vertex_rank, self.params,
             self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
+            count,
         )

@@ -86,8 +86,10 @@ class XPBDSolver(ModelCache):
         self.options = options
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
-        # one picker for the solver's life: what it measured holds for every model (tearing)
+        # pickers for the solver's life: what they measured holds for every model (tearing); one
+        # for single substeps, one for whole frames (their call times are not comparable)
         self.substep = KernelPicker(kernels.xpbd_substep, kernels.xpbd_substep_parallel, parallel_ok=False)
+        self.frame = KernelPicker(kernels.xpbd_substep, kernels.xpbd_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self.layout = spring_layout(model, self.options.partitions)
@@ -101,6 +103,7 @@ class XPBDSolver(ModelCache):
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.substep.allow_parallel(lay.parts > 1)
+        self.frame.allow_parallel(lay.parts > 1)
         self.params = aligned_zeros((lay.a.shape[0],), kernels.XPBD_SPRING)
         self.params["a"] = lay.ends["a"]
         self.params["b"] = lay.ends["b"]
@@ -127,14 +130,20 @@ class XPBDSolver(ModelCache):
         self._dt = dt
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
+        self.advance(model, state, dt, control, 1)
+
+    def advance(self, model: SpringModel, state: State, dt: float, control: Control, count: int) -> None:
+        """`count` substeps of dt with the same accelerations, as one compiled call (the same
+        result as `count` calls of `step`, without writing the State back in between)."""
         if not self._prepared(model):
             self._prepare(model)
         if dt != self._dt:
             self._coefficients(dt)
         lay = self.layout
-        self.substep(
+        run = self.substep if count == 1 else self.frame
+        run(
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, lay.vertex_rank, self.params, self.lam,
             self.offsets, lay.parts, self.iterations, self.damped,
-            self.tethers, self.chunks.vertices, self.chunks.tethers,
+            self.tethers, self.chunks.vertices, self.chunks.tethers, count,
         )
