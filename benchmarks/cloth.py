@@ -6,7 +6,9 @@ compile or cache load, LU factorisation), spring projections per second (springs
 iterations x substeps x frames / seconds; the explicit solvers count their stability steps
 as substeps and one force evaluation per spring as a projection), peak memory (tracemalloc
 peak of Python/NumPy allocations over a second, traced run of a few frames, and the max RSS
-of the process, which runs that one solver and size only unless --no-isolate), and the
+of the process up to the end of the timed run, which runs that one solver and size only unless
+--no-isolate; with glibc's mmap threshold fixed as the `meshdeform` command fixes it, see
+`pipeline.memory`), and the
 structural max stretch over all frames and at the last frame. A vectorised-NumPy Jacobi
 reference kernel (np.bincount scatter) and each position-based solver's `step` alone (best
 of 5 repeats, no simulate loop) are measured at the end, then the cold and warm start of
@@ -37,6 +39,7 @@ from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers import Control, SolverOptions, make_solver
+from pipeline.memory import tune_malloc
 
 ALL = ("xpbd", "verlet", "implicit", "springs", "anchor")
 
@@ -58,6 +61,7 @@ def projections_per_frame(solver, settings: Settings, model: SpringModel) -> flo
 
 
 def run(name: str, n: int, frames: int) -> dict:
+    tune_malloc()  # as the `meshdeform` command does (pipeline.memory)
     model = scene_model(n)
     settings = Settings(solver=name, frames=frames + 1)
     solver = make_solver(name, settings.options)
@@ -74,6 +78,7 @@ def run(name: str, n: int, frames: int) -> dict:
         last = frame
     warm = time.perf_counter() - t0
     per_frame = projections_per_frame(solver, settings, model)
+    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # before tracemalloc adds its own
     del it, solver
     # memory: a fresh solver over a few frames under tracemalloc (it slows the loop down)
     tracemalloc.start()
@@ -91,7 +96,7 @@ def run(name: str, n: int, frames: int) -> dict:
         "fps": frames / warm,
         "proj": per_frame * frames / warm,
         "peak_mb": peak / 2**20,
-        "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "rss_mb": rss_mb,
         "stretch": max(stretch),
         "stretch_last": last.max_stretch,
         "rest_frame": last.rest_frame,

@@ -12,6 +12,7 @@ import os
 import typer
 
 from pipeline import __version__
+from pipeline.memory import tune_malloc
 
 #: command modules, each exposing `register(app)`
 COMMANDS = ("inspect", "simulate", "check", "preview", "batch")
@@ -41,6 +42,7 @@ def main(
     """Bake mass-spring cloth and soft-body deformation of OBJ/PLY meshes without a DCC tool."""
     # Keep Numba's compiled-kernel cache beside the package unless the user chose a place.
     os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "meshdeform", "numba"))
+    tune_malloc()  # freed large arrays go back to the OS (lower peak memory), see pipeline.memory
 
 
 for _name in COMMANDS:

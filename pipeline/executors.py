@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from pipeline.memory import MALLOC_ENVIRONMENT, tune_malloc
+
 #: a job: (mesh path, recipe, output folder, on_frame=callback) -> an object with a `report` dict
 JobFunction = Callable[..., Any]
 #: a progress event sent from a worker: ("start", index, pid) or ("frame", index, frame, total)
@@ -118,6 +120,7 @@ def worker_environment(threads: int) -> dict[str, str]:
     """Environment for a worker process: Numba sized to `threads`, BLAS/OpenMP pools to one thread."""
     env = {name: "1" for name in SINGLE_THREAD_POOLS}
     env["NUMBA_NUM_THREADS"] = str(threads)
+    env.update(MALLOC_ENVIRONMENT)
     return env
 
 
@@ -196,6 +199,7 @@ def execute_task(task: AssetTask, emit: Callable[[Event], None] | None = None) -
     events during it.
     """
     started = time.perf_counter()
+    tune_malloc()  # in whichever process runs the job (pool and Dask workers included)
     if emit is not None:
         emit(("start", task.index, os.getpid()))
     last = [0.0]

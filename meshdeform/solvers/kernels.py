@@ -621,13 +621,14 @@ def explicit_advance(
 
 
 @nb.njit(**_FAST)
-def pd_rhs(x, a, b, rest, weight, ratio_t, ratio_c, free, inertia, y, out):  # pragma: no cover - compiled
+def pd_rhs(x, a, b, rest, weight, stiff_t, stiff_c, modulus, free, inertia, y, out):  # pragma: no cover - compiled
     """Local step + right-hand side of projective dynamics (Liu et al. 2013) for free vertices.
 
     For each spring the projection d (length l_d along the current direction) of x_a - x_b;
     out = inertia * y + sum_s weight_s (e_a - e_b) d_s, with pinned ends moved to the right.
-    l_d = l - ratio (l - L): ratio k / weight makes a spring of stiffness k (tension or
-    compression) inside a system matrix built with one weight per spring.
+    l_d = l - ratio (l - L): ratio k / weight, with k = max(stiffness, 0) * modulus under
+    tension or compression (the model's per-spring arrays, not copied), makes a spring of
+    stiffness k inside a system matrix built with one weight per spring.
     """
     nf = out.shape[0]
     vid = np.empty(nf, dtype=np.int64)
@@ -659,7 +660,7 @@ def pd_rhs(x, a, b, rest, weight, ratio_t, ratio_c, free, inertia, y, out):  # p
             tz = 0.0
         else:
             c = length - rest[s]
-            r = ratio_t[s] if c > 0.0 else ratio_c[s]
+            r = max(stiff_t[s] if c > 0.0 else stiff_c[s], 0.0) * modulus / w
             scale = (length - r * c) / length
             tx = dx * scale
             ty = dy * scale
