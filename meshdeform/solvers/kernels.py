@@ -295,12 +295,17 @@ def _xpbd_spring(X, P, lam, s, damped, first):  # pragma: no cover - compiled
     c = P[s]
     va = X[c.a]
     vb = X[c.b]
+    # both constants of each pair are loaded before the test: a select, not a load that waits for it
+    at = c.at
+    ac = c.ac
+    it = c.it
+    ic = c.ic
     dx, dy, dz, length, inv_d2 = _span(va, vb)
     inv_l = length * inv_d2
     rest = c.rest
     tension = length > rest
-    alpha = c.at if tension else c.ac
-    inv_den = c.it if tension else c.ic
+    alpha = at if tension else ac
+    inv_den = it if tension else ic
     lam_s = 0.0 if first else lam[s]
     num = rest - length - alpha * lam_s
     if damped:
@@ -349,11 +354,15 @@ def _relax_spring(X, P, s):  # pragma: no cover - compiled
     c = P[s]
     va = X[c.a]
     vb = X[c.b]
+    at = c.at  # loaded before the test (see `_xpbd_spring`)
+    bt = c.bt
+    ac = c.ac
+    bc = c.bc
     dx, dy, dz, length, inv_d2 = _span(va, vb)
     rest = c.rest
     tension = length > rest
-    ka = c.at if tension else c.ac
-    kb = c.bt if tension else c.bc
+    ka = at if tension else ac
+    kb = bt if tension else bc
     f = 1.0 - rest * length * inv_d2
     _pull(va, vb, dx, dy, dz, f * ka, f * kb)
 
