@@ -11,7 +11,9 @@ import pytest
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers import Control, SolverOptions, dispatch, kernels, make_solver
-from meshdeform.solvers.dispatch import KernelPicker, chunk_bounds, grouped_chunk_bounds
+from meshdeform.solvers.common import kernel_tethers
+from meshdeform.solvers.dispatch import KernelPicker, chunk_bounds
+from meshdeform.solvers.layout import kernel_chunks, spring_layout
 
 two_threads = pytest.mark.skipif(nb.config.NUMBA_NUM_THREADS < 2, reason="needs 2 Numba threads")
 
@@ -25,20 +27,21 @@ def test_chunk_bounds_cover_the_range_in_order(count: int, parts: int) -> None:
     assert (sizes >= 0).all() and sizes.max() - sizes.min() <= 1
 
 
-@pytest.mark.parametrize("parts", [2, 3, 5])
-def test_grouped_chunks_never_split_a_key(parts: int) -> None:
-    rng = np.random.default_rng(4)
-    keys = np.sort(rng.integers(0, 40, size=301))
-    bounds = grouped_chunk_bounds(keys, parts).astype(np.int64)
-    assert bounds[0] == 0 and bounds[-1] == keys.shape[0]
-    assert (np.diff(bounds) >= 0).all()
-    for b in bounds[1:-1]:
-        if 0 < b < keys.shape[0]:
-            assert keys[b - 1] != keys[b], f"bound {b} splits key {keys[b]}"
-    # one key only: everything in one chunk, the others empty
-    same = grouped_chunk_bounds(np.zeros(9, dtype=np.int64), 2).astype(np.int64)
-    assert list(same) == [0, 0, 9] or list(same) == [0, 9, 9]
-    assert list(grouped_chunk_bounds(np.zeros(0, dtype=np.int64), 2)) == [0, 0, 0]
+@pytest.mark.parametrize("parts", [1, 2, 3])
+def test_tether_chunks_hold_the_tethers_of_their_vertex_chunk(parts: int) -> None:
+    """The thread that predicts a kernel vertex range applies exactly those vertices' tethers."""
+    model = cloth(24)
+    layout = spring_layout(model, parts)
+    tethers = kernel_tethers(model, layout.vertex_rank, 1.0)
+    assert tethers.shape[0] > model.vertex_count  # two pins: up to two tethers per vertex
+    chunks = kernel_chunks(layout, tethers["v"])
+    vertices = chunks.vertices.astype(np.int64)
+    bounds = chunks.tethers.astype(np.int64)
+    assert vertices[0] == 0 and vertices[-1] == model.vertex_count
+    assert bounds[0] == 0 and bounds[-1] == tethers.shape[0]
+    for p in range(layout.parts):
+        held = tethers["v"][bounds[p] : bounds[p + 1]].astype(np.int64)
+        assert ((held >= vertices[p]) & (held < vertices[p + 1])).all()
 
 
 def test_picker_runs_the_faster_build_and_measures_again(monkeypatch: pytest.MonkeyPatch) -> None:

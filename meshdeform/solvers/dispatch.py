@@ -34,21 +34,6 @@ def chunk_bounds(count: int, parts: int) -> np.ndarray:
     return (np.arange(parts + 1, dtype=np.uint64) * np.uint64(count)) // np.uint64(max(parts, 1))
 
 
-def grouped_chunk_bounds(keys: np.ndarray, parts: int) -> np.ndarray:
-    """Like `chunk_bounds` over sorted `keys`, each bound moved forward to where the key changes.
-
-    Tethers are sorted by vertex; a vertex's tethers must stay in one chunk (they are applied
-    in order to the same vertex), so the chunks split only between vertices.
-    """
-    bounds = chunk_bounds(keys.shape[0], parts).astype(np.int64)
-    if keys.shape[0]:
-        inner = bounds[1:-1]
-        bounds[1:-1] = np.searchsorted(keys, keys[np.minimum(inner, keys.shape[0] - 1)], side="left")
-        bounds[1:-1] = np.where(inner >= keys.shape[0], keys.shape[0], bounds[1:-1])
-        bounds = np.maximum.accumulate(bounds)
-    return bounds.astype(np.uint64)
-
-
 class KernelPicker:
     """Calls `serial(*args)` or `parallel(*args)`, the one measured faster lately.
 

@@ -157,12 +157,14 @@ def _load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi, 
 
 
 @nb.njit(inline="always", **_JIT)
-def _predict(X, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
-    """The next substep's prediction inside `VERTEX` records, model vertices lo..hi-1 (a call
-    running several substeps): x' = x + (x - px) retention + a dt^2, px = x, as in `_load`."""
-    for i in range(lo, hi):
-        r = X[rank[i]]
+def _predict(X, accel, order, retention, dt2, lo, hi):  # pragma: no cover - compiled
+    """The next substep's prediction inside `VERTEX` records, kernel vertices lo..hi-1 (a call
+    running several substeps): x' = x + (x - px) retention + a dt^2, px = x, as in `_load`.
+    order: kernel vertex -> model vertex (for its acceleration)."""
+    for k in range(lo, hi):
+        r = X[k]
         if r.w != 0.0:
+            i = order[k]
             x0 = r.x
             x1 = r.y
             x2 = r.z
@@ -175,12 +177,12 @@ def _predict(X, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - comp
 
 
 @nb.njit(inline="always", **_JIT)
-def _predict_points(X, XP, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
+def _predict_points(X, XP, accel, order, retention, dt2, lo, hi):  # pragma: no cover - compiled
     """`_predict` for `POINT` records, the previous positions in XP (kernel numbering)."""
-    for i in range(lo, hi):
-        k = rank[i]
+    for k in range(lo, hi):
         r = X[k]
         if r.w != 0.0:
+            i = order[k]
             x0 = r.x
             x1 = r.y
             x2 = r.z
@@ -380,7 +382,7 @@ def _relax_range(X, P, lo, hi, backward):  # pragma: no cover - compiled
 
 @nb.njit(**_SWEEP)
 def xpbd_substep(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, P, lam, offsets, parts, iterations, damped,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, lam, offsets, parts, iterations, damped,
     tethers, vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
     """`count` XPBD substeps on one thread: predict, tethers, `iterations` sweeps, tethers; then
@@ -388,53 +390,60 @@ def xpbd_substep(
 
     The vertices stay in the scratch from one substep to the next (`_predict`), so a frame with
     nothing between its substeps is one call. Sweeps alternate direction, the first forward (from
-    the pins outward); slabs then the separator, in layout order. offsets: (parts + 2,) uint64
-    (see `SpringLayout`); vchunks, tchunks: the vertex and tether chunks of the parallel build
-    (unused here).
+    the pins outward); slabs then the separator, in layout order. rank / order: model vertex ->
+    kernel vertex and back; offsets: (parts + 2,) uint64 (see `SpringLayout`); vchunks, tchunks:
+    the vertex and tether chunks of the parallel build (unused here).
     """
     n = np.uint64(rank.shape[0])
     nt = np.uint64(tethers.shape[0])
+    zero = np.uint64(0)
     dt2 = dt * dt
-    _load(X, x, prev, inv_mass, accel, rank, retention, dt2, np.uint64(0), n)
+    _load(X, x, prev, inv_mass, accel, rank, retention, dt2, zero, n)
+    _tethers(X, tethers, zero, nt)
     for step in range(count):
-        if step:
-            _predict(X, accel, rank, retention, dt2, np.uint64(0), n)
-        _tethers(X, tethers, np.uint64(0), nt)
         for it in range(iterations):
             backward = (it % 2) == 1
             for p in range(parts + 1):
                 _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
-        _tethers(X, tethers, np.uint64(0), nt)
-    _store(X, x, prev, v, rank, 1.0 / dt, np.uint64(0), n)
+        _tethers(X, tethers, zero, nt)
+        if step + 1 < count:
+            _predict(X, accel, order, retention, dt2, zero, n)
+            _tethers(X, tethers, zero, nt)
+    _store(X, x, prev, v, rank, 1.0 / dt, zero, n)
 
 
 @nb.njit(parallel=True, **_SWEEP)
 def xpbd_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, P, lam, offsets, parts, iterations, damped,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, lam, offsets, parts, iterations, damped,
     tethers, vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
     """`xpbd_substep` with every phase split over `parts` threads (bit for bit the same result).
 
-    Prediction and write-back run over vertex chunks (vchunks), tethers over tether chunks
-    that never split one vertex's tethers (tchunks), sweeps over the slabs; the separator follows
-    serially.
+    Load and write-back run over vertex chunks (vchunks) of the State; between two substeps one
+    pass per kernel vertex chunk applies the last substep's tethers, predicts and applies the
+    next one's (tchunks: the tethers of each chunk); sweeps run over the slabs, the separator
+    follows serially. Every vertex sees the same operations in the same order as in the serial
+    build.
     """
     dt2 = dt * dt
     for p in nb.prange(parts):
         _load(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
+    for p in nb.prange(parts):
+        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     for step in range(count):
-        if step:
-            for p in nb.prange(parts):
-                _predict(X, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
-        for p in nb.prange(parts):
-            _tethers(X, tethers, tchunks[p], tchunks[p + 1])
         for it in range(iterations):
             backward = (it % 2) == 1
             for p in nb.prange(parts):
                 _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
             _xpbd_range(X, P, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
-        for p in nb.prange(parts):
-            _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+        if step + 1 < count:
+            for p in nb.prange(parts):
+                _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+                _predict(X, accel, order, retention, dt2, vchunks[p], vchunks[p + 1])
+                _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+        else:
+            for p in nb.prange(parts):
+                _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     inv_dt = 1.0 / dt
     for p in nb.prange(parts):
         _store(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
@@ -442,31 +451,33 @@ def xpbd_substep_parallel(
 
 @nb.njit(**_SWEEP)
 def verlet_substep(
-    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, P, offsets, parts, iterations, tethers,
+    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, order, P, offsets, parts, iterations, tethers,
     vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
     """`count` Verlet substeps on one thread: predict, tethers, relaxation sweeps, tethers; then
     the State. XP: (W, 3) previous positions in kernel numbering, used when count > 1."""
     n = np.uint64(rank.shape[0])
     nt = np.uint64(tethers.shape[0])
+    zero = np.uint64(0)
     dt2 = dt * dt
     keep = count > 1
-    _load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, np.uint64(0), n, keep)
+    _load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, zero, n, keep)
+    _tethers(X, tethers, zero, nt)
     for step in range(count):
-        if step:
-            _predict_points(X, XP, accel, rank, retention, dt2, np.uint64(0), n)
-        _tethers(X, tethers, np.uint64(0), nt)
         for it in range(iterations):
             backward = (it % 2) == 1
             for p in range(parts + 1):
                 _relax_range(X, P, offsets[p], offsets[p + 1], backward)
-        _tethers(X, tethers, np.uint64(0), nt)
-    _store_points(X, XP, x, prev, v, rank, 1.0 / dt, np.uint64(0), n, keep)
+        _tethers(X, tethers, zero, nt)
+        if step + 1 < count:
+            _predict_points(X, XP, accel, order, retention, dt2, zero, n)
+            _tethers(X, tethers, zero, nt)
+    _store_points(X, XP, x, prev, v, rank, 1.0 / dt, zero, n, keep)
 
 
 @nb.njit(parallel=True, **_SWEEP)
 def verlet_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, P, offsets, parts, iterations, tethers,
+    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, order, P, offsets, parts, iterations, tethers,
     vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
     """`verlet_substep` with every phase split over `parts` threads (see `xpbd_substep_parallel`)."""
@@ -474,19 +485,22 @@ def verlet_substep_parallel(
     keep = count > 1
     for p in nb.prange(parts):
         _load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1], keep)
+    for p in nb.prange(parts):
+        _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     for step in range(count):
-        if step:
-            for p in nb.prange(parts):
-                _predict_points(X, XP, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
-        for p in nb.prange(parts):
-            _tethers(X, tethers, tchunks[p], tchunks[p + 1])
         for it in range(iterations):
             backward = (it % 2) == 1
             for p in nb.prange(parts):
                 _relax_range(X, P, offsets[p], offsets[p + 1], backward)
             _relax_range(X, P, offsets[parts], offsets[parts + 1], backward)
-        for p in nb.prange(parts):
-            _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+        if step + 1 < count:
+            for p in nb.prange(parts):
+                _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+                _predict_points(X, XP, accel, order, retention, dt2, vchunks[p], vchunks[p + 1])
+                _tethers(X, tethers, tchunks[p], tchunks[p + 1])
+        else:
+            for p in nb.prange(parts):
+                _tethers(X, tethers, tchunks[p], tchunks[p + 1])
     inv_dt = 1.0 / dt
     for p in nb.prange(parts):
         _store_points(X, XP, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1], keep)

@@ -78,20 +78,25 @@ def resolve_parts(parts: int, springs: int) -> int:
 
 @dataclass(frozen=True, eq=False)
 class KernelChunks:
-    """Per-thread work of a parallel substep: vertex chunks and tether chunks (uint64 bounds)."""
+    """Per-thread work of a parallel substep (uint64 bounds, one chunk per slab).
+
+    vertices: vertex ranges, of model vertices where the State (model order) is read or
+    written, of kernel vertices where the scratch is worked on between substeps; tethers: the
+    tethers of each kernel vertex range (tethers are sorted by kernel vertex), so the thread
+    that predicts a vertex also applies that vertex's tethers and no two threads touch one vertex.
+    """
 
     vertices: np.ndarray
     tethers: np.ndarray
 
 
 def kernel_chunks(layout: SpringLayout, tether_vertices: np.ndarray) -> KernelChunks:
-    """One chunk of vertices and one of tethers per slab (tethers sorted by vertex, never split)."""
-    from meshdeform.solvers.dispatch import chunk_bounds, grouped_chunk_bounds
+    """Vertex and tether chunks, one of each per slab (see `KernelChunks`)."""
+    from meshdeform.solvers.dispatch import chunk_bounds
 
-    return KernelChunks(
-        vertices=chunk_bounds(layout.vertex_order.shape[0], layout.parts),
-        tethers=grouped_chunk_bounds(np.asarray(tether_vertices), layout.parts),
-    )
+    vertices = chunk_bounds(layout.vertex_order.shape[0], layout.parts)
+    tethers = np.searchsorted(np.asarray(tether_vertices, dtype=np.int64), vertices.astype(np.int64), side="left")
+    return KernelChunks(vertices=vertices, tethers=tethers.astype(np.uint64))
 
 
 def pin_distance(model: SpringModel) -> np.ndarray | None:

@@ -106,7 +106,7 @@ class VerletSolver(ModelCache):
         run = self.substep if count == 1 else self.frame
         run(
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
-            self.retention, dt, self.scratch, self.previous, lay.vertex_rank, self.params,
+            self.retention, dt, self.scratch, self.previous, lay.vertex_rank, lay.vertex_order, self.params,
             self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
             count,
         )

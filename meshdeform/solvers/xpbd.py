@@ -143,7 +143,7 @@ class XPBDSolver(ModelCache):
         run = self.substep if count == 1 else self.frame
         run(
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
-            self.retention, dt, self.scratch, lay.vertex_rank, self.params, self.lam,
+            self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.lam,
             self.offsets, lay.parts, self.iterations, self.damped,
             self.tethers, self.chunks.vertices, self.chunks.tethers, count,
         )
