@@ -122,7 +122,7 @@ def advance(name: str, build: str, steps: int = 30, per_call: int = 1) -> np.nda
     solver.step(model, state, dt, control)  # prepares; the picker's first call is serial
     assert solver.layout.parts == 2 and solver.tethers.shape[0] > 0
     kernel = getattr(kernels, f"{name}_substep" + ("_parallel" if build == "parallel" else ""))
-    solver.substep = solver.frame = kernel
+    solver.substep = KernelPicker(kernel, kernel, parallel_ok=False)  # always this build
     for _ in range(steps // per_call):
         solver.advance(model, state, dt, control, per_call)
     return np.concatenate([state.positions, state.velocities, state.previous])
@@ -150,3 +150,32 @@ def test_whole_frame_calls_give_the_bytes_of_single_substeps(name: str, build: s
     assert np.isfinite(single).all()
     assert single.tobytes() == frames.tobytes()
     assert np.abs(single[: single.shape[0] // 3] - cloth(24).rest_positions).max() > 1e-4
+
+
+def test_picker_probes_on_single_calls_then_hands_out_its_choice(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`probing` is true exactly for the probe's calls; `call_chosen` runs the winner and counts."""
+    monkeypatch.setattr(nb, "get_num_threads", lambda: 2)
+    monkeypatch.setattr(dispatch, "PROBE_EVERY", 40)
+    calls: list[str] = []
+
+    def build(name: str, seconds: float):
+        def run() -> None:
+            calls.append(name)
+            time.sleep(seconds)
+
+        return run
+
+    picker = KernelPicker(build("serial", 0.004), build("parallel", 0.0), parallel_ok=True)
+    probe_length = 2 * (dispatch.PROBE_CALLS + 1)
+    flags = []
+    for _ in range(probe_length):
+        flags.append(picker.probing)
+        picker()
+    assert flags == [True] * probe_length and not picker.probing
+    with pytest.raises(RuntimeError):
+        KernelPicker(build("serial", 0.0), build("parallel", 0.0), parallel_ok=True).call_chosen()
+    calls.clear()
+    for _ in range(40 - probe_length):
+        picker.call_chosen()
+    assert calls == ["parallel"] * (40 - probe_length)
+    assert picker.probing  # the next probe is due after PROBE_EVERY calls in all

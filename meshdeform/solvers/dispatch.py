@@ -75,6 +75,25 @@ class KernelPicker:
                 self._period = min(2 * self._period, PROBE_EVERY) if again else PROBE_AGAIN
             self._probe = [np.inf, np.inf]
 
+    @property
+    def probing(self) -> bool:
+        """Whether the next call is part of a probe (it may run either build)."""
+        return self.parallel_ok and self._phase < 2 * (PROBE_CALLS + 1)
+
+    def call_chosen(self, *args: object) -> None:
+        """Call the build chosen at the last probe (counted as a call; not while `probing`).
+
+        For calls much longer than the probed ones (a solver's whole frame after probing
+        single substeps): a probe made of such calls would cost several slow frames.
+        """
+        if self.probing:
+            raise RuntimeError("call_chosen during a probe")
+        if self.parallel_ok:
+            self._phase = self._phase + 1 if self._phase + 1 < self._period else 0
+            self.choice(*args)
+        else:
+            self.serial(*args)
+
     def allow_parallel(self, parallel_ok: bool) -> None:
         """A new layout (after a tear, say): keep what was measured, change only what is allowed."""
         self.parallel_ok = parallel_ok and nb.get_num_threads() > 1

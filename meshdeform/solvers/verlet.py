@@ -59,10 +59,8 @@ class VerletSolver(ModelCache):
         self.options = options
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
-        # pickers for the solver's life: what they measured holds for every model (tearing); one
-        # for single substeps, one for whole frames (their call times are not comparable)
+        # one picker for the solver's life: what it measured holds for every model (tearing)
         self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, parallel_ok=False)
-        self.frame = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self.layout = spring_layout(model, self.options.partitions)
@@ -88,7 +86,6 @@ class VerletSolver(ModelCache):
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.previous = np.zeros((model.vertex_count, 3))  # kernel numbering, for several substeps a call
         self.substep.allow_parallel(lay.parts > 1)
-        self.frame.allow_parallel(lay.parts > 1)
         self._dt = -1.0
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
@@ -103,10 +100,14 @@ class VerletSolver(ModelCache):
             self.retention = velocity_retention(self.options.damping, dt)
             self._dt = dt
         lay = self.layout
-        run = self.substep if count == 1 else self.frame
-        run(
+        args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, self.previous, lay.vertex_rank, lay.vertex_order, self.params,
             self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
-            count,
         )
+        picker = self.substep
+        if count > 1 and not picker.probing:
+            picker.call_chosen(*args, count)
+        else:  # single substeps, and a probe timed on single substeps (whole frames would be slow probes)
+            for _ in range(count):
+                picker(*args, 1)

@@ -86,10 +86,8 @@ class XPBDSolver(ModelCache):
         self.options = options
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
-        # pickers for the solver's life: what they measured holds for every model (tearing); one
-        # for single substeps, one for whole frames (their call times are not comparable)
+        # one picker for the solver's life: what it measured holds for every model (tearing)
         self.substep = KernelPicker(kernels.xpbd_substep, kernels.xpbd_substep_parallel, parallel_ok=False)
-        self.frame = KernelPicker(kernels.xpbd_substep, kernels.xpbd_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self.layout = spring_layout(model, self.options.partitions)
@@ -103,7 +101,6 @@ class XPBDSolver(ModelCache):
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.substep.allow_parallel(lay.parts > 1)
-        self.frame.allow_parallel(lay.parts > 1)
         self.params = aligned_zeros((lay.a.shape[0],), kernels.XPBD_SPRING)
         self.params["a"] = lay.ends["a"]
         self.params["b"] = lay.ends["b"]
@@ -140,10 +137,15 @@ class XPBDSolver(ModelCache):
         if dt != self._dt:
             self._coefficients(dt)
         lay = self.layout
-        run = self.substep if count == 1 else self.frame
-        run(
+        args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.lam,
             self.offsets, lay.parts, self.iterations, self.damped,
-            self.tethers, self.chunks.vertices, self.chunks.tethers, count,
+            self.tethers, self.chunks.vertices, self.chunks.tethers,
         )
+        picker = self.substep
+        if count > 1 and not picker.probing:
+            picker.call_chosen(*args, count)
+        else:  # single substeps, and a probe timed on single substeps (whole frames would be slow probes)
+            for _ in range(count):
+                picker(*args, 1)
