@@ -20,7 +20,10 @@ distances run along structural springs only (tighter, octile tethers as in `xpbd
 fully stiff relaxation here and raised the stretch from 1.25 to 1.40 at 2 x 16).
 
 Speed: a whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build
-on both cores when that is measured faster: `dispatch.KernelPicker`, same bytes either way);
+on both cores when that is measured faster: `dispatch.KernelPicker`, same bytes either way),
+and so is a whole frame when nothing happens between its substeps (`advance`: the vertices
+stay in the scratch, previous positions beside it in kernel numbering, same bytes as substep
+by substep);
 per spring the factors k w_a / w and k w_b / w (tension and compression) are precomputed into
 one row, so the scratch vertex needs only its position and inverse mass (`kernels.POINT`, 32
 bytes: twice as many vertices per cache line as xpbd's records).

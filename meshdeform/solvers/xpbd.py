@@ -34,8 +34,11 @@ stretch along paths from the pins (set them off to see the compliance alone).
 
 Speed: a whole substep (prediction, tethers, sweeps, velocities) is one compiled call
 (`kernels.xpbd_substep`, or its parallel build on both cores: `dispatch.KernelPicker` runs
-whichever is faster on the machine at the time, the results are bit for bit the same) on a
-cache-line-per-vertex scratch copy (position, inverse mass, previous position); per spring
+whichever is faster on the machine at the time, the results are bit for bit the same), and
+so is a whole frame when nothing happens between its substeps (`advance`, used by
+`simulate` for gravity-only scenes: the vertices stay in the scratch from one substep to the
+next, the State is read once and written once per frame, same bytes as substep by substep),
+on a cache-line-per-vertex scratch copy (position, inverse mass, previous position); per spring
 the constants (compliances, 1 / denominators, damping) are precomputed once per step size
 into one 56-byte record beside the spring's ends, so a projection streams one array and costs
 one square root and one division. The first sweep of a substep writes the multipliers
