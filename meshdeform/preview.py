@@ -20,9 +20,11 @@ Files (inside `out_dir`): `preview/0001.png` ... (frame numbers, 4 digits), `pre
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import math
 import re
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
@@ -715,6 +717,21 @@ def _as_pinned_mask(pinned: np.ndarray | Sequence[int] | None, n: int) -> np.nda
     return mask
 
 
+#: one render at a time per process: VTK's render windows and OpenGL contexts are not safe to
+#: drive from two threads at once (two jobs in one Dask worker)
+_RENDERING = threading.Lock()
+
+
+def _one_render_at_a_time(function: Callable[..., Any]) -> Callable[..., Any]:
+    @functools.wraps(function)
+    def locked(*args: Any, **kwargs: Any) -> Any:
+        with _RENDERING:
+            return function(*args, **kwargs)
+
+    return locked
+
+
+@_one_render_at_a_time
 def render_previews(
     mesh: Mesh,
     positions_by_frame: Sequence[FrameItem],
@@ -935,6 +952,9 @@ def _vtp_pinned(result_dir: Path, n: int) -> np.ndarray | None:
 
 
 def _usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
+    from meshdeform.export.usd import start_usd
+
+    start_usd()
     from pxr import Usd, UsdGeom
 
     stage = Usd.Stage.Open(str(path))

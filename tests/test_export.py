@@ -499,3 +499,35 @@ def test_obj_copies_the_material_library_beside_the_frames(tmp_path: Path) -> No
     assert (out / "frames" / "cloth.mtl").read_text() == "newmtl red\nKd 1 0 0\n"
     text = (out / "frames" / "frame_0002.obj").read_text()
     assert "mtllib cloth.mtl" in text and "usemtl red" in text
+
+
+# Two threads of one fresh process open their first USD stages at the same moment, as two jobs
+# in one Dask worker do: without `start_usd` USD's first-use initialisation deadlocks in about
+# half of such processes.
+USD_RACE = """
+import os, sys, tempfile, threading
+from meshdeform.export.usd import start_usd
+folder = tempfile.mkdtemp()
+barrier = threading.Barrier(2)
+def job(i):
+    barrier.wait()
+    start_usd()
+    from pxr import Usd
+    Usd.Stage.CreateNew(os.path.join(folder, f"scene{i}.usda")).Save()
+threads = [threading.Thread(target=job, args=(i,)) for i in range(2)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+print(sorted(os.listdir(folder)))
+"""
+
+
+def test_two_threads_opening_their_first_usd_stages_do_not_deadlock() -> None:
+    import subprocess
+    import sys
+
+    for _ in range(4):
+        done = subprocess.run([sys.executable, "-c", USD_RACE], capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.strip() == "['scene0.usda', 'scene1.usda']"

@@ -15,6 +15,7 @@ Samples are authored as the frames come; the layer lives in memory until it is s
 from __future__ import annotations
 
 import re
+import threading
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -26,6 +27,28 @@ from meshdeform.export.base import BaseExporter, ExportContext, FrameData, conve
 from meshdeform.mesh import Mesh
 
 ROOT = "/Root"
+
+_USD_START = threading.Lock()
+_usd_started = False
+
+
+def start_usd() -> None:
+    """Create USD's plugin registry and asset resolver once, in one thread.
+
+    USD builds them on first use; two Python threads doing that at once (two jobs in one Dask
+    worker) deadlock: one waits for the GIL inside the registry's construction while the other,
+    holding the GIL, waits for the resolver's C++ static initialisation held by the first. Here
+    the second thread waits on a Python lock instead, which releases the GIL.
+    """
+    global _usd_started
+    if _usd_started:
+        return
+    with _USD_START:
+        if not _usd_started:
+            from pxr import Usd
+
+            Usd.Stage.CreateInMemory()
+            _usd_started = True
 
 
 def usd_prim_name(mesh: Mesh) -> str:
@@ -58,6 +81,7 @@ class UsdExporter(BaseExporter):
         return "scene.usda" if self.ascii else "scene.usdc"
 
     def _open(self, ctx: ExportContext) -> None:
+        start_usd()
         from pxr import Sdf, Usd, UsdGeom
 
         self._target = ctx.out_dir / self.file_name
