@@ -94,6 +94,15 @@ class KernelPicker:
         else:
             self.serial(*args)
 
+    def call_substeps(self, count: int, *args: object) -> None:
+        """`count` substeps of a kernel whose last argument is how many substeps it runs: one
+        call of the chosen build, or single substeps while probing (so a probe's calls stay short)."""
+        if count > 1 and not self.probing:
+            self.call_chosen(*args, count)
+        else:
+            for _ in range(count):
+                self(*args, 1)
+
     def allow_parallel(self, parallel_ok: bool) -> None:
         """A new layout (after a tear, say): keep what was measured, change only what is allowed."""
         self.parallel_ok = parallel_ok and nb.get_num_threads() > 1

@@ -97,6 +97,12 @@ TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
 
 
 @nb.njit(inline="always", **_JIT)
+def _verlet(x0, p0, a0, retention, dt2):  # pragma: no cover - compiled
+    """One coordinate's Verlet prediction x + (x - prev) retention + a dt^2 (every substep kernel's)."""
+    return x0 + (x0 - p0) * retention + a0 * dt2
+
+
+@nb.njit(inline="always", **_JIT)
 def _load(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
     """Scratch copy with the Verlet prediction x' = x + (x - prev) retention + a dt^2 of free vertices.
 
@@ -119,9 +125,9 @@ def _load(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma:
             r.py = prev[i, 1]
             r.pz = prev[i, 2]
         else:
-            r.x = x0 + (x0 - prev[i, 0]) * retention + accel[i, 0] * dt2
-            r.y = x1 + (x1 - prev[i, 1]) * retention + accel[i, 1] * dt2
-            r.z = x2 + (x2 - prev[i, 2]) * retention + accel[i, 2] * dt2
+            r.x = _verlet(x0, prev[i, 0], accel[i, 0], retention, dt2)
+            r.y = _verlet(x1, prev[i, 1], accel[i, 1], retention, dt2)
+            r.z = _verlet(x2, prev[i, 2], accel[i, 2], retention, dt2)
             r.px = x0
             r.py = x1
             r.pz = x2
@@ -147,9 +153,9 @@ def _load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi, 
             r.y = x1
             r.z = x2
         else:
-            r.x = x0 + (x0 - prev[i, 0]) * retention + accel[i, 0] * dt2
-            r.y = x1 + (x1 - prev[i, 1]) * retention + accel[i, 1] * dt2
-            r.z = x2 + (x2 - prev[i, 2]) * retention + accel[i, 2] * dt2
+            r.x = _verlet(x0, prev[i, 0], accel[i, 0], retention, dt2)
+            r.y = _verlet(x1, prev[i, 1], accel[i, 1], retention, dt2)
+            r.z = _verlet(x2, prev[i, 2], accel[i, 2], retention, dt2)
             if keep:
                 XP[k, 0] = x0
                 XP[k, 1] = x1
@@ -168,9 +174,9 @@ def _predict(X, accel, order, retention, dt2, lo, hi):  # pragma: no cover - com
             x0 = r.x
             x1 = r.y
             x2 = r.z
-            r.x = x0 + (x0 - r.px) * retention + accel[i, 0] * dt2
-            r.y = x1 + (x1 - r.py) * retention + accel[i, 1] * dt2
-            r.z = x2 + (x2 - r.pz) * retention + accel[i, 2] * dt2
+            r.x = _verlet(x0, r.px, accel[i, 0], retention, dt2)
+            r.y = _verlet(x1, r.py, accel[i, 1], retention, dt2)
+            r.z = _verlet(x2, r.pz, accel[i, 2], retention, dt2)
             r.px = x0
             r.py = x1
             r.pz = x2
@@ -186,9 +192,9 @@ def _predict_points(X, XP, accel, order, retention, dt2, lo, hi):  # pragma: no 
             x0 = r.x
             x1 = r.y
             x2 = r.z
-            r.x = x0 + (x0 - XP[k, 0]) * retention + accel[i, 0] * dt2
-            r.y = x1 + (x1 - XP[k, 1]) * retention + accel[i, 1] * dt2
-            r.z = x2 + (x2 - XP[k, 2]) * retention + accel[i, 2] * dt2
+            r.x = _verlet(x0, XP[k, 0], accel[i, 0], retention, dt2)
+            r.y = _verlet(x1, XP[k, 1], accel[i, 1], retention, dt2)
+            r.z = _verlet(x2, XP[k, 2], accel[i, 2], retention, dt2)
             XP[k, 0] = x0
             XP[k, 1] = x1
             XP[k, 2] = x2

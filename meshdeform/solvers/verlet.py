@@ -108,9 +108,4 @@ class VerletSolver(ModelCache):
             self.retention, dt, self.scratch, self.previous, lay.vertex_rank, lay.vertex_order, self.params,
             self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
         )
-        picker = self.substep
-        if count > 1 and not picker.probing:
-            picker.call_chosen(*args, count)
-        else:  # single substeps, and a probe timed on single substeps (whole frames would be slow probes)
-            for _ in range(count):
-                picker(*args, 1)
+        self.substep.call_substeps(count, *args)

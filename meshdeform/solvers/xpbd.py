@@ -146,9 +146,4 @@ class XPBDSolver(ModelCache):
             self.offsets, lay.parts, self.iterations, self.damped,
             self.tethers, self.chunks.vertices, self.chunks.tethers,
         )
-        picker = self.substep
-        if count > 1 and not picker.probing:
-            picker.call_chosen(*args, count)
-        else:  # single substeps, and a probe timed on single substeps (whole frames would be slow probes)
-            for _ in range(count):
-                picker(*args, 1)
+        self.substep.call_substeps(count, *args)
