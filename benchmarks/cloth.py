@@ -10,8 +10,8 @@ of the process up to the end of the timed run, which runs that one solver and si
 --no-isolate; with glibc's mmap threshold fixed as the `meshdeform` command fixes it, see
 `pipeline.memory`), and the
 structural max stretch over all frames and at the last frame. A vectorised-NumPy Jacobi
-reference kernel (np.bincount scatter) and each position-based solver's `step` alone (best
-of 5 repeats, no simulate loop) are measured at the end, then the cold and warm start of
+reference kernel (np.bincount scatter) and each position-based solver alone (whole frames
+through `advance`, best of 5 repeats, no simulate loop) are measured at the end, then the cold and warm start of
 `meshdeform simulate` on the flag sample (an empty Numba cache, then that cache). The machine
 is shared: the load average is printed at the start and the end, put it beside any figure
 you quote.
@@ -152,23 +152,25 @@ def reference(n: int, sweeps: int = 160) -> float:
     return model.spring_count * sweeps / (time.perf_counter() - t0)
 
 
-def kernel_rate(name: str, n: int, steps: int = 0, repeats: int = 5) -> float:
-    """Solver `step` alone (no simulate loop): best projections per second over `repeats` runs."""
+def kernel_rate(name: str, n: int, frames: int = 0, repeats: int = 5) -> float:
+    """The solver alone (no simulate loop): best projections per second over `repeats` runs of
+    `frames` frames, each frame one `advance` call (as `simulate` runs a gravity-only scene)."""
     model = scene_model(n)
     solver = make_solver(name, SolverOptions())
     settings = Settings(solver=name)
     state = State.at_rest(model)
     control = Control(np.tile(np.array([0.0, -9.81, 0.0]), (model.vertex_count, 1)))
-    dt = settings.dt
-    steps = steps or max(10, int(200 * (64 / n) ** 2))
-    for _ in range(10):
-        solver.step(model, state, dt, control)
+    dt, substeps = settings.dt, int(settings.substeps)
+    frames = frames or max(2, int(10 * (64 / n) ** 2))
+    for _ in range(2):
+        solver.advance(model, state, dt, control, substeps)
     best = 0.0
     for _ in range(repeats):
         t0 = time.perf_counter()
-        for _ in range(steps):
-            solver.step(model, state, dt, control)
-        best = max(best, model.spring_count * settings.iterations * steps / (time.perf_counter() - t0))
+        for _ in range(frames):
+            solver.advance(model, state, dt, control, substeps)
+        seconds = time.perf_counter() - t0
+        best = max(best, model.spring_count * settings.iterations * substeps * frames / seconds)
     return best
 
 
@@ -232,7 +234,7 @@ def main() -> None:
         for name in ("xpbd", "verlet"):
             if name in names:
                 rate = kernel_rate(name, n)
-                line += f"; {name} step {rate / 1e6:.1f} M proj/s ({rate / ref:.1f}x)"
+                line += f"; {name} alone {rate / 1e6:.1f} M proj/s ({rate / ref:.1f}x)"
         print(line, flush=True)
     mesh = Path(__file__).resolve().parents[1] / "samples" / "meshes" / "flag.obj"
     if mesh.exists():
