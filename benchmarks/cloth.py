@@ -1,7 +1,8 @@
 """Cloth benchmark: N x N quad grid hanging from its two top corners, gravity, 24 fps, 100 frames.
 
 For each solver and N (64, 128, 256 by default) prints: frames/s (warm, after the first
-step, whole simulate loop, without tracemalloc), the first step's time separately (Numba
+step, whole simulate loop, without tracemalloc; also from the median frame time, which a
+moment of load on this shared machine moves less than the total), the first step's time separately (Numba
 compile or cache load, LU factorisation), spring projections per second (springs x
 iterations x substeps x frames / seconds; the explicit solvers count their stability steps
 as substeps and one force evaluation per spring as a projection), peak memory (tracemalloc
@@ -73,10 +74,16 @@ def run(name: str, n: int, frames: int) -> dict:
     stretch = [first.max_stretch]
     t0 = time.perf_counter()
     last = first
+    frame_seconds = []
+    tick = t0
     for frame in it:
         stretch.append(frame.max_stretch)
         last = frame
+        now = time.perf_counter()
+        frame_seconds.append(now - tick)
+        tick = now
     warm = time.perf_counter() - t0
+    median = float(np.median(frame_seconds)) if frame_seconds else warm
     per_frame = projections_per_frame(solver, settings, model)
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # before tracemalloc adds its own
     del it, solver
@@ -95,6 +102,8 @@ def run(name: str, n: int, frames: int) -> dict:
         "cold": cold,
         "fps": frames / warm,
         "proj": per_frame * frames / warm,
+        "fps_median": 1.0 / median,
+        "proj_median": per_frame / median,
         "peak_mb": peak / 2**20,
         "rss_mb": rss_mb,
         "stretch": max(stretch),
@@ -212,7 +221,8 @@ def main() -> None:
     print(f"cloth benchmark: N x N grid, 2 top corners pinned, gravity, 24 fps, {args.frames} frames; {load()}")
     header = (
         f"{'solver':9} {'N':>4} {'springs':>8} {'sub':>4} {'it':>3} {'first s':>8} {'frames/s':>9} "
-        f"{'Mproj/s':>8} {'peak MB':>8} {'RSS MB':>7} {'stretch':>8} {'last':>7} {'rest':>5}"
+        f"{'Mproj/s':>8} {'med f/s':>8} {'med Mp/s':>9} {'peak MB':>8} {'RSS MB':>7} {'stretch':>8} {'last':>7} "
+        f"{'rest':>5}"
     )
     print(header)
     for name in names:
@@ -223,7 +233,8 @@ def main() -> None:
             r = run(name, n, args.frames) if args.no_isolate else run_isolated(name, n, args.frames)
             print(
                 f"{r['solver']:9} {r['n']:>4} {r['springs']:>8} {r['substeps']:>4} {r['iterations']:>3} "
-                f"{r['cold']:>8.3f} {r['fps']:>9.1f} {r['proj'] / 1e6:>8.1f} {r['peak_mb']:>8.1f} "
+                f"{r['cold']:>8.3f} {r['fps']:>9.1f} {r['proj'] / 1e6:>8.1f} {r['fps_median']:>8.1f} "
+                f"{r['proj_median'] / 1e6:>9.1f} {r['peak_mb']:>8.1f} "
                 f"{r['rss_mb']:>7.0f} {r['stretch']:>8.4f} {r['stretch_last']:>7.4f} {r['rest_frame']!s:>5}",
                 flush=True,
             )
