@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -174,3 +176,19 @@ def test_pin_motion_moves_pins_exactly() -> None:
     for name in NAMES:
         frames = list(simulate(model, Scene(pin_motion=motion), Settings(solver=name, frames=6)))
         assert np.array_equal(frames[-1].welded_positions[pins], motion(frames[-1].time))
+
+
+@pytest.mark.parametrize("rate", [0.0, 5.0])
+def test_anchor_damping_decays_relative_velocity_exponentially(rate: float) -> None:
+    """The original's damping: a vertex moving away from its anchor (no spring to speak of, no
+    air damping) keeps exp(-rate t) of its velocity after t seconds, whatever the step."""
+    model = cloth(3)  # a pinned corner: anchors in the world frame
+    options = SolverOptions(anchor_stiffness=1e-12, anchor_damping=rate, damping=0.0)
+    solver = make_solver("anchor", options)
+    state = State.at_rest(model)
+    free = np.flatnonzero(~model.pinned)[0]
+    state.velocities[free] = (0.0, 0.3, 0.0)
+    control = Control(np.zeros((model.vertex_count, 3)))
+    for _ in range(96):
+        solver.step(model, state, 1.0 / 96, control)
+    assert state.velocities[free, 1] == pytest.approx(0.3 * math.exp(-rate), rel=1e-6)

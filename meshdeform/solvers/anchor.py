@@ -2,8 +2,11 @@
 
 Each vertex is pulled toward its anchor by an acceleration -K s (x - anchor), K =
 `options.anchor_stiffness` (the original's "spring force", 1/s^2) and s = `options.uniform_scale`
-(the original multiplies the displacement by the object's uniform scale), with air damping
-`options.damping` and semi-implicit Euler (v += a dt, x += v dt). Impacts come from outside as
+(the original multiplies the displacement by the object's uniform scale), with the original's
+damping `options.anchor_damping` (velocities relative to the anchors decay as exp(-c t); c = 5/s
+as in the original makes the default stress ball nearly critically damped, a hanging cloth
+rests within about 3 s), air damping `options.damping` and semi-implicit Euler (v += a dt,
+x += v dt). Impacts come from outside as
 accelerations (or a velocity kick dv as dv / dt over one substep) in `Control`.
 
 Anchors (`options.anchor_frame`): "world" uses the rest positions, as the original;
@@ -43,6 +46,7 @@ class AnchorSolver(ExplicitSolver):
             )
         super().__init__(options)
         self.use_springs = bool(options.neighbour_springs)
+        self.anchor_damping = max(float(options.anchor_damping), 0.0)
 
     def _anchor(self, model: SpringModel) -> tuple[float, np.ndarray, bool, np.ndarray]:
         k = max(float(self.options.anchor_stiffness), 0.0) * float(self.options.uniform_scale)

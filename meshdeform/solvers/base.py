@@ -74,6 +74,11 @@ class SolverOptions:
         trusts the given substeps (and may explode, which the guard in simulate reports).
     anchor_stiffness: `anchor` spring constant per unit mass (1/s^2, as Catlike Coding's
         "spring force"): acceleration -anchor_stiffness * uniform_scale * (x - anchor).
+    anchor_damping: `anchor`: the original deformer's damping (1/s, Catlike Coding's
+        `velocity *= 1 - damping dt`, default 5 as there): each vertex's velocity relative to
+        its anchor decays as exp(-anchor_damping t) (exactly, whatever the step), on top of the
+        air damping `damping`. In the "centroid" frame it acts on velocities relative to the
+        centre of mass, so the body still falls freely. 0 switches it off.
     uniform_scale: `anchor`: the object's uniform scale; displacements are multiplied by it
         before the anchor spring acts, as in the original deformer.
     anchor_frame: `anchor`: "world" anchors each vertex to its rest position; "centroid"
@@ -102,6 +107,7 @@ class SolverOptions:
     strain_iterations: int = 500
     stable_substeps: bool = True
     anchor_stiffness: float = 20.0
+    anchor_damping: float = 5.0
     uniform_scale: float = 1.0
     anchor_frame: str = "auto"
     neighbour_springs: bool = False

@@ -593,7 +593,7 @@ def _limit_strain(x, v, la, lb, lrest, inv_mass, ratio, inv_dt, max_passes):  # 
 def explicit_advance(
     x, v, prev, inv_mass, mass, accel, retention, dt, steps,
     a, b, rest, kt, kc, cd, offsets, parts, f,
-    anchor_k, anchors, anchor_follow, rest_center,
+    anchor_k, anchors, anchor_follow, rest_center, anchor_keep,
     la, lb, lrest, ratio, max_passes,
 ):  # pragma: no cover - compiled
     """`steps` semi-implicit Euler steps of length dt: springs (Hooke + damping), anchors, air damping.
@@ -601,8 +601,10 @@ def explicit_advance(
     Serial: the many short steps would pay a parallel launch each.
 
     anchor_k > 0 adds -anchor_k (x - anchor) per unit mass, anchor = anchors + (centre of mass
-    - rest_center) when anchor_follow else anchors. ratio > 0 applies the strain limit on the
-    (la, lb, lrest) springs after each step. Pinned vertices (inv_mass 0) are not moved.
+    - rest_center) when anchor_follow else anchors, and multiplies each velocity relative to
+    the anchors' (the centre of mass's when anchor_follow, else zero) by anchor_keep per step.
+    ratio > 0 applies the strain limit on the (la, lb, lrest) springs after each step. Pinned
+    vertices (inv_mass 0) are not moved.
     """
     nv = x.shape[0]
     use_springs = a.shape[0] > 0
@@ -628,20 +630,57 @@ def explicit_advance(
             ox = ox / total - rest_center[0]
             oy = oy / total - rest_center[1]
             oz = oz / total - rest_center[2]
-        for i in range(nv):
-            w = inv_mass[i]
-            if w == 0.0:
-                continue
-            for k in range(3):
-                acc = accel[i, k]
-                if use_springs:
-                    acc += f[i, k] * w
-                if anchor_k > 0.0:
+        if anchor_k > 0.0 and anchor_keep < 1.0:
+            # velocities first, then the part relative to the anchors' velocity damped (the centre
+            # of mass's after this step, which the internal forces do not change), then positions
+            for i in range(nv):
+                w = inv_mass[i]
+                if w == 0.0:
+                    continue
+                for k in range(3):
+                    acc = accel[i, k]
+                    if use_springs:
+                        acc += f[i, k] * w
                     off = ox if k == 0 else (oy if k == 1 else oz)
                     acc -= anchor_k * (x[i, k] - anchors[i, k] - off)
-                vi = (v[i, k] + acc * dt) * retention
-                v[i, k] = vi
-                x[i, k] += vi * dt
+                    v[i, k] += acc * dt
+            ux = 0.0
+            uy = 0.0
+            uz = 0.0
+            if anchor_follow:
+                total = 0.0
+                for i in range(nv):
+                    m = mass[i]
+                    ux += m * v[i, 0]
+                    uy += m * v[i, 1]
+                    uz += m * v[i, 2]
+                    total += m
+                ux /= total
+                uy /= total
+                uz /= total
+            for i in range(nv):
+                if inv_mass[i] == 0.0:
+                    continue
+                for k in range(3):
+                    frame_v = ux if k == 0 else (uy if k == 1 else uz)
+                    vi = (frame_v + (v[i, k] - frame_v) * anchor_keep) * retention
+                    v[i, k] = vi
+                    x[i, k] += vi * dt
+        else:
+            for i in range(nv):
+                w = inv_mass[i]
+                if w == 0.0:
+                    continue
+                for k in range(3):
+                    acc = accel[i, k]
+                    if use_springs:
+                        acc += f[i, k] * w
+                    if anchor_k > 0.0:
+                        off = ox if k == 0 else (oy if k == 1 else oz)
+                        acc -= anchor_k * (x[i, k] - anchors[i, k] - off)
+                    vi = (v[i, k] + acc * dt) * retention
+                    v[i, k] = vi
+                    x[i, k] += vi * dt
         if ratio > 0.0:
             _limit_strain(x, v, la, lb, lrest, inv_mass, ratio, inv_dt, max_passes)
 

@@ -57,6 +57,8 @@ class ExplicitSolver(ModelCache):
 
     use_springs: ClassVar[bool] = True
     default_iterations: ClassVar[int] = 0
+    #: decay rate (1/s) of velocities relative to the anchors (`anchor` only)
+    anchor_damping: float = 0.0
 
     def __init__(self, options: SolverOptions) -> None:
         self.options = options
@@ -111,7 +113,7 @@ class ExplicitSolver(ModelCache):
             x, v, prev, self.inv_mass, self.mass, control.accelerations,
             velocity_retention(self.options.damping, h), h, n,
             self.a, self.b, self.rest, self.kt, self.kc, self.c, self.offsets, self.parts, self.forces,
-            self.anchor_k, self.anchors, self.follow, self.rest_center,
+            self.anchor_k, self.anchors, self.follow, self.rest_center, math.exp(-self.anchor_damping * h),
             self.la, self.lb, self.lrest, ratio, int(self.options.strain_iterations),
         )
 
