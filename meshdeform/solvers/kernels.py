@@ -589,6 +589,22 @@ def _limit_strain(x, v, la, lb, lrest, inv_mass, ratio, inv_dt, max_passes):  # 
     return max_passes
 
 
+@nb.njit(inline="always", **_FAST)
+def _mass_mean(mass, values):  # pragma: no cover - compiled
+    """Mass-weighted mean of the rows of values (W, 3), as three numbers."""
+    total = 0.0
+    mx = 0.0
+    my = 0.0
+    mz = 0.0
+    for i in range(values.shape[0]):
+        m = mass[i]
+        mx += m * values[i, 0]
+        my += m * values[i, 1]
+        mz += m * values[i, 2]
+        total += m
+    return mx / total, my / total, mz / total
+
+
 @nb.njit(**_FAST)
 def explicit_advance(
     x, v, prev, inv_mass, mass, accel, retention, dt, steps,
@@ -620,67 +636,38 @@ def explicit_advance(
         oy = 0.0
         oz = 0.0
         if anchor_k > 0.0 and anchor_follow:
-            total = 0.0
-            for i in range(nv):
-                m = mass[i]
-                ox += m * x[i, 0]
-                oy += m * x[i, 1]
-                oz += m * x[i, 2]
-                total += m
-            ox = ox / total - rest_center[0]
-            oy = oy / total - rest_center[1]
-            oz = oz / total - rest_center[2]
-        if anchor_k > 0.0 and anchor_keep < 1.0:
-            # velocities first, then the part relative to the anchors' velocity damped (the centre
-            # of mass's after this step, which the internal forces do not change), then positions
-            for i in range(nv):
-                w = inv_mass[i]
-                if w == 0.0:
-                    continue
-                for k in range(3):
-                    acc = accel[i, k]
-                    if use_springs:
-                        acc += f[i, k] * w
+            ox, oy, oz = _mass_mean(mass, x)
+            ox -= rest_center[0]
+            oy -= rest_center[1]
+            oz -= rest_center[2]
+        for i in range(nv):
+            w = inv_mass[i]
+            if w == 0.0:
+                continue
+            for k in range(3):
+                acc = accel[i, k]
+                if use_springs:
+                    acc += f[i, k] * w
+                if anchor_k > 0.0:
                     off = ox if k == 0 else (oy if k == 1 else oz)
                     acc -= anchor_k * (x[i, k] - anchors[i, k] - off)
-                    v[i, k] += acc * dt
-            ux = 0.0
-            uy = 0.0
-            uz = 0.0
-            if anchor_follow:
-                total = 0.0
-                for i in range(nv):
-                    m = mass[i]
-                    ux += m * v[i, 0]
-                    uy += m * v[i, 1]
-                    uz += m * v[i, 2]
-                    total += m
-                ux /= total
-                uy /= total
-                uz /= total
-            for i in range(nv):
-                if inv_mass[i] == 0.0:
-                    continue
-                for k in range(3):
-                    frame_v = ux if k == 0 else (uy if k == 1 else uz)
-                    vi = (frame_v + (v[i, k] - frame_v) * anchor_keep) * retention
-                    v[i, k] = vi
-                    x[i, k] += vi * dt
-        else:
-            for i in range(nv):
-                w = inv_mass[i]
-                if w == 0.0:
-                    continue
-                for k in range(3):
-                    acc = accel[i, k]
-                    if use_springs:
-                        acc += f[i, k] * w
-                    if anchor_k > 0.0:
-                        off = ox if k == 0 else (oy if k == 1 else oz)
-                        acc -= anchor_k * (x[i, k] - anchors[i, k] - off)
-                    vi = (v[i, k] + acc * dt) * retention
-                    v[i, k] = vi
-                    x[i, k] += vi * dt
+                v[i, k] += acc * dt
+        # the velocity relative to the anchors' (the centre of mass's after this step, which the
+        # internal forces do not change; zero for world anchors) keeps anchor_keep of itself
+        keep = anchor_keep if anchor_k > 0.0 else 1.0
+        ux = 0.0
+        uy = 0.0
+        uz = 0.0
+        if keep < 1.0 and anchor_follow:
+            ux, uy, uz = _mass_mean(mass, v)
+        for i in range(nv):
+            if inv_mass[i] == 0.0:
+                continue
+            for k in range(3):
+                frame_v = ux if k == 0 else (uy if k == 1 else uz)
+                vi = (frame_v + (v[i, k] - frame_v) * keep) * retention
+                v[i, k] = vi
+                x[i, k] += vi * dt
         if ratio > 0.0:
             _limit_strain(x, v, la, lb, lrest, inv_mass, ratio, inv_dt, max_passes)
 
