@@ -60,7 +60,7 @@ class SolverOptions:
     """Options shared by all solvers; each solver reads what applies to it.
 
     iterations: constraint sweeps per substep (verlet, xpbd) or local/global iterations per
-        step (implicit); None means the solver's default (verlet 2, xpbd 2, implicit 10;
+        step (implicit); None means the solver's default (verlet 2, xpbd 2, implicit 6;
         springs and anchor have none).
     damping: fraction of velocity removed per second of simulated time (air/velocity
         damping, 0 <= damping < 1), applied per substep as (1 - damping) ** dt. See the module
