@@ -179,3 +179,34 @@ def test_picker_probes_on_single_calls_then_hands_out_its_choice(monkeypatch: py
         picker.call_chosen()
     assert calls == ["parallel"] * (40 - probe_length)
     assert picker.probing  # the next probe is due after PROBE_EVERY calls in all
+
+
+def test_whole_frame_calls_count_their_substeps_towards_the_next_probe(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A frame of 22 substeps in one call brings the next probe 22 calls closer, so probes come
+    as often (in simulated time) as when every substep is its own call."""
+    monkeypatch.setattr(nb, "get_num_threads", lambda: 2)
+    monkeypatch.setattr(dispatch, "PROBE_EVERY", 100)
+    counts: list[int] = []
+
+    def build(seconds: float):
+        def run(count: int) -> None:
+            counts.append(count)
+            time.sleep(seconds * count)
+
+        return run
+
+    picker = KernelPicker(build(0.001), build(0.0), parallel_ok=True)
+    frames_until_probe = 0
+    while True:  # the first probe runs on single substeps
+        picker.call_substeps(22)
+        if not picker.probing:
+            break
+    assert set(counts) == {1}
+    counts.clear()
+    while not picker.probing:
+        picker.call_substeps(22)
+        frames_until_probe += 1
+    assert set(counts) == {22}
+    # the first frame made 22 single calls (the probe, then the chosen build); each later frame
+    # counts 22 calls, and a period has 100 calls in all
+    assert frames_until_probe == -(-(100 - 22) // 22)

@@ -80,16 +80,18 @@ class KernelPicker:
         """Whether the next call is part of a probe (it may run either build)."""
         return self.parallel_ok and self._phase < 2 * (PROBE_CALLS + 1)
 
-    def call_chosen(self, *args: object) -> None:
-        """Call the build chosen at the last probe (counted as a call; not while `probing`).
+    def call_chosen(self, *args: object, worth: int = 1) -> None:
+        """Call the build chosen at the last probe (not while `probing`), counted as `worth` calls.
 
         For calls much longer than the probed ones (a solver's whole frame after probing
-        single substeps): a probe made of such calls would cost several slow frames.
+        single substeps): a probe made of such calls would cost several slow frames, and
+        counting each as the substeps it runs keeps the probes as frequent as substep by substep.
         """
         if self.probing:
             raise RuntimeError("call_chosen during a probe")
         if self.parallel_ok:
-            self._phase = self._phase + 1 if self._phase + 1 < self._period else 0
+            phase = self._phase + max(1, worth)
+            self._phase = phase if phase < self._period else 0
             self.choice(*args)
         else:
             self.serial(*args)
@@ -98,7 +100,7 @@ class KernelPicker:
         """`count` substeps of a kernel whose last argument is how many substeps it runs: one
         call of the chosen build, or single substeps while probing (so a probe's calls stay short)."""
         if count > 1 and not self.probing:
-            self.call_chosen(*args, count)
+            self.call_chosen(*args, count, worth=count)
         else:
             for _ in range(count):
                 self(*args, 1)
