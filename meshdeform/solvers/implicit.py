@@ -116,7 +116,8 @@ class ImplicitSolver(ModelCache):
             lower = coo_matrix((vals, (rows, cols)), shape=(nf, nf)).tocsc()  # sums duplicates
             del rows, cols, vals
             self.factor = cholespy.CholeskySolverD(
-                nf, lower.indptr.astype(np.int32), lower.indices.astype(np.int32), lower.data, cholespy.MatrixType.CSC
+                nf, lower.indptr.astype(np.int32, copy=False), lower.indices.astype(np.int32, copy=False), lower.data,
+                cholespy.MatrixType.CSC,
             )
         self.beta2 = beta2
         self._dt = dt
