@@ -70,15 +70,20 @@ def test_auto_layout_above_the_parallel_threshold_is_thread_independent() -> Non
     assert one.tobytes() == two.tobytes()
 
 
+@pytest.mark.parametrize("block", [0, 300])
 @pytest.mark.parametrize("parts", [1, 2])
-def test_levelled_order_sweeps_like_the_sorted_order(parts: int) -> None:
+def test_levelled_order_sweeps_like_the_sorted_order(parts: int, block: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """Levelling is exact: every vertex meets its springs in the same order as in the sorted order.
 
     The sorted order is the pin-distance order of `spring_layout` before levelling; a
     Gauss-Seidel sweep only depends on the order in which each vertex sees its springs.
+    With levelled blocks (`LEVEL_BLOCK`, here 300 springs so a small cloth has several) a
+    spring moves only within its block of the sorted order.
     """
+    from meshdeform.solvers import layout
     from meshdeform.solvers.layout import pin_distance
 
+    monkeypatch.setattr(layout, "LEVEL_BLOCK", block)
     model = cloth(24)
     lay = spring_layout(model, parts)
     dist = pin_distance(model)
@@ -95,6 +100,11 @@ def test_levelled_order_sweeps_like_the_sorted_order(parts: int) -> None:
     assert (np.diff(pos_r[order])[same_vertex] > 0).all()
     # and levelling did reorder (consecutive springs are mostly independent)
     assert not np.array_equal(np.argsort(reference), stored)
+    if block:
+        assert lay.a.shape[0] > 4 * block
+        assert np.array_equal(reference // block, stored // block)
+    else:  # one block: springs travel further than a block of 300 would let them
+        assert np.abs(reference - stored).max() > 300
 
 
 def test_kernel_numbering_is_a_permutation() -> None:

@@ -19,17 +19,23 @@ _FAST = {**_JIT, "fastmath": True}
 
 
 @nb.njit(**_JIT)
-def sweep_levels(a, b, n):  # pragma: no cover - compiled
-    """Level of each spring in list order: 1 + the highest level of earlier springs sharing an end."""
+def sweep_levels(a, b, n, block):  # pragma: no cover - compiled
+    """Level of each spring in list order: 1 + the highest level of earlier springs sharing an
+    end, and above every level of the earlier blocks of `block` consecutive springs (0: no blocks)."""
     last = np.zeros(n, dtype=np.int64)
     level = np.empty(a.shape[0], dtype=np.int64)
+    base = 0
+    top = 0
     for s in range(a.shape[0]):
+        if block > 0 and s % block == 0:
+            base = top
         ia = a[s]
         ib = b[s]
-        lv = max(last[ia], last[ib]) + 1
+        lv = max(last[ia], last[ib], base) + 1
         level[s] = lv
         last[ia] = lv
         last[ib] = lv
+        top = max(top, lv)
     return level
 
 
