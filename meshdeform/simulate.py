@@ -207,6 +207,7 @@ def simulate(
         tearing.start(model)
         original_pins = np.flatnonzero(tearing.initial_model.pinned)
     step = solver.step
+    follow_tear = getattr(solver, "follow_tear", None)  # solvers that can reuse their work after a tear
     step_count = 0
     resting_since: int | None = None
     # nothing between the substeps (no forces, constraints, pin motion or tearing): a solver
@@ -245,6 +246,8 @@ def simulate(
             if tearing is not None:
                 event = tearing.after_substep(model, state, t1)
                 if event is not None:
+                    if follow_tear is not None:
+                        follow_tear(model, event.model, event.index_map, event.parent)
                     model = event.model
                     for item in (*forces, *constraints):
                         remap = getattr(item, "remap", None)

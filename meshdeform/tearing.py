@@ -395,11 +395,13 @@ def mesh_pieces(model: SpringModel, referenced: np.ndarray | None = None) -> int
 
 @dataclass(frozen=True, eq=False)
 class TearEvent:
-    """A topology change: the new model, index_map (W',) new vertex -> previous vertex, and how
-    many springs broke and vertices were added by it."""
+    """A topology change: the new model, index_map (W',) new vertex -> previous vertex, parent
+    (S',) new spring -> the previous model's spring it descends from, and how many springs broke
+    and vertices were added by it."""
 
     model: SpringModel
     index_map: np.ndarray
+    parent: np.ndarray
     broken: int
     split: int
 
@@ -643,11 +645,14 @@ class Tearer:
         if len(events) == 1:
             return events[0]
         index_map = events[0].index_map
+        parent = events[0].parent
         for e in events[1:]:
             index_map = index_map[e.index_map]
+            parent = parent[e.parent]
         return TearEvent(
             model=events[-1].model,
             index_map=index_map,
+            parent=parent,
             broken=sum(e.broken for e in events),
             split=sum(e.split for e in events),
         )
@@ -964,7 +969,7 @@ class Tearer:
         self._frame.changed = True
         self.total_broken += broken_total
         self.total_split += new_count
-        return TearEvent(model=new_model, index_map=index_map, broken=broken_total, split=new_count)
+        return TearEvent(model=new_model, index_map=index_map, parent=parent, broken=broken_total, split=new_count)
 
     def _faces_touching(self, cv: np.ndarray, vertices: np.ndarray) -> np.ndarray:
         faces = np.zeros(self._sizes.shape[0], dtype=bool)

@@ -58,6 +58,45 @@ def first_touch(a, b, n):  # pragma: no cover - compiled
     return order
 
 
+@nb.njit(**_JIT)
+def inherit_order(previous_order, previous_a, previous_b, parent, springs, index_map):  # pragma: no cover - compiled
+    """Springs of a torn model in their parents' places of the previous layout order.
+
+    Returns (order, key): order (S',) new springs sorted stably by key, key (S',) the place of
+    each new spring's parent in previous_order. Both empty when a spring does not join its
+    parent's two vertices or their copies (index_map: new vertex -> previous vertex), which
+    `layout.inherited_layout` needs. A counting sort: O(S + S').
+    """
+    m = previous_order.shape[0]
+    count = parent.shape[0]
+    position = np.empty(m, dtype=np.int64)
+    for k in range(m):
+        position[previous_order[k]] = k
+    key = np.empty(count, dtype=np.int64)
+    start = np.zeros(m + 1, dtype=np.int64)
+    for j in range(count):
+        p = parent[j]
+        if p < 0 or p >= m:
+            return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+        k = position[p]
+        ia = index_map[springs[j, 0]]
+        ib = index_map[springs[j, 1]]
+        pa = previous_a[k]
+        pb = previous_b[k]
+        if not ((ia == pa and ib == pb) or (ia == pb and ib == pa)):
+            return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+        key[j] = k
+        start[k + 1] += 1
+    for k in range(m):
+        start[k + 1] += start[k]
+    order = np.empty(count, dtype=np.int64)
+    for j in range(count):
+        k = key[j]
+        order[start[k]] = j
+        start[k] += 1
+    return order, key
+
+
 # --------------------------------------------------------------------------- position-based substeps
 #
 # verlet and xpbd run a whole substep in one compiled call on a scratch copy of the vertices in
@@ -806,3 +845,41 @@ def start_step(x, prev, v, inv_mass, inv_dt):  # pragma: no cover - compiled
         else:
             for k in range(3):
                 prev[i, k] = x[i, k]
+
+
+@nb.njit(**_JIT)
+def xpbd_constants(
+    order, springs, rest_lengths, stiffness, compression, damping, inv_mass, modulus, dt, P
+):  # pragma: no cover - compiled
+    """Fill the constants of `XPBD_SPRING` records P (layout order: P[k] is model spring order[k])
+    for step dt in one pass; True when any spring is damped.
+
+    k = max(stiffness, 0) modulus under tension (compression alike), c = 2 z sqrt(k m_reduced),
+    alpha~ = 1 / (k dt^2), gamma = c / (k dt), 1 / ((1 + gamma) (w_a + w_b) + alpha~); 0 where
+    k = 0 (no constraint that way). The same operations in the same order as the NumPy
+    expressions they replace (no fast-math), so the records are bit for bit those values.
+    """
+    inv_dt2 = 1.0 / (dt * dt)
+    damped = False
+    for k in range(order.shape[0]):
+        s = order[k]
+        w = inv_mass[springs[s, 0]] + inv_mass[springs[s, 1]]
+        reduced = 1.0 / w if w > 0.0 else 0.0
+        kt = max(stiffness[s], 0.0) * modulus
+        kc = max(compression[s], 0.0) * modulus
+        c = 2.0 * max(damping[s], 0.0) * np.sqrt(kt * reduced)
+        r = P[k]
+        r.rest = rest_lengths[s]
+        at = inv_dt2 / kt if kt > 0.0 else 0.0
+        ac = inv_dt2 / kc if kc > 0.0 else 0.0
+        g = c / (kt * dt) if kt > 0.0 else 0.0
+        base = (1.0 + g) * w
+        den = base + at
+        r.at = at
+        r.ac = ac
+        r.g = g
+        r.it = 1.0 / den if kt > 0.0 and den > 0.0 else 0.0
+        den = base + ac
+        r.ic = 1.0 / den if kc > 0.0 and den > 0.0 else 0.0
+        damped = damped or g > 0.0
+    return damped

@@ -38,9 +38,9 @@ import numpy as np
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers import kernels
 from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
-from meshdeform.solvers.common import ModelCache, aligned_zeros, kernel_tethers
+from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
-from meshdeform.solvers.layout import kernel_chunks, spring_layout
+from meshdeform.solvers.layout import kernel_chunks
 
 
 def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
@@ -51,7 +51,7 @@ def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
 
 
 @register
-class VerletSolver(ModelCache):
+class VerletSolver(LayoutCache):
     """Position-based Verlet cloth with per-kind relaxation factors."""
 
     name: ClassVar[str] = "verlet"
@@ -66,7 +66,7 @@ class VerletSolver(ModelCache):
         self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
-        lay = self.layout = spring_layout(model, self.options.partitions)
+        lay = self.layout = self._layout_for(model, self.options.partitions)
         self.kt = lay.take(per_iteration(model.stiffness, self.iterations))
         self.kc = lay.take(per_iteration(model.compression, self.iterations))
         self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
@@ -75,7 +75,7 @@ class VerletSolver(ModelCache):
         w = wa + wb
         share_a = np.where(w > 0.0, wa / np.where(w > 0.0, w, 1.0), 0.0)
         share_b = np.where(w > 0.0, wb / np.where(w > 0.0, w, 1.0), 0.0)
-        p = self.params = aligned_zeros((lay.a.shape[0],), kernels.RELAX_SPRING)
+        p = self.params = self._buffer("params", lay.a.shape[0], kernels.RELAX_SPRING)
         p["a"] = lay.ends["a"]
         p["b"] = lay.ends["b"]
         p["rest"] = lay.rest
@@ -84,10 +84,10 @@ class VerletSolver(ModelCache):
         p["ac"] = self.kc * share_a
         p["bc"] = self.kc * share_b
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers)
-        self.scratch = aligned_zeros((model.vertex_count,), kernels.POINT)
+        self.scratch = self._buffer("scratch", model.vertex_count, kernels.POINT)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
-        self.previous = np.zeros((model.vertex_count, 3))  # kernel numbering, for several substeps a call
+        self.previous = self._buffer("previous", 3 * model.vertex_count, np.float64).reshape(-1, 3)  # kernel numbering
         self.substep.allow_parallel(lay.parts > 1)
         self._dt = -1.0
 

@@ -55,14 +55,11 @@ from meshdeform.model import SpringModel, State
 from meshdeform.solvers import kernels
 from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
 from meshdeform.solvers.common import (
-    ModelCache,
-    aligned_zeros,
-    damping_coefficients,
+    LayoutCache,
     kernel_tethers,
-    spring_constants,
 )
 from meshdeform.solvers.dispatch import KernelPicker
-from meshdeform.solvers.layout import kernel_chunks, spring_layout
+from meshdeform.solvers.layout import kernel_chunks
 from meshdeform.topology import SpringKind
 
 #: tether paths run along these spring kinds, with this slack (see the module docstring)
@@ -70,15 +67,8 @@ TETHER_KINDS = (int(SpringKind.STRUCTURAL), int(SpringKind.SHEAR))
 TETHER_SLACK = 1.03
 
 
-def _ratio(num: float | np.ndarray, den: np.ndarray, where: np.ndarray) -> np.ndarray:
-    """num / den where `where`, else 0."""
-    out = np.zeros(den.shape)
-    np.divide(num, den, out=out, where=where)
-    return out
-
-
 @register
-class XPBDSolver(ModelCache):
+class XPBDSolver(LayoutCache):
     """Extended position-based dynamics with per-kind compliance and constraint damping."""
 
     name: ClassVar[str] = "xpbd"
@@ -93,39 +83,29 @@ class XPBDSolver(ModelCache):
         self.substep = KernelPicker(kernels.xpbd_substep, kernels.xpbd_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
-        lay = self.layout = spring_layout(model, self.options.partitions)
-        kt, kc = spring_constants(model)
-        self.kt = lay.take(kt)
-        self.kc = lay.take(kc)
-        self.c = lay.take(damping_coefficients(model, kt))
+        lay = self.layout = self._layout_for(model, self.options.partitions)
         self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers, TETHER_KINDS, TETHER_SLACK)
-        self.scratch = aligned_zeros((model.vertex_count,), kernels.VERTEX)
+        self.scratch = self._buffer("scratch", model.vertex_count, kernels.VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.substep.allow_parallel(lay.parts > 1)
-        self.params = aligned_zeros((lay.a.shape[0],), kernels.XPBD_SPRING)
+        self.params = self._buffer("params", lay.a.shape[0], kernels.XPBD_SPRING)
         self.params["a"] = lay.ends["a"]
         self.params["b"] = lay.ends["b"]
-        self.params["rest"] = lay.rest
-        self.w = self.inv_mass[lay.a] + self.inv_mass[lay.b]
-        self.lam = np.zeros(lay.a.shape[0])
+        self.lam = self._buffer("lam", lay.a.shape[0], np.float64)
         self._dt = -1.0
 
     def _coefficients(self, dt: float) -> None:
-        """Per-spring record (`kernels.XPBD_SPRING`) for this step size (few temporaries: N = 256
-        has 390k springs)."""
-        kt, kc, p = self.kt, self.kc, self.params
-        p["at"] = _ratio(1.0 / (dt * dt), kt, kt > 0.0)
-        p["ac"] = _ratio(1.0 / (dt * dt), kc, kc > 0.0)
-        p["g"] = _ratio(self.c, kt * dt, kt > 0.0)
-        base = (1.0 + p["g"]) * self.w
-        den = base + p["at"]
-        p["it"] = _ratio(1.0, den, (kt > 0.0) & (den > 0.0))
-        np.add(base, p["ac"], out=den)
-        p["ic"] = _ratio(1.0, den, (kc > 0.0) & (den > 0.0))
-        gamma = p["g"]
-        self.damped = bool((gamma > 0.0).any())
+        """Per-spring records (`kernels.XPBD_SPRING`) for this step size, in one compiled pass
+        (`kernels.xpbd_constants`: no temporaries, N = 256 has 390k springs)."""
+        model = self._model
+        self.damped = bool(
+            kernels.xpbd_constants(
+                self.layout.order, model.springs, model.rest_lengths, model.stiffness, model.compression,
+                model.damping, self.inv_mass, float(model.material.stretch_modulus), dt, self.params,
+            )
+        )
         self.retention = velocity_retention(self.options.damping, dt)
         self._dt = dt
 
