@@ -847,12 +847,12 @@ def start_step(x, prev, v, inv_mass, inv_dt):  # pragma: no cover - compiled
                 prev[i, k] = x[i, k]
 
 
-@nb.njit(**_JIT)
+@nb.njit(parallel=True, **_JIT)
 def xpbd_constants(
     order, springs, rest_lengths, stiffness, compression, damping, inv_mass, modulus, dt, P
 ):  # pragma: no cover - compiled
     """Fill the constants of `XPBD_SPRING` records P (layout order: P[k] is model spring order[k])
-    for step dt in one pass; True when any spring is damped.
+    for step dt in one pass over both cores; True when any spring is damped.
 
     k = max(stiffness, 0) modulus under tension (compression alike), c = 2 z sqrt(k m_reduced),
     alpha~ = 1 / (k dt^2), gamma = c / (k dt), 1 / ((1 + gamma) (w_a + w_b) + alpha~); 0 where
@@ -860,8 +860,8 @@ def xpbd_constants(
     expressions they replace (no fast-math), so the records are bit for bit those values.
     """
     inv_dt2 = 1.0 / (dt * dt)
-    damped = False
-    for k in range(order.shape[0]):
+    damped = 0
+    for k in nb.prange(order.shape[0]):
         s = order[k]
         w = inv_mass[springs[s, 0]] + inv_mass[springs[s, 1]]
         reduced = 1.0 / w if w > 0.0 else 0.0
@@ -881,5 +881,6 @@ def xpbd_constants(
         r.it = 1.0 / den if kt > 0.0 and den > 0.0 else 0.0
         den = base + ac
         r.ic = 1.0 / den if kc > 0.0 and den > 0.0 else 0.0
-        damped = damped or g > 0.0
-    return damped
+        if g > 0.0:
+            damped += 1
+    return damped > 0
