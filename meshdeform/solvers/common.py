@@ -58,6 +58,7 @@ class LayoutCache(ModelCache):
 
     layout: SpringLayout | None = None
     _successor: tuple[SpringModel, SpringLayout, np.ndarray, np.ndarray] | None = None
+    _buffers: dict[str, np.ndarray] | None = None
 
     def follow_tear(self, previous: SpringModel, model: SpringModel, index_map: np.ndarray, parent: np.ndarray) -> None:
         """`model` replaces `previous` (index_map: new vertex -> previous one; parent: new spring
@@ -72,7 +73,9 @@ class LayoutCache(ModelCache):
         torn model, a little larger or smaller than the last, then costs no fresh allocation
         and page faults; it grows with 1/8 to spare.
         """
-        buffers = self.__dict__.setdefault("_buffers", {})
+        if self._buffers is None:
+            self._buffers = {}
+        buffers = self._buffers
         held = buffers.get(name)
         if held is None or held.dtype != np.dtype(dtype) or held.shape[0] < count:
             held = buffers[name] = aligned_zeros((count + count // 8,), dtype)

@@ -847,12 +847,13 @@ def start_step(x, prev, v, inv_mass, inv_dt):  # pragma: no cover - compiled
                 prev[i, k] = x[i, k]
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(**_JIT)
 def xpbd_constants(
     order, springs, rest_lengths, stiffness, compression, damping, inv_mass, modulus, dt, P
 ):  # pragma: no cover - compiled
     """Fill the constants of `XPBD_SPRING` records P (layout order: P[k] is model spring order[k])
-    for step dt in one pass over both cores; True when any spring is damped.
+    for step dt in one pass; True when any spring is damped. Serial: it runs in every job, also
+    where two jobs share a process (Dask threads), which the parallel runtime does not allow.
 
     k = max(stiffness, 0) modulus under tension (compression alike), c = 2 z sqrt(k m_reduced),
     alpha~ = 1 / (k dt^2), gamma = c / (k dt), 1 / ((1 + gamma) (w_a + w_b) + alpha~); 0 where
@@ -861,7 +862,7 @@ def xpbd_constants(
     """
     inv_dt2 = 1.0 / (dt * dt)
     damped = 0
-    for k in nb.prange(order.shape[0]):
+    for k in range(order.shape[0]):
         s = order[k]
         w = inv_mass[springs[s, 0]] + inv_mass[springs[s, 1]]
         reduced = 1.0 / w if w > 0.0 else 0.0
