@@ -167,11 +167,20 @@ def spring_layout(model: SpringModel, parts: int, mask: np.ndarray | None = None
     counts = np.bincount(group, minlength=parts + 1)
     offsets = np.zeros(parts + 2, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
-    oa = np.ascontiguousarray(springs[order, 0])
-    ob = np.ascontiguousarray(springs[order, 1])
-    vertex_order = first_touch(oa, ob, model.vertex_count)
+    vertex_order = first_touch(springs[order, 0], springs[order, 1], model.vertex_count)
     vertex_rank = np.empty_like(vertex_order)
     vertex_rank[vertex_order] = np.arange(vertex_order.shape[0], dtype=np.int64)
+    return _assemble(model, order, offsets, parts, vertex_order, vertex_rank)
+
+
+def _assemble(
+    model: SpringModel, order: np.ndarray, offsets: np.ndarray, parts: int, vertex_order: np.ndarray,
+    vertex_rank: np.ndarray,
+) -> SpringLayout:
+    """A SpringLayout of the model's springs in `order`, with the per-spring arrays taken in that order."""
+    springs = np.asarray(model.springs)
+    oa = springs[order, 0].astype(np.int64)
+    ob = springs[order, 1].astype(np.int64)
     ends = np.zeros(order.shape[0], dtype=ENDS)
     ends["a"] = vertex_rank[oa]
     ends["b"] = vertex_rank[ob]
@@ -215,22 +224,7 @@ def inherited_layout(
     offsets = np.searchsorted(key[order], previous.offsets, side="left").astype(np.int64)
     vertex_order = np.concatenate([previous.vertex_order, np.arange(n_old, n, dtype=np.int64)])
     vertex_rank = np.concatenate([previous.vertex_rank, np.arange(n_old, n, dtype=np.int64)])
-    oa = springs[order, 0].astype(np.int64)
-    ob = springs[order, 1].astype(np.int64)
-    ends = np.zeros(order.shape[0], dtype=ENDS)
-    ends["a"] = vertex_rank[oa]
-    ends["b"] = vertex_rank[ob]
-    return SpringLayout(
-        order=order,
-        a=oa,
-        b=ob,
-        rest=np.ascontiguousarray(np.asarray(model.rest_lengths, dtype=np.float64)[order]),
-        offsets=offsets,
-        parts=previous.parts,
-        vertex_order=vertex_order,
-        vertex_rank=vertex_rank,
-        ends=ends,
-    )
+    return _assemble(model, order, offsets, previous.parts, vertex_order, vertex_rank)
 
 
 @dataclass(frozen=True, eq=False)
