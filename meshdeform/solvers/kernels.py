@@ -861,7 +861,7 @@ def xpbd_constants(
     expressions they replace (no fast-math), so the records are bit for bit those values.
     """
     inv_dt2 = 1.0 / (dt * dt)
-    damped = 0
+    damped = False
     for k in range(order.shape[0]):
         s = order[k]
         w = inv_mass[springs[s, 0]] + inv_mass[springs[s, 1]]
@@ -883,5 +883,5 @@ def xpbd_constants(
         den = base + ac
         r.ic = 1.0 / den if kc > 0.0 and den > 0.0 else 0.0
         if g > 0.0:
-            damped += 1
-    return damped > 0
+            damped = True
+    return damped
