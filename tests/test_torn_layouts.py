@@ -100,27 +100,35 @@ def test_a_model_not_descending_from_the_layout_is_refused() -> None:
 
 
 def test_xpbd_records_are_the_numpy_formulas_bit_for_bit() -> None:
-    """`kernels.xpbd_constants` against the NumPy expressions of the XPBD docstring."""
+    """`kernels.xpbd_constants` against the XPBD docstring's expressions, with k and the damping
+    coefficient c from the definitions every force-based solver shares (`solvers.common`)."""
+    from dataclasses import replace
+
+    from meshdeform.solvers.common import damping_coefficients, spring_constants
+
     mesh = grid_mesh(12, 12)
     pinned = np.zeros(mesh.vertex_count, dtype=bool)
     pinned[[0, 11]] = True
-    model = SpringModel.from_mesh(mesh, pinned_input=pinned)
+    base = SpringModel.from_mesh(mesh, pinned_input=pinned)
     rng = np.random.default_rng(3)
-    stiffness = rng.uniform(-0.1, 1.0, model.spring_count)  # some <= 0: no constraint that way
-    compression = rng.uniform(-0.1, 1.0, model.spring_count)
-    damping = rng.uniform(0.0, 0.5, model.spring_count)
+    model = replace(
+        base,
+        stiffness=rng.uniform(-0.1, 1.0, base.spring_count),  # some <= 0: no constraint that way
+        compression=rng.uniform(-0.1, 1.0, base.spring_count),
+        damping=rng.uniform(0.0, 0.5, base.spring_count),
+    )
     order = rng.permutation(model.spring_count)
-    dt, modulus = 1.0 / 528, 1000.0
+    dt, modulus = 1.0 / 528, float(model.material.stretch_modulus)
     records = np.zeros(model.spring_count, dtype=kernels.XPBD_SPRING)
     damped = kernels.xpbd_constants(
-        order, model.springs, model.rest_lengths, stiffness, compression, damping, model.inv_mass, modulus, dt, records
+        order, model.springs, model.rest_lengths, model.stiffness, model.compression, model.damping,
+        model.inv_mass, modulus, dt, records,
     )
+    kt_all, kc_all = spring_constants(model)
+    c = damping_coefficients(model, kt_all)[order]
+    kt, kc = kt_all[order], kc_all[order]
     springs = np.asarray(model.springs)[order]
     w = model.inv_mass[springs[:, 0]] + model.inv_mass[springs[:, 1]]
-    kt = np.maximum(stiffness[order], 0.0) * modulus
-    kc = np.maximum(compression[order], 0.0) * modulus
-    reduced = np.where(w > 0.0, 1.0 / np.where(w > 0.0, w, 1.0), 0.0)
-    c = 2.0 * damping[order] * np.sqrt(kt * reduced)
     with np.errstate(divide="ignore", invalid="ignore"):
         at = np.where(kt > 0.0, (1.0 / (dt * dt)) / kt, 0.0)
         ac = np.where(kc > 0.0, (1.0 / (dt * dt)) / kc, 0.0)
