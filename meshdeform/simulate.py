@@ -8,10 +8,28 @@ happens between substeps (gravity only: no forces, constraints, pin animation or
 solver with an `advance(model, state, dt, control, count)` method (verlet, xpbd) runs the
 frame's substeps in one call, which keeps the vertices in its own scratch between them.
 
-After every frame, before it is yielded, one compiled pass checks the positions: non-finite
-values or a vertex farther from the mesh centre than a generous bound (1000 mesh diagonals
-plus twice the free-fall distance plus 100 m) stop the run with `SimulationDiverged` naming
-the frame, the solver and a hint. No frame with non-finite positions is ever yielded.
+After every frame, before it is yielded, the divergence guard stops the run with
+`SimulationDiverged` naming the frame, the solver, what went wrong and a hint, when
+- positions are non-finite, or a vertex is farther from the mesh centre than a generous bound
+  (1000 mesh diagonals plus twice the free-fall distance plus 100 m, `_runaway_limit`);
+- a vertex moves faster than `_speed_limit` (1000 m/s plus 100 mesh diagonals per second plus
+  twice the free-fall speed), or
+- a structural spring is longer than `STRETCH_LIMIT` (10) times its current rest length
+  (`_stretch_limit`: more with tearing).
+The last two catch blow-ups that something keeps finite: tethers hold an exploding cloth
+within reach of its pins, a collider with friction stops it running away. No frame with
+non-finite positions is ever yielded. The guard costs one pass over the vertices and one over
+the structural springs per frame (the spring pass is the frame's `max_stretch`).
+
+Why these bounds: real scenes stay far below them and blow-ups cross them within a frame or
+two, since an unstable step multiplies the error every substep. Cloth stretches a few percent
+(the samples reach 1.29x; a torn curtain's edges 2.5x while the tear opens); 10x is a rope
+or cloth that has exploded, been pulled apart by its pins or is made of a material far too
+soft to hold itself, none of which gives a usable bake. The fastest scenes cloth meets stay
+near 60 m/s (a 200 m free fall, cloth shot onto plates, hurricane wind; the samples peak at
+17 m/s), 1000 m/s is three times the speed of sound. The mesh-diagonal term lifts the speed
+bound for meshes modelled in centimetres or millimetres (their units per second are larger),
+the free-fall term for long falls and gravity given in those units, as in the runaway bound.
 
 Each frame reports its largest vertex speed and whether the model is at rest
 (`max_speed < Settings.rest_speed`, default 1e-4 m/s); `rest_frame` is the first frame of the
@@ -164,6 +182,35 @@ def _runaway_limit(diagonal: float, gravity: np.ndarray, time: float) -> float:
     return 1000.0 * diagonal + float(np.linalg.norm(gravity)) * time * time + 100.0
 
 
+#: largest structural spring length / rest length of a run that has not blown up (see the module docstring)
+STRETCH_LIMIT = 10.0
+#: with tearing, edges stretch past their break threshold while a tear waits for its update:
+#: the stretch bound is at least this many times the largest break threshold
+TEAR_STRETCH_FACTOR = 4.0
+#: m/s: the fixed part of the speed bound (see the module docstring and `_speed_limit`)
+SPEED_LIMIT = 1000.0
+#: springs shorter than this fraction of the median structural rest length (slivers of CAD or
+#: scanned meshes) are measured against that length by the guard, so a sliver drawn out to a
+#: normal edge's length does not count as a blow-up (the frames' max_stretch stays exact)
+SLIVER_FRACTION = 0.25
+
+
+def _speed_limit(diagonal: float, gravity: np.ndarray, time: float) -> float:
+    """m/s a vertex may reach after `time` seconds before the run counts as exploded."""
+    return SPEED_LIMIT + 100.0 * diagonal + 2.0 * float(np.linalg.norm(gravity)) * time
+
+
+def _stretch_limit(tearing: Tearer | None) -> float:
+    """The stretch bound: `STRETCH_LIMIT`, or with tearing at least `TEAR_STRETCH_FACTOR` times
+    the largest break threshold (a recipe may let rubber tear at 5x)."""
+    settings = tearing.initial_settings if tearing is not None else None
+    if settings is None:
+        return STRETCH_LIMIT
+    thresholds = np.asarray(settings.thresholds)
+    finite = thresholds[np.isfinite(thresholds)]
+    return max(STRETCH_LIMIT, TEAR_STRETCH_FACTOR * float(finite.max())) if finite.size else STRETCH_LIMIT
+
+
 _HINTS = {
     "anchor": "lower anchor_stiffness or spring stiffness, or keep stable_substeps on",
     "verlet": "keep stiffness within 0..1 or use more substeps",
@@ -171,6 +218,28 @@ _HINTS = {
     "springs": "keep stable_substeps on, lower stiffness or use more substeps",
     "implicit": "use more substeps or iterations, or check the forces for non-finite values",
 }
+
+
+def _solver_hint(name: str) -> str:
+    return _HINTS.get(name, "more substeps or lower stiffness")
+
+
+def _stretch_hint(name: str) -> str:
+    """What to try when springs stretched past the bound: the solver's own advice (an unstable
+    step is the usual cause), then the scene's culprits."""
+    return (
+        f"{_solver_hint(name)}; check that pins do not pull the mesh apart, that impacts and wind "
+        "are not too strong and that the material is not far too soft"
+    )
+
+
+def _speed_hint(name: str) -> str:
+    """What to try when vertices moved faster than the bound: the solver's own advice, then the
+    scene's fast movers."""
+    return (
+        f"{_solver_hint(name)}; check the strength of impacts and wind and the speed of animated pins "
+        "and colliders (a looping animation jumps back to its start)"
+    )
 
 
 def simulate(
@@ -200,8 +269,9 @@ def simulate(
     constraints = list(scene.constraints)
     pin_motion = scene.pin_motion if pinned_idx.size else None
     center = model.rest_positions.mean(axis=0) if model.vertex_count else np.zeros(3)
-    sa, sb, srest = _structural_arrays(model)
+    structural = _Structural.of(model)
     tearing = scene.tearing
+    stretch_limit = _stretch_limit(tearing)
     pin_slot: np.ndarray | None = None  # after a cut splits pins: current pinned -> original pin target
     if tearing is not None:
         tearing.start(model)
@@ -259,23 +329,39 @@ def simulate(
                     accelerations = np.empty_like(state.positions)
                     accelerations[:] = gravity
                     control = Control(accelerations=accelerations)
-                    sa, sb, srest = _structural_arrays(model)
+                    structural = _Structural.of(model)
         positions = state.positions
         finite, reach, speed = kernels.guard_figures(positions, state.velocities, center)
+        diverged = f"simulation diverged at frame {frame} with solver {name!r}"
         if not finite:
             raise SimulationDiverged(
-                f"simulation diverged at frame {frame} with solver {name!r}: positions became non-finite; "
-                f"try: {_HINTS.get(name, 'more substeps or lower stiffness')}",
-                frame=frame,
-                solver=name,
+                f"{diverged}: positions became non-finite; try: {_solver_hint(name)}", frame=frame, solver=name
             )
-        if reach > _runaway_limit(diagonal, gravity, state.time - start_time):
+        elapsed = state.time - start_time
+        if reach > _runaway_limit(diagonal, gravity, elapsed):
             raise SimulationDiverged(
-                f"simulation diverged at frame {frame} with solver {name!r}: positions ran away "
-                f"({reach:.3g} from the mesh centre); try: {_HINTS.get(name, 'more substeps or lower stiffness')}",
+                f"{diverged}: positions ran away ({reach:.3g} from the mesh centre); try: {_solver_hint(name)}",
                 frame=frame,
                 solver=name,
             )
+        speed_limit = _speed_limit(diagonal, gravity, elapsed)
+        if speed > speed_limit:
+            raise SimulationDiverged(
+                f"{diverged}: vertices moved at {speed:.4g} m/s (limit {speed_limit:.4g} m/s); "
+                f"try: {_speed_hint(name)}",
+                frame=frame,
+                solver=name,
+            )
+        stretch = float(kernels.max_ratio(positions, structural.a, structural.b, structural.rest))
+        if stretch > stretch_limit:
+            guarded = structural.guarded_stretch(positions, stretch)
+            if guarded > stretch_limit:
+                raise SimulationDiverged(
+                    f"{diverged}: springs stretched to {guarded:.3g}x their rest length "
+                    f"(limit {stretch_limit:.3g}x); try: {_stretch_hint(name)}",
+                    frame=frame,
+                    solver=name,
+                )
         at_rest = bool(speed < settings.rest_speed)
         if not at_rest:
             resting_since = None
@@ -296,7 +382,7 @@ def simulate(
             time=state.time,
             positions=model.to_input_layout(welded),
             welded_positions=welded,
-            max_stretch=float(kernels.max_ratio(welded, sa, sb, srest)),
+            max_stretch=stretch,
             max_speed=float(speed),
             at_rest=at_rest,
             rest_frame=resting_since,
@@ -305,10 +391,36 @@ def simulate(
         )
 
 
-def _structural_arrays(model: SpringModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ends and rest lengths of the structural springs (for the frames' max_stretch)."""
-    structural = np.flatnonzero(structural_mask(model))
-    sa = np.ascontiguousarray(model.springs[structural, 0], dtype=np.int64)
-    sb = np.ascontiguousarray(model.springs[structural, 1], dtype=np.int64)
-    srest = np.ascontiguousarray(np.maximum(model.rest_lengths[structural], 1e-300), dtype=np.float64)
-    return sa, sb, srest
+@dataclass(frozen=True)
+class _Structural:
+    """The structural springs of a model, for the frames' max_stretch and the stretch guard.
+
+    a, b: spring ends (S,) int64; rest: rest lengths (S,) (at least 1e-300, so a zero-length
+    spring gives a huge ratio, never a division by zero); guard_rest: rest lengths raised to
+    `SLIVER_FRACTION` of their median, or None when no spring is that short.
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    rest: np.ndarray
+    guard_rest: np.ndarray | None
+
+    @classmethod
+    def of(cls, model: SpringModel) -> _Structural:
+        structural = np.flatnonzero(structural_mask(model))
+        a = np.ascontiguousarray(model.springs[structural, 0], dtype=np.int64)
+        b = np.ascontiguousarray(model.springs[structural, 1], dtype=np.int64)
+        rest = np.ascontiguousarray(np.maximum(model.rest_lengths[structural], 1e-300), dtype=np.float64)
+        guard_rest = None
+        if rest.size:
+            floor = SLIVER_FRACTION * float(np.median(rest))
+            if float(rest.min()) < floor:
+                guard_rest = np.maximum(rest, floor)
+        return cls(a, b, rest, guard_rest)
+
+    def guarded_stretch(self, positions: np.ndarray, stretch: float) -> float:
+        """The stretch the guard judges, given the exact `stretch` of these positions: the same
+        unless slivers are measured against their floor (a second pass, only when over the bound)."""
+        if self.guard_rest is None:
+            return stretch
+        return float(kernels.max_ratio(positions, self.a, self.b, self.guard_rest))
