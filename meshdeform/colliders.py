@@ -62,7 +62,8 @@ class Plane(Shape):
         self.normal = _unit(normal)
 
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return (points - self.point) @ self.normal, np.broadcast_to(self.normal, points.shape)
+        # a writable (N, 3) copy, not a broadcast view: the swept test overwrites rows of it
+        return (points - self.point) @ self.normal, np.tile(self.normal, (points.shape[0], 1))
 
     @property
     def center(self) -> np.ndarray:

@@ -169,3 +169,18 @@ def test_animated_collider_pushes_cloth_and_nothing_gets_inside() -> None:
         assert np.linalg.norm(frame.positions - center, axis=1).min() >= 0.26 - 1e-9, frame.index
         top.append(frame.positions[:, 1].max())
     assert top[-1] > 0.8  # carried up on the rising ball
+
+
+def test_static_ground_handles_a_vertex_that_crossed_it_within_a_substep() -> None:
+    """A vertex that starts the substep below a static ground and ends above it is still swept-tested
+    (the plane's normals must be a writable per-vertex array, not a broadcast view)."""
+    mesh = sheet(n=2, size=1.0, height=0.0)
+    model = SpringModel.from_mesh(mesh)
+    state = State.at_rest(model)
+    state.previous[:] = state.positions
+    state.previous[:, 1] = -0.5
+    state.positions[:, 1] = 0.5
+    ground = Collider(Plane((0, 0, 0), (0, 1, 0)), friction=0.0, thickness=0.01)
+    ground.project(model, state, time=0.1, dt=0.01)
+    assert np.all(np.isfinite(state.positions))
+    assert np.all(state.positions[:, 1] >= 0.01 - 1e-12)
