@@ -30,7 +30,16 @@ from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.geometry import PolygonCleanup, clean_polygons, corner_normals
 from meshdeform.mesh import Mesh
 
-__all__ = ["MaterialLibrary", "ObjWriter", "material_libraries", "read_mesh_bytes", "read_obj", "write_obj"]
+__all__ = [
+    "MaterialLibrary",
+    "ObjWriter",
+    "c_float",
+    "material_libraries",
+    "parse_numbers",
+    "read_mesh_bytes",
+    "read_obj",
+    "write_obj",
+]
 
 PathLike = str | os.PathLike[str]
 
@@ -86,7 +95,16 @@ def read_mesh_bytes(path: PathLike) -> bytes:
         raise MeshLoadError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
-def _c_float(token: str) -> float | None:
+def parse_numbers(data: bytes, count: int) -> np.ndarray | None:
+    """`count` whitespace-separated C decimal numbers parsed in one C call (float64), or None if
+    any token is not one or the count differs (shared by the OBJ and ascii PLY readers)."""
+    if count == 0:
+        return np.zeros(0)
+    values = _parse_all(data, np.float64)
+    return values if values is not None and values.shape[0] == count else None
+
+
+def c_float(token: str) -> float | None:
     """A token as a C decimal number (NaN / infinity included), or None if it is not one."""
     if _C_FLOAT.fullmatch(token):
         return float(token.split("(")[0])
@@ -497,7 +515,7 @@ class _Reader:
             tokens = _COMMENT.sub("", line).split()[1:]
             counts[j] = len(tokens)
             for token in tokens:
-                value = _c_float(token)
+                value = c_float(token)
                 if value is None:
                     raise self.fail(
                         int(lines.numbers[j]), f"cannot parse '{_short(token, 24)}' as a number ({what})"
