@@ -429,12 +429,23 @@ def test_writer_rejects_bad_input(tmp_path: Path) -> None:
 
 def test_obj_colours_written_as_uchar(tmp_path: Path) -> None:
     mesh = _mixed_mesh()
-    colors = np.tile([1.0, 0.5, np.nan], (5, 1))
+    colors = np.tile([1.0, 0.5, 0.0], (5, 1))
     colored = Mesh(positions=mesh.positions, face_indices=mesh.face_indices, face_offsets=mesh.face_offsets,
                    vertex_properties={"color": colors})  # fmt: skip
     write_ply(tmp_path / "c.ply", colored)
     back = read_ply(tmp_path / "c.ply")
     assert back.vertex_properties["color"].tolist() == [[255, 128, 0]] * 5
+
+
+def test_nan_colour_is_an_export_error_not_a_black_vertex(tmp_path: Path) -> None:
+    mesh = _mixed_mesh()
+    colors = np.tile([1.0, 0.5, 0.25], (5, 1))
+    colors[3, 2] = np.nan
+    colored = Mesh(positions=mesh.positions, face_indices=mesh.face_indices, face_offsets=mesh.face_offsets,
+                   vertex_properties={"color": colors})  # fmt: skip
+    with pytest.raises(ExportError, match=r"vertex colours, row 3: not finite"):
+        write_ply(tmp_path / "c.ply", colored)
+    assert not list(tmp_path.iterdir())
 
 
 def test_clashing_property_names_written_once(tmp_path: Path) -> None:

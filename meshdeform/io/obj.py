@@ -38,6 +38,7 @@ __all__ = [
     "parse_numbers",
     "read_mesh_bytes",
     "read_obj",
+    "require_finite",
     "write_obj",
 ]
 
@@ -429,6 +430,8 @@ class _Reader:
         cum = {k: np.cumsum(kinds == k, dtype=np.int64) for k in (1, 2, 3, 4)}
         before = {k: cum[k][face_rows] for k in (1, 2, 3)}
         sizes, v_raw, vt_raw, vn_raw = self._parse_faces(f_lines)
+        if counts[3] and normals is None:  # dropped as non-finite (with a warning): so are the references
+            vn_raw = None
         n_faces = sizes.shape[0]
         offsets = np.zeros(n_faces + 1, dtype=np.int64)
         np.cumsum(sizes, out=offsets[1:])
@@ -589,13 +592,21 @@ class _Reader:
             out[has, k] = values[starts[has] + k]
         return out
 
-    def _parse_normals(self, lines: _Lines) -> np.ndarray:
+    def _parse_normals(self, lines: _Lines) -> np.ndarray | None:
+        """The `vn` normals (N, 3), or None (with a warning) when one is not finite: the writers
+        recompute normals from the positions, so they are dropped as dangling ones are."""
         values, counts = self._rows(lines, b"vn", "normal")
         bad = np.flatnonzero(counts != 3)
         if bad.size:
             j = int(bad[0])
             raise self.fail(int(lines.numbers[j]), f"a normal (vn) needs 3 values, this one has {int(counts[j])}")
-        self._refuse_nonfinite(lines, values, counts, "normal")
+        bad = ~np.isfinite(values.reshape(-1, 3)).all(axis=1)
+        if bad.any():
+            self.warnings.append(
+                f"dropped all normals: {int(bad.sum())} of {len(lines)} are not finite (first at line "
+                f"{int(lines.numbers[int(np.flatnonzero(bad)[0])])})"
+            )
+            return None
         return values.reshape(-1, 3)
 
     def _refuse_nonfinite(self, lines: _Lines, values: np.ndarray, counts: np.ndarray, what: str) -> None:
@@ -837,6 +848,20 @@ def read_obj(path: PathLike) -> Mesh:
 # --------------------------------------------------------------------------- writer
 
 
+def require_finite(values: np.ndarray, what: str, path: PathLike | None = None) -> None:
+    """ExportError naming the first row of `values` (rows first) that holds a NaN or infinity:
+    the writers never put a non-finite number into a file."""
+    values = np.asarray(values)
+    if values.dtype.kind != "f" or values.size == 0:
+        return
+    bad = ~np.isfinite(values.reshape(values.shape[0], -1)).all(axis=1)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        where = f"{path}: " if path is not None else ""
+        shown = values[row].tolist()
+        raise ExportError(f"{where}{what}, row {row}: not finite ({shown}); nothing non-finite is written")
+
+
 def _format_rows(prefix: str, values: np.ndarray, fmt: str = "%r") -> str:
     """`prefix v0 v1 ...` lines for a 2-D float array, `%r` = shortest exact round trip."""
     values = np.asarray(values, dtype=np.float64)
@@ -866,8 +891,12 @@ class ObjWriter:
                 if np.issubdtype(np.asarray(self._colors).dtype, np.integer):
                     colors = colors / 255.0
             self._colors = colors
+        if self._colors is not None:
+            require_finite(self._colors, "vertex colours")
         self._has_normals = mesh.normals is not None and mesh.face_normal_indices is not None
         self._has_uvs = mesh.uvs is not None and mesh.face_uv_indices is not None
+        if self._has_uvs:
+            require_finite(mesh.uvs, "texture coordinates")
         head = [f"# written by meshdeform: {mesh.vertex_count} vertices, {mesh.face_count} polygons\n"]
         statements = list(mesh.statements)
         head.extend(text + "\n" for count, text in statements if count <= 0)
@@ -929,16 +958,21 @@ class ObjWriter:
             out.append("l " + " ".join(map(str, flat[offs[k] : offs[k + 1]])) + "\n")
         return "".join(out)
 
-    def _frame_parts(self, positions: np.ndarray | None) -> list[bytes]:
+    def _frame_parts(self, positions: np.ndarray | None, path: PathLike | None = None) -> list[bytes]:
         mesh = self.mesh
         pos = mesh.positions if positions is None else np.asarray(positions, dtype=np.float64)
         if pos.shape != mesh.positions.shape:
             raise ExportError(f"positions have shape {pos.shape}, the mesh needs {mesh.positions.shape}")
+        require_finite(pos, "vertex positions", path)
         if self._colors is not None:
             v_text = _format_rows("v", np.hstack([pos, self._colors]))
         else:
             v_text = _format_rows("v", pos)
-        vn_text = _format_rows("vn", corner_normals(mesh, pos), "%.7g") if self._has_normals else ""
+        vn_text = ""
+        if self._has_normals:
+            normals = corner_normals(mesh, pos)
+            require_finite(normals, "normals", path)
+            vn_text = _format_rows("vn", normals, "%.7g")
         return [self._head, v_text.encode("ascii"), self._uv_text, vn_text.encode("ascii"), self._tail]
 
     def text(self, positions: np.ndarray | None = None) -> str:
@@ -946,8 +980,8 @@ class ObjWriter:
         return b"".join(self._frame_parts(positions)).decode("utf-8")
 
     def write(self, path: PathLike, positions: np.ndarray | None = None) -> None:
-        """Write one frame to `path` atomically."""
-        parts = self._frame_parts(positions)
+        """Write one frame to `path` atomically (ExportError, and no file, if anything is not finite)."""
+        parts = self._frame_parts(positions, path)
         with atomic_open(path, "wb") as handle:
             for part in parts:
                 handle.write(part)

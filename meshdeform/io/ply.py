@@ -32,7 +32,7 @@ import numpy as np
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.geometry import clean_polygons, corner_normals, vertex_normals
-from meshdeform.io.obj import c_float, parse_numbers, read_mesh_bytes
+from meshdeform.io.obj import c_float, parse_numbers, read_mesh_bytes, require_finite
 from meshdeform.mesh import Mesh
 
 __all__ = ["PLY_TYPES", "PlyWriter", "read_ply", "write_ply"]
@@ -734,9 +734,10 @@ class PlyWriter:
 
         self._vdtype = np.dtype([(f"c{i}", self._order + code) for i, (_, code, _) in enumerate(columns)])
         self._static = np.zeros(n_v, dtype=self._vdtype)
-        for i, (_, _, values) in enumerate(columns):
+        for i, (name, _, values) in enumerate(columns):
             if values is not None:
                 self._static[f"c{i}"] = values
+                require_finite(self._static[f"c{i}"], f"vertex property '{name}'")  # as written (float32 too)
 
         face_columns = self._property_columns(mesh.face_properties, mesh.face_count, "face", set(_FACE_RESERVED))
         sizes = mesh.face_sizes
@@ -746,7 +747,10 @@ class PlyWriter:
         lines += [f"property {_PLY_NAME[code]} {name}" for name, code, _ in columns]
         lines += [f"element face {mesh.face_count}", f"property list {_PLY_NAME[count_code]} int vertex_indices"]
         if uv_corner is not None:
+            require_finite(uv_corner.astype(np.float32), "texture coordinates (per corner)")
             lines.append(f"property list {_PLY_NAME[uv_count_code]} float texcoord")
+        for name, code, values in face_columns:
+            require_finite(np.asarray(values).astype(code), f"face property '{name}'")
         lines += [f"property {_PLY_NAME[code]} {name}" for name, code, _ in face_columns]
         lines.append("end_header")
         self._header = ("\n".join(lines) + "\n").encode("latin-1", "replace")  # names as read (Latin-1)
@@ -772,7 +776,8 @@ class PlyWriter:
                 if all(c in props for c in channels[:3]):
                     continue
                 if values.dtype.kind == "f":  # OBJ colours are 0..1
-                    values = np.round(np.clip(np.nan_to_num(values, nan=0.0), 0.0, 1.0) * 255).astype(np.uint8)
+                    require_finite(values, "vertex colours")
+                    values = np.round(np.clip(values, 0.0, 1.0) * 255).astype(np.uint8)
                 for k in range(min(values.shape[1], 4)):
                     out.append((channels[k], _ply_code(values.dtype, values[:, k]), values[:, k]))
                 continue
@@ -844,10 +849,13 @@ class PlyWriter:
             out.append(" ".join(parts))
         return ("\n".join(out) + ("\n" if out else "")).encode("ascii")
 
-    def _vertex_rows(self, positions: np.ndarray) -> np.ndarray:
+    def _vertex_rows(self, positions: np.ndarray, path: PathLike | None) -> np.ndarray:
+        """The vertex records of one frame; ExportError if a position or normal is not finite as
+        written (a float64 beyond float32's range would be infinite in a `float` column)."""
         rows = self._static.copy()
         for i in range(3):
             rows[f"c{i}"] = positions[:, i]
+        require_finite(np.stack([rows[f"c{i}"] for i in range(3)], axis=1), "vertex positions", path)
         if self._normals is not None:
             if self._normals == "corner":
                 normals = corner_normals(self.mesh, positions)
@@ -855,15 +863,16 @@ class PlyWriter:
                 normals = vertex_normals(self.mesh, positions)
             for i in range(3):
                 rows[f"c{3 + i}"] = normals[:, i]
+            require_finite(normals, "normals", path)
         return rows
 
-    def data(self, positions: np.ndarray | None = None) -> bytes:
-        """The bytes of the PLY file of one frame."""
+    def data(self, positions: np.ndarray | None = None, path: PathLike | None = None) -> bytes:
+        """The bytes of the PLY file of one frame (`path` only names the file in errors)."""
         mesh = self.mesh
         pos = mesh.positions if positions is None else np.asarray(positions, dtype=np.float64)
         if pos.shape != mesh.positions.shape:
             raise ExportError(f"positions have shape {pos.shape}, the mesh needs {mesh.positions.shape}")
-        rows = self._vertex_rows(pos)
+        rows = self._vertex_rows(pos, path)
         if self.encoding != "ascii":
             return self._header + rows.tobytes() + self._faces
         columns = [rows[f"c{i}"] for i in range(len(self._vertex_columns))]
@@ -874,8 +883,8 @@ class PlyWriter:
         return self._header + text.encode("ascii") + self._faces
 
     def write(self, path: PathLike, positions: np.ndarray | None = None) -> None:
-        """Write one frame to `path` atomically."""
-        payload = self.data(positions)
+        """Write one frame to `path` atomically (ExportError, and no file, if anything is not finite)."""
+        payload = self.data(positions, path)
         with atomic_open(path, "wb") as handle:
             handle.write(payload)
 
