@@ -290,7 +290,8 @@ def test_truncated_binary_files(tmp_path: Path) -> None:
          b"end_header\n0 0 0\n1 0\n", r"element 'vertex' row 1: line 9 holds 2 values, too few for its properties "
          r"\(x y z\)$"),
         (b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\nproperty float x\n"
-         b"property float y\nproperty float z\nend_header\n" + b"\0" * 24, r"element 'vertex' row 2: the file ends early"),
+         b"property float y\nproperty float z\nend_header\n" + b"\0" * 24,
+         r"element 'vertex' row 2: the file ends early"),
         (b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
          b"property float z\nelement face 1000000000\nproperty list uchar int vertex_indices\nend_header\n"
          + b"\0" * 36 + b"\x03" + b"\0" * 12, r"element 'face'.*ends early"),

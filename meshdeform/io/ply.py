@@ -853,8 +853,9 @@ class PlyWriter:
         """The vertex records of one frame; ExportError if a position or normal is not finite as
         written (a float64 beyond float32's range would be infinite in a `float` column)."""
         rows = self._static.copy()
-        for i in range(3):
-            rows[f"c{i}"] = positions[:, i]
+        with np.errstate(over="ignore"):  # beyond float32: infinite, refused just below
+            for i in range(3):
+                rows[f"c{i}"] = positions[:, i]
         require_finite(np.stack([rows[f"c{i}"] for i in range(3)], axis=1), "vertex positions", path)
         if self._normals is not None:
             if self._normals == "corner":
