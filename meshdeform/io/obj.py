@@ -5,9 +5,12 @@ lines of each keyword are cut out in one go, and their numbers parsed in one C c
 lines at once; all faces at once when every corner has the same `v/vt/vn` pattern, which is
 checked per corner). Only unusual lines (statements, leading whitespace) go through Python. A
 slow line-by-line path takes over when the fast one does not apply; it is also what names the line
-of an error. Broken input raises `MeshLoadError` with one line `"<path>: line <n>: <what>"`;
-repairable oddities (degenerate polygons, dangling normal or UV references) are repaired and
-reported in `Mesh.warnings`.
+of an error. Broken input raises `MeshLoadError` with one line `"<path>: line <n>: <what>"` (or `byte <n>`
+for a file that is not text, whose bytes are never quoted); repairable oddities (degenerate
+polygons, dangling or non-finite normals, UV references, colours on only some vertex lines,
+`mtllib` names outside the mesh's folder, which are not copied) are repaired and reported in
+`Mesh.warnings`. Numbers are C decimal numbers (`1_000` is refused), NaN and infinity are refused
+for positions, colours and UVs, and a file whose every face is malformed is refused.
 
 Writing precomputes everything that does not change between frames (faces, `vt`, statements),
 so a frame costs only the formatting of `v` (and recomputed `vn`) lines.

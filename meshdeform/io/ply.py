@@ -14,8 +14,13 @@ Why not trimesh or meshio: trimesh rejects files whose `face` element comes befo
   its own name); other vertex / face scalars go to `vertex_properties` / `face_properties` with
   their types; other list properties and other elements are skipped.
 
-Errors are one line: `"<path>: <element> row <r>: <what>"` or `"<path>: line <n>: <what>"` for
-the header.
+Reads are exact or refused: an ascii row must hold exactly the values its properties declare
+(one row per line, blank lines skipped, nothing after the last declared row), a binary body
+must be exactly as long as the header's counts and types say (one trailing line end is
+tolerated, as some writers add it), numbers follow C syntax, and NaN / infinite values of kept
+properties are refused (non-finite normals are dropped with a warning: the writers recompute
+them). Errors are one line: `"<path>: element '<name>' row <r>: <what>"`, `"<path>: line <n>: <what>"`
+(header, rows beyond the declared ones) or `"<path>: byte <n>: <what>"` (binary).
 """
 
 from __future__ import annotations
