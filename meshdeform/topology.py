@@ -7,8 +7,9 @@ is a Numba kernel.
 
 Definitions (DESIGN.md section 2):
 - structural: every unique edge of the polygons (and of polylines);
-- shear: every diagonal of polygons with 4 or more corners, and for two triangles sharing
-  an interior manifold edge the pair of vertices opposite that edge;
+- shear: every diagonal of polygons with 4 to 8 corners (of larger polygons the diagonals of
+  their fan triangulation, so the count stays linear), and for two triangles sharing an
+  interior manifold edge the pair of vertices opposite that edge;
 - bending: for a vertex v whose structural neighbours a and b continue each other most
   straightly (each is the other's best continuation through v, angle >= 150 degrees at rest),
   the spring a-b, unless a-b already is a structural or shear spring.
@@ -126,12 +127,25 @@ def structural_pairs(mesh: Mesh, vertex_map: np.ndarray, n: int) -> np.ndarray:
     return _unique_pairs(np.concatenate([s, ls]), np.concatenate([e, le]), n)
 
 
+#: polygons with up to this many corners get every diagonal as a shear spring (at most 20 each);
+#: larger ones get the diagonals of their fan triangulation, so the work stays linear in the corners
+FULL_DIAGONAL_CORNERS = 8
+
+
 def _polygon_diagonals(mesh: Mesh, vertex_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """All diagonals of polygons with 4+ corners, grouped by polygon size (few distinct sizes)."""
+    """Shear diagonals of polygons with 4+ corners, as (start, end) welded vertices.
+
+    A polygon of k <= FULL_DIAGONAL_CORNERS corners gets all k (k - 3) / 2 diagonals (a quad its
+    two, a hexagon nine), grouped by size (at most five sizes). A larger polygon gets the k - 3
+    diagonals of the fan triangulation `Mesh.triangles` uses, corner 0 to corners 2 .. k - 2:
+    that still triangulates (and so braces) the polygon in its plane, in O(k) springs and time,
+    where all diagonals would be quadratic (200 million springs for a 20,000-corner cap).
+    """
     sizes = mesh.face_sizes
     out_a: list[np.ndarray] = []
     out_b: list[np.ndarray] = []
-    for k in np.unique(sizes[sizes >= 4]).tolist():
+    small = sizes[(sizes >= 4) & (sizes <= FULL_DIAGONAL_CORNERS)]
+    for k in np.unique(small).tolist():
         polys = np.flatnonzero(sizes == k)
         corners = mesh.face_offsets[polys][:, None] + np.arange(k)[None, :]
         verts = vertex_map[mesh.face_indices[corners]]  # (P, k)
@@ -139,6 +153,14 @@ def _polygon_diagonals(mesh: Mesh, vertex_map: np.ndarray) -> tuple[np.ndarray, 
         diag = (j - i != 1) & (j - i != k - 1)
         out_a.append(verts[:, i[diag]].ravel())
         out_b.append(verts[:, j[diag]].ravel())
+    large = np.flatnonzero(sizes > FULL_DIAGONAL_CORNERS)
+    if large.shape[0]:
+        per_polygon = sizes[large] - 3
+        first = mesh.face_offsets[large]
+        before = np.cumsum(per_polygon) - per_polygon
+        local = np.arange(int(per_polygon.sum()), dtype=np.int64) - np.repeat(before, per_polygon)
+        out_a.append(vertex_map[mesh.face_indices[np.repeat(first, per_polygon)]])
+        out_b.append(vertex_map[mesh.face_indices[np.repeat(first, per_polygon) + 2 + local]])
     if not out_a:
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty

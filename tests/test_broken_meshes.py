@@ -8,9 +8,9 @@ invalid-relative-vertex-index.obj       MeshLoadError "line 1: face index -4 out
 issue-140-zero-face-idx.obj             MeshLoadError "line 16: face index 0 (OBJ        0 in the v slot is a broken
                                         indices start at 1)"                             exporter (0 only in vt / vn
                                                                                          slots would drop those)
-invalid-face-definition.obj             loads: 8 V, 0 F; warnings "dropped 2 faces       1- and 2-vertex faces are
-                                        with fewer than 3 vertices (first at line 15)"   dropped; vertices alone
-                                        and "... only vertices"                          are a (useless) valid mesh
+invalid-face-definition.obj             MeshLoadError "line 15: no usable face: all 2    every face is malformed:
+                                        faces have fewer than 3 distinct vertices"       loading the points alone
+                                                                                         would hide the breakage
 test-nan.obj                            MeshLoadError "line 12: non-finite vertex        positions must be finite:
                                         position"                                        nan, inf, 1.#IND alike
 malformed.obj                           MeshLoadError "line 23: face index 12 out of     a missing vertex cannot be
@@ -33,7 +33,8 @@ box.nonmanifold.obj                     loads: 8 V, 13 F, no warning            
                                                                                          topology builder's business
 box.duplicates-nonmanifold.obj          loads: 12 V, 7 F, no warning                     duplicates are welded by
                                                                                          the topology, layout kept
-nancolor.obj                            loads: 8 V, 12 F, NaN colour kept, no warning    only positions must be finite
+nancolor.obj                            MeshLoadError "line 7: non-finite vertex         nothing non-finite is
+                                        colour"                                          read (or written)
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ DECISIONS: dict[str, tuple] = {
     "invalid-relative-vertex-index.obj": ("error", r"line 1: face index -4 out of range"),
     "issue-140-zero-face-idx.obj": ("error", r"line 16: face index 0 \(OBJ indices start at 1\)"),
     "invalid-face-definition.obj": (
-        "load", 8, 0, ["dropped 2 faces with fewer than 3 vertices (first at line 15)", "only vertices"]
+        "error", r"line 15: no usable face: all 2 faces have fewer than 3 distinct vertices"
     ),
     "test-nan.obj": ("error", r"line 12: non-finite vertex position"),
     "malformed.obj": ("error", r"line 23: face index 12 out of range \(8 vertices\)"),
@@ -75,7 +76,7 @@ DECISIONS: dict[str, tuple] = {
     "box-incomplete-normals.obj": ("load", 8, 6, ["dropped all normal references: 20 of 24 face corners"]),
     "box.nonmanifold.obj": ("load", 8, 13, []),
     "box.duplicates-nonmanifold.obj": ("load", 12, 7, []),
-    "nancolor.obj": ("load", 8, 12, []),
+    "nancolor.obj": ("error", r"line 7: non-finite vertex colour"),
 }  # fmt: skip
 
 
@@ -123,11 +124,6 @@ def test_negative_indices_resolved() -> None:
     assert mesh.polygons()[0].tolist() == [0, 4, 6, 2]
     assert mesh.face_uv_indices[:4].tolist() == [1, 2, 2, 3]
     assert mesh.face_normal_indices[:4].tolist() == [0, 0, 0, 0]
-
-
-def test_nancolor_keeps_nan_colour() -> None:
-    color = load(MESHES / "broken" / "nancolor.obj").vertex_properties["color"]
-    assert np.isnan(color[6]).all() and np.isfinite(np.delete(color, 6, axis=0)).all()
 
 
 def _variants(data: bytes, seed: int) -> list[bytes]:

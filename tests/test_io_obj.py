@@ -198,13 +198,15 @@ def test_all_corner_patterns(tmp_path: Path) -> None:
 
 
 def test_vertex_w_colours_and_vt_widths(tmp_path: Path) -> None:
+    """Colours on only some vertex lines are dropped (with a warning), never made up as NaN."""
     text = "v 0 0 0 1\nv 1 0 0 0.5 0.25 0.125\nv 1 1 0\nvt 0.5\nvt 0.1 0.2 0.3\nf 1/1 2/2 3/2\n"
     mesh = read_obj(_write(tmp_path, text))
     assert mesh.positions.tolist() == [[0, 0, 0], [1, 0, 0], [1, 1, 0]]
-    color = mesh.vertex_properties["color"]
-    assert color[1].tolist() == [0.5, 0.25, 0.125] and np.isnan(color[0]).all()
+    assert "color" not in mesh.vertex_properties
     assert mesh.uvs.tolist() == [[0.5, 0, 0], [0.1, 0.2, 0.3]]
-    assert any("no colour" in w for w in mesh.warnings)
+    assert mesh.warnings == ("dropped all vertex colours: 2 of 3 vertex lines have no colour (first at line 1)",)
+    every = read_obj(_write(tmp_path, "v 0 0 0 1 1 1\nv 1 0 0 0.5 0.25 0.125 1\nv 1 1 0 0 0 0\nf 1 2 3\n", "b.obj"))
+    assert every.vertex_properties["color"].tolist() == [[1, 1, 1], [0.5, 0.25, 0.125], [0, 0, 0]]
 
 
 def test_polylines(tmp_path: Path) -> None:
@@ -298,7 +300,7 @@ def test_vertices_only_loads_with_warning(tmp_path: Path) -> None:
         ("v 0 0 0\nl 1 5\n", r"line 2: line element index 5 out of range \(1 vertices\)"),
         ("# only a comment\n\n", r"no vertices, faces or lines"),
         ("<html><body>not a mesh</body></html>\n", r"line 1: not an OBJ file"),
-        ("v 0 0 0\nv 1 0 0\x00\x01\x02\nf 1 2 3\n", r"line 2: binary data"),
+        ("v 0 0 0\nv 1 0 0\x00\x01\x02\nf 1 2 3\n", r"byte 15: not a text OBJ file \(binary data\)$"),
         ("   \n\t\n", r"only whitespace"),
     ],
 )
@@ -497,7 +499,7 @@ def test_bulk_and_line_by_line_paths_agree(monkeypatch: pytest.MonkeyPatch) -> N
     """The NumPy bulk parse and the slow line-by-line parse give the same mesh for every real OBJ."""
     import meshdeform.io.obj as obj_module
 
-    names = sorted(REAL_OBJ) + ["negative_indices.obj", "cube-minimal-degenerated.obj", "nancolor.obj"]
+    names = sorted(REAL_OBJ) + ["negative_indices.obj", "cube-minimal-degenerated.obj", "box-incomplete-normals.obj"]
     paths = [MESHES / ("real" if n in REAL_OBJ else "broken") / n for n in names]
     fast = [read_obj(p) for p in paths]
     monkeypatch.setattr(obj_module, "_parse_all", lambda data, dtype: None)
@@ -509,6 +511,9 @@ def test_bulk_and_line_by_line_paths_agree(monkeypatch: pytest.MonkeyPatch) -> N
             assert (x is None) == (y is None), (name, field)
             if x is not None:
                 assert np.array_equal(x, y, equal_nan=True), (name, field)
+        assert a.vertex_properties.keys() == b.vertex_properties.keys(), name
+        for key, values in a.vertex_properties.items():
+            assert np.array_equal(values, b.vertex_properties[key]), (name, key)
         assert a.statements == b.statements and a.warnings == b.warnings, name
 
 

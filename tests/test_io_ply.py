@@ -285,11 +285,13 @@ def test_truncated_binary_files(tmp_path: Path) -> None:
          b"3 0 1 4143600380\n", r"element 'face' row 1: vertex index 4143600380 out of range \(3 vertices\)"),
         (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
          b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1\n",
-         r"element 'face' row 0: the file ends early"),
+         r"element 'face' row 0: the list 'vertex_indices' declares 3 values, line 13 holds only 2 after it$"),
         (b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
-         b"end_header\n0 0 0\n1 0\n", r"element 'vertex' row 1: the file ends early"),
+         b"end_header\n0 0 0\n1 0\n", r"element 'vertex' row 1: line 9 holds 2 values, too few for its properties "
+         r"\(x y z\)$"),
         (b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\nproperty float x\n"
-         b"property float y\nproperty float z\nend_header\n" + b"\0" * 24, r"element 'vertex': the file ends early"),
+         b"property float y\nproperty float z\nend_header\n" + b"\0" * 24,
+         r"element 'vertex' row 2: the file ends early"),
         (b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
          b"property float z\nelement face 1000000000\nproperty list uchar int vertex_indices\nend_header\n"
          + b"\0" * 36 + b"\x03" + b"\0" * 12, r"element 'face'.*ends early"),
@@ -428,12 +430,23 @@ def test_writer_rejects_bad_input(tmp_path: Path) -> None:
 
 def test_obj_colours_written_as_uchar(tmp_path: Path) -> None:
     mesh = _mixed_mesh()
-    colors = np.tile([1.0, 0.5, np.nan], (5, 1))
+    colors = np.tile([1.0, 0.5, 0.0], (5, 1))
     colored = Mesh(positions=mesh.positions, face_indices=mesh.face_indices, face_offsets=mesh.face_offsets,
                    vertex_properties={"color": colors})  # fmt: skip
     write_ply(tmp_path / "c.ply", colored)
     back = read_ply(tmp_path / "c.ply")
     assert back.vertex_properties["color"].tolist() == [[255, 128, 0]] * 5
+
+
+def test_nan_colour_is_an_export_error_not_a_black_vertex(tmp_path: Path) -> None:
+    mesh = _mixed_mesh()
+    colors = np.tile([1.0, 0.5, 0.25], (5, 1))
+    colors[3, 2] = np.nan
+    colored = Mesh(positions=mesh.positions, face_indices=mesh.face_indices, face_offsets=mesh.face_offsets,
+                   vertex_properties={"color": colors})  # fmt: skip
+    with pytest.raises(ExportError, match=r"vertex colours, row 3: not finite"):
+        write_ply(tmp_path / "c.ply", colored)
+    assert not list(tmp_path.iterdir())
 
 
 def test_clashing_property_names_written_once(tmp_path: Path) -> None:

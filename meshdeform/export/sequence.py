@@ -17,24 +17,10 @@ import numpy as np
 
 from meshdeform.atomic import atomic_path
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, frame_file_name
+from meshdeform.io.obj import material_libraries
 from meshdeform.mesh import Mesh
 
 FOLDER = "frames"
-
-
-def material_libraries(mesh: Mesh) -> list[Path]:
-    """The existing `.mtl` files an OBJ's `mtllib` statements name, next to its source file."""
-    if mesh.source is None:
-        return []
-    found: list[Path] = []
-    for _, text in mesh.statements:
-        words = text.split()
-        if words and words[0] == "mtllib":
-            for name in words[1:]:
-                candidate = Path(mesh.source).parent / name
-                if candidate.is_file() and candidate not in found:
-                    found.append(candidate)
-    return found
 
 
 class FrameSequenceExporter(BaseExporter):
@@ -65,11 +51,18 @@ class FrameSequenceExporter(BaseExporter):
 
 
 def copy_material_libraries(mesh: Mesh, folder: Path) -> list[Path]:
-    """Copy the OBJ's material libraries beside the frames so `mtllib` still resolves."""
+    """Copy the OBJ's material libraries beside the frames so `mtllib` still resolves.
+
+    Only libraries inside the mesh's folder are copied (`meshdeform.io.obj.material_libraries`:
+    absolute names, `..` and links out of the folder are refused; the reader has already put
+    them in `Mesh.warnings`, so they appear in the report). The copy reads the resolved file,
+    never a link, and texture paths inside the .mtl are left as they are and not followed.
+    """
+    libraries, _ = material_libraries(mesh.source, mesh.statements)
     copied = []
-    for library in material_libraries(mesh):
+    for library in libraries:
         target = folder / library.name
         with atomic_path(target) as tmp:
-            shutil.copyfile(library, tmp)
+            shutil.copyfile(library.path, tmp, follow_symlinks=False)
         copied.append(target)
     return copied

@@ -5,9 +5,12 @@ lines of each keyword are cut out in one go, and their numbers parsed in one C c
 lines at once; all faces at once when every corner has the same `v/vt/vn` pattern, which is
 checked per corner). Only unusual lines (statements, leading whitespace) go through Python. A
 slow line-by-line path takes over when the fast one does not apply; it is also what names the line
-of an error. Broken input raises `MeshLoadError` with one line `"<path>: line <n>: <what>"`;
-repairable oddities (degenerate polygons, dangling normal or UV references) are repaired and
-reported in `Mesh.warnings`.
+of an error. Broken input raises `MeshLoadError` with one line `"<path>: line <n>: <what>"` (or `byte <n>`
+for a file that is not text, whose bytes are never quoted); repairable oddities (degenerate
+polygons, dangling or non-finite normals, UV references, colours on only some vertex lines,
+`mtllib` names outside the mesh's folder, which are not copied) are repaired and reported in
+`Mesh.warnings`. Numbers are C decimal numbers (`1_000` is refused), NaN and infinity are refused
+for positions, colours and UVs, and a file whose every face is malformed is refused.
 
 Writing precomputes everything that does not change between frames (faces, `vt`, statements),
 so a frame costs only the formatting of `v` (and recomputed `vn`) lines.
@@ -19,7 +22,9 @@ import codecs
 import os
 import re
 import warnings
+from collections.abc import Iterable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -28,7 +33,17 @@ from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.geometry import PolygonCleanup, clean_polygons, corner_normals
 from meshdeform.mesh import Mesh
 
-__all__ = ["ObjWriter", "read_mesh_bytes", "read_obj", "write_obj"]
+__all__ = [
+    "MaterialLibrary",
+    "ObjWriter",
+    "c_float",
+    "material_libraries",
+    "parse_numbers",
+    "read_mesh_bytes",
+    "read_obj",
+    "require_finite",
+    "write_obj",
+]
 
 PathLike = str | os.PathLike[str]
 
@@ -44,6 +59,14 @@ _IGNORED_STATEMENTS = frozenset(
 )  # fmt: skip
 _KIND = {"v": 1, "vt": 2, "vn": 3, "f": 4}
 _MSVC_NONFINITE = re.compile(r"^[-+]?\d*\.?\d*#(IND|INF|QNAN|SNAN)\w*$", re.IGNORECASE)
+# OBJ numbers are C (strtod) decimal numbers: Python's float() and int() also take '1_000',
+# Unicode digits and surrounding spaces, which no OBJ writer produces and no other reader accepts.
+# strtod's nan / inf spellings are numbers too (refused later as non-finite, with the line).
+_C_FLOAT = re.compile(
+    r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf(?:inity)?|nan(?:\([0-9A-Za-z_]*\))?)",
+    re.IGNORECASE,
+)
+_C_INT = re.compile(r"[+-]?[0-9]+")
 _CONTROL_BYTES = bytes([*range(0x00, 0x09), *range(0x0E, 0x1A), *range(0x1B, 0x20)])
 _NOT_CONTROL = bytes(sorted(set(range(256)) - set(_CONTROL_BYTES)))
 _MISSING = np.iinfo(np.int64).min  # a corner without a vt / vn reference
@@ -76,6 +99,36 @@ def read_mesh_bytes(path: PathLike) -> bytes:
         raise MeshLoadError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
+def parse_numbers(data: bytes, count: int) -> np.ndarray | None:
+    """`count` whitespace-separated C decimal numbers parsed in one C call (float64), or None if
+    any token is not one or the count differs (shared by the OBJ and ascii PLY readers)."""
+    if count == 0:
+        return np.zeros(0)
+    values = _parse_all(data, np.float64)
+    return values if values is not None and values.shape[0] == count else None
+
+
+def c_float(token: str) -> float | None:
+    """A token as a C decimal number (NaN / infinity included), or None if it is not one."""
+    if _C_FLOAT.fullmatch(token):
+        return float(token.split("(")[0])
+    if _MSVC_NONFINITE.match(token):  # MSVC's printf of NaN / infinity
+        return float("nan")
+    return None
+
+
+def _c_int(token: str) -> int:
+    """A token as a C decimal integer clamped to +-_HUGE; ValueError if it is not one."""
+    if not _C_INT.fullmatch(token):
+        raise ValueError(token)
+    return max(-_HUGE, min(_HUGE, int(token)))
+
+
+def _line_of_value(counts: np.ndarray, index: int) -> int:
+    """The line (0-based, among lines holding `counts` values each) of flat value `index`."""
+    return int(np.searchsorted(np.cumsum(counts), index, side="right"))
+
+
 def _short(text: str, limit: int = 40) -> str:
     """A snippet of a line for an error message."""
     text = text.strip()
@@ -97,7 +150,9 @@ def _parse_all(data: bytes, dtype: type) -> np.ndarray | None:
 
 def _utf8(data: bytes, path: PathLike, notes: list[str]) -> bytes:
     """The file as UTF-8 bytes without BOM: BOM-marked UTF-8 / UTF-16 / UTF-32, UTF-16 without
-    BOM (every other byte zero), else UTF-8, else Latin-1 (with a note)."""
+    BOM (every other byte zero), else UTF-8, else Latin-1 (with a note). Bytes that are neither
+    (control bytes other than tab, line ends and DOS's end-of-file mark) are refused with their
+    offset, without quoting them: the file is not text at all."""
     for bom, encoding in (
         (codecs.BOM_UTF32_LE, "utf-32-le"),
         (codecs.BOM_UTF32_BE, "utf-32-be"),
@@ -113,8 +168,6 @@ def _utf8(data: bytes, path: PathLike, notes: list[str]) -> bytes:
                 line = body[: exc.start].decode(encoding, "replace").count("\n") + 1
                 raise MeshLoadError(f"{path}: line {line}: invalid {encoding.upper()} text") from None
             return body if encoding == "utf-8" else text.encode("utf-8")
-    if data.isascii() and b"\x00" not in data[:4096]:
-        return data
     head = data[:4096]
     if len(head) >= 4 and head.count(0) * 2 >= len(head) - 1:
         for encoding, zeros in (("utf-16-le", head[1::2]), ("utf-16-be", head[0::2])):
@@ -123,12 +176,69 @@ def _utf8(data: bytes, path: PathLike, notes: list[str]) -> bytes:
                     return data.decode(encoding).encode("utf-8")
                 except UnicodeDecodeError:
                     break
+    controls = data.translate(None, _NOT_CONTROL)
+    if controls:  # a PNG, ZIP, binary STL ... renamed: say so, never quote it
+        raise MeshLoadError(f"{path}: byte {data.find(controls[:1])}: not a text OBJ file (binary data)")
+    if data.isascii():
+        return data
     try:
         data.decode("utf-8")
         return data
     except UnicodeDecodeError:
         notes.append("the file is not valid UTF-8; it was read as Latin-1")
         return data.decode("latin-1").encode("utf-8")
+
+
+class MaterialLibrary(NamedTuple):
+    """An `mtllib` file safe to copy beside the frames: `name` (the file name the statement
+    gives, to copy it under) and `path` (the file, every symbolic link resolved)."""
+
+    name: str
+    path: Path
+
+
+_DRIVE = re.compile(r"[A-Za-z]:")
+
+
+def material_libraries(source: PathLike | None, statements: Iterable[tuple[int, str]]) -> tuple[
+    list[MaterialLibrary], list[str]
+]:  # fmt: skip
+    """The `mtllib` files of an OBJ read from `source` that may be copied, and those refused.
+
+    Only names inside the OBJ's folder count: an absolute name (`/x.mtl`, `C:\\x.mtl`), one
+    with a `..` part, or one that resolves (through symbolic links) outside the folder is refused,
+    so copying a mesh's materials never reads a file elsewhere. Libraries that do not exist are
+    simply absent (neither list). Texture paths inside an .mtl are not looked at. Returns
+    (copyable libraries, refused names each with the reason, as "'name' (reason)").
+    """
+    if source is None:
+        return [], []
+    folder = Path(source).parent
+    root = folder.resolve()
+    found: list[MaterialLibrary] = []
+    refused: list[str] = []
+    for _, text in statements:
+        words = text.split()
+        if not words or words[0] != "mtllib":
+            continue
+        for name in words[1:]:
+            parts = re.split(r"[\\/]", name)
+            if name.startswith(("/", "\\")) or _DRIVE.match(name) or Path(name).is_absolute():
+                refused.append(f"'{name}' (an absolute path)")
+                continue
+            if ".." in parts:
+                refused.append(f"'{name}' (it climbs out of the mesh's folder)")
+                continue
+            try:
+                real = (folder / name).resolve()
+            except (OSError, RuntimeError):  # a link loop
+                refused.append(f"'{name}' (its links cannot be resolved)")
+                continue
+            if not real.is_relative_to(root):
+                refused.append(f"'{name}' (a link to outside the mesh's folder)")
+            elif real.is_file() and all(lib.name != Path(name).name for lib in found):
+                found.append(MaterialLibrary(Path(name).name, real))
+    return found, refused
 
 
 class _Lines:
@@ -167,11 +277,12 @@ class _Reader:
         data = read_mesh_bytes(self.path)
         if not data or data.isspace():
             raise self.fail(None, "empty file" if not data else "the file holds only whitespace")
-        buf = _utf8(data, self.path, self.warnings).rstrip(b"\x1a")  # DOS end-of-file mark
-        controls = buf.translate(None, _NOT_CONTROL)
+        text = _utf8(data, self.path, self.warnings)
+        buf = text.rstrip(b"\x1a")  # DOS end-of-file mark
+        controls = b"" if text is data else buf.translate(None, _NOT_CONTROL)  # raw bytes: checked by _utf8
         if controls:
             line = buf.count(b"\n", 0, buf.find(controls[:1])) + 1
-            raise self.fail(line, "binary data (control bytes), not an OBJ text file")
+            raise self.fail(line, "not a text OBJ file (binary data)")
         if b"\r" in buf:
             buf = buf.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
         if b"\\" in buf:
@@ -179,6 +290,16 @@ class _Reader:
         if not buf.endswith(b"\n"):
             buf += b"\n"
         return self._build(buf)
+
+    def _check_material_libraries(self, statements: list[tuple[int, str]]) -> None:
+        """Warn (in Mesh.warnings, so in the report) about `mtllib` names the exporters will not copy."""
+        if not any(text.startswith("mtllib") for _, text in statements):
+            return
+        _, refused = material_libraries(self.path, statements)
+        if refused:
+            self.warnings.append(
+                f"material libraries outside the mesh's folder are not copied with the frames: {', '.join(refused)}"
+            )
 
     @staticmethod
     def _join_continuations(buf: bytes) -> bytes:
@@ -266,11 +387,12 @@ class _Reader:
                     first_unknown = (i + 1, stripped)
 
         counts = np.bincount(kinds, minlength=6)
+        self._check_material_libraries(statements)
         if not counts[1] and not counts[4] and not counts[5]:
             if first_unknown is not None:
                 raise self.fail(
                     first_unknown[0],
-                    f"not an OBJ file: no vertices, and the first unknown statement is '{_short(first_unknown[1])}'",
+                    "not an OBJ file: no vertex, face or line statement, and this line is not an OBJ statement",
                 )
             raise self.fail(None, "no vertices, faces or lines: nothing to load")
         if ignored:
@@ -311,6 +433,8 @@ class _Reader:
         cum = {k: np.cumsum(kinds == k, dtype=np.int64) for k in (1, 2, 3, 4)}
         before = {k: cum[k][face_rows] for k in (1, 2, 3)}
         sizes, v_raw, vt_raw, vn_raw = self._parse_faces(f_lines)
+        if counts[3] and normals is None:  # dropped as non-finite (with a warning): so are the references
+            vn_raw = None
         n_faces = sizes.shape[0]
         offsets = np.zeros(n_faces + 1, dtype=np.int64)
         np.cumsum(sizes, out=offsets[1:])
@@ -328,6 +452,11 @@ class _Reader:
         line_indices, line_offsets = self._parse_lines(l_items, cum[1], n_v)
 
         cleanup = clean_polygons(face_indices, offsets)
+        if n_faces and not cleanup.face_keep.any() and line_offsets.shape[0] == 1:
+            raise self.fail(
+                int(face_lines[0]),
+                f"no usable face: all {n_faces} faces have fewer than 3 distinct vertices (nothing but points left)",
+            )
         if not cleanup.face_keep.all() or cleanup.repaired.any():
             self._report_cleanup(cleanup, face_lines)
             keep_c = cleanup.corner_keep
@@ -392,50 +521,60 @@ class _Reader:
             tokens = _COMMENT.sub("", line).split()[1:]
             counts[j] = len(tokens)
             for token in tokens:
-                try:
-                    flat.append(float(token))
-                except ValueError:
-                    if _MSVC_NONFINITE.match(token):  # MSVC's printf of NaN / infinity
-                        flat.append(float("nan"))
-                        continue
+                value = c_float(token)
+                if value is None:
                     raise self.fail(
                         int(lines.numbers[j]), f"cannot parse '{_short(token, 24)}' as a number ({what})"
-                    ) from None
+                    )
+                flat.append(value)
         return np.array(flat, dtype=np.float64), counts
 
     def _parse_vertices(self, lines: _Lines) -> tuple[np.ndarray, np.ndarray | None]:
+        """Positions (V, 3) and, when every vertex line has one, colours (V, 3).
+
+        A vertex line holds `x y z`, `x y z w` (w ignored), `x y z r g b` or `x y z r g b a`
+        (a ignored); any other count is refused rather than guessed. Colours on only some lines
+        are dropped with a warning (no made-up colour for the others). Every value must be
+        finite, colours included.
+        """
         values, counts = self._rows(lines, b"v", "vertex coordinate")
+        if not len(lines):
+            return np.zeros((0, 3)), None
         numbers = lines.numbers
         bad = np.flatnonzero(counts < 3)
         if bad.size:
             j = int(bad[0])
             raise self.fail(int(numbers[j]), f"a vertex needs 3 coordinates, this one has {int(counts[j])}")
-        colors = None
-        if np.all(counts == 3):
-            table = values.reshape(-1, 3)
-        else:
-            starts = np.zeros(counts.shape[0], dtype=np.int64)
+        odd = np.flatnonzero((counts == 5) | (counts > 7))
+        if odd.size:
+            j = int(odd[0])
+            raise self.fail(
+                int(numbers[j]),
+                f"a vertex line holds 3, 4 (x y z w), 6 or 7 (x y z r g b [a]) numbers, this one has {int(counts[j])}",
+            )
+        uniform = bool(np.all(counts == counts[0]))
+        starts = np.zeros(counts.shape[0], dtype=np.int64)
+        if not uniform:
             np.cumsum(counts[:-1], out=starts[1:])
-            table = values[starts[:, None] + np.arange(3)]
-            has_color = counts >= 6
-            if np.any(has_color):
-                colors = np.full((counts.shape[0], 3), np.nan)
-                colors[has_color] = values[starts[has_color, None] + 3 + np.arange(3)]
-                if not np.all(has_color):
-                    self.warnings.append(
-                        f"{int((~has_color).sum())} of {counts.shape[0]} vertices have no colour; their colour is NaN"
-                    )
-            odd = np.flatnonzero((counts == 5) | (counts > 7))
-            if odd.size:
-                j = int(odd[0])
-                self.warnings.append(
-                    f"{odd.size} vertex lines have an unusual number of values; values after x y z ignored "
-                    f"(first at line {int(numbers[j])}: {int(counts[j])} values)"
-                )
-        finite = np.isfinite(table).all(axis=1)
-        if not finite.all():
-            j = int(np.flatnonzero(~finite)[0])
-            raise self.fail(int(numbers[j]), f"non-finite vertex position '{_short(lines.text()[j])}'")
+        table = values.reshape(-1, int(counts[0]))[:, :3] if uniform else values[starts[:, None] + np.arange(3)]
+        bad = ~np.isfinite(values)
+        if bad.any():
+            first = int(np.flatnonzero(bad)[0])
+            j = _line_of_value(counts, first)
+            column = first - int(np.sum(counts[:j]))
+            what = "position" if column < 3 else ("colour" if column < 6 and counts[j] >= 6 else "value")
+            raise self.fail(int(numbers[j]), f"non-finite vertex {what} '{_short(lines.text()[j])}'")
+        colors = None
+        has_color = counts >= 6
+        if has_color.all():
+            rgb = values.reshape(-1, int(counts[0]))[:, 3:6] if uniform else values[starts[:, None] + 3 + np.arange(3)]
+            colors = np.ascontiguousarray(rgb, dtype=np.float64)
+        elif has_color.any():
+            j = int(np.flatnonzero(~has_color)[0])
+            self.warnings.append(
+                f"dropped all vertex colours: {int((~has_color).sum())} of {counts.shape[0]} vertex lines have no "
+                f"colour (first at line {int(numbers[j])})"
+            )
         return np.ascontiguousarray(table, dtype=np.float64), colors
 
     def _parse_uvs(self, lines: _Lines) -> np.ndarray:
@@ -443,6 +582,7 @@ class _Reader:
         bad = np.flatnonzero(counts < 1)
         if bad.size:
             raise self.fail(int(lines.numbers[int(bad[0])]), "a texture coordinate (vt) needs at least 1 value")
+        self._refuse_nonfinite(lines, values, counts, "texture coordinate")
         for width in (2, 3):
             if np.all(counts == width):
                 return values.reshape(-1, width)
@@ -455,13 +595,29 @@ class _Reader:
             out[has, k] = values[starts[has] + k]
         return out
 
-    def _parse_normals(self, lines: _Lines) -> np.ndarray:
+    def _parse_normals(self, lines: _Lines) -> np.ndarray | None:
+        """The `vn` normals (N, 3), or None (with a warning) when one is not finite: the writers
+        recompute normals from the positions, so they are dropped as dangling ones are."""
         values, counts = self._rows(lines, b"vn", "normal")
         bad = np.flatnonzero(counts != 3)
         if bad.size:
             j = int(bad[0])
             raise self.fail(int(lines.numbers[j]), f"a normal (vn) needs 3 values, this one has {int(counts[j])}")
+        bad = ~np.isfinite(values.reshape(-1, 3)).all(axis=1)
+        if bad.any():
+            self.warnings.append(
+                f"dropped all normals: {int(bad.sum())} of {len(lines)} are not finite (first at line "
+                f"{int(lines.numbers[int(np.flatnonzero(bad)[0])])})"
+            )
+            return None
         return values.reshape(-1, 3)
+
+    def _refuse_nonfinite(self, lines: _Lines, values: np.ndarray, counts: np.ndarray, what: str) -> None:
+        """MeshLoadError naming the first line of `lines` that holds a NaN or infinity."""
+        bad = ~np.isfinite(values)
+        if bad.any():
+            j = _line_of_value(counts, int(np.flatnonzero(bad)[0]))
+            raise self.fail(int(lines.numbers[j]), f"non-finite {what} '{_short(lines.text()[j])}'")
 
     # ---- faces
     def _parse_faces(self, lines: _Lines) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -537,9 +693,9 @@ class _Reader:
                 if len(parts) > 3 or not parts[0]:
                     raise self.fail(int(lines.numbers[j]), f"malformed face corner '{_short(token, 24)}'")
                 try:
-                    v.append(max(-_HUGE, min(_HUGE, int(parts[0]))))
-                    vt.append(max(-_HUGE, min(_HUGE, int(parts[1]))) if len(parts) > 1 and parts[1] else missing)
-                    vn.append(max(-_HUGE, min(_HUGE, int(parts[2]))) if len(parts) > 2 and parts[2] else missing)
+                    v.append(_c_int(parts[0]))
+                    vt.append(_c_int(parts[1]) if len(parts) > 1 and parts[1] else missing)
+                    vn.append(_c_int(parts[2]) if len(parts) > 2 and parts[2] else missing)
                 except ValueError:
                     raise self.fail(
                         int(lines.numbers[j]),
@@ -621,7 +777,7 @@ class _Reader:
         first_dropped = 0
         for i, text in items:
             try:
-                raw = np.array([max(-_HUGE, min(_HUGE, int(t.split("/")[0]))) for t in text.split()], dtype=np.int64)
+                raw = np.array([_c_int(t.split("/")[0]) for t in text.split()], dtype=np.int64)
             except ValueError:
                 raise self.fail(i + 1, f"cannot parse line element 'l {_short(text)}'") from None
             before = np.full(raw.shape, v_before[i])
@@ -695,6 +851,20 @@ def read_obj(path: PathLike) -> Mesh:
 # --------------------------------------------------------------------------- writer
 
 
+def require_finite(values: np.ndarray, what: str, path: PathLike | None = None) -> None:
+    """ExportError naming the first row of `values` (rows first) that holds a NaN or infinity:
+    the writers never put a non-finite number into a file."""
+    values = np.asarray(values)
+    if values.dtype.kind != "f" or values.size == 0:
+        return
+    bad = ~np.isfinite(values.reshape(values.shape[0], -1)).all(axis=1)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        where = f"{path}: " if path is not None else ""
+        shown = values[row].tolist()
+        raise ExportError(f"{where}{what}, row {row}: not finite ({shown}); nothing non-finite is written")
+
+
 def _format_rows(prefix: str, values: np.ndarray, fmt: str = "%r") -> str:
     """`prefix v0 v1 ...` lines for a 2-D float array, `%r` = shortest exact round trip."""
     values = np.asarray(values, dtype=np.float64)
@@ -724,8 +894,12 @@ class ObjWriter:
                 if np.issubdtype(np.asarray(self._colors).dtype, np.integer):
                     colors = colors / 255.0
             self._colors = colors
+        if self._colors is not None:
+            require_finite(self._colors, "vertex colours")
         self._has_normals = mesh.normals is not None and mesh.face_normal_indices is not None
         self._has_uvs = mesh.uvs is not None and mesh.face_uv_indices is not None
+        if self._has_uvs:
+            require_finite(mesh.uvs, "texture coordinates")
         head = [f"# written by meshdeform: {mesh.vertex_count} vertices, {mesh.face_count} polygons\n"]
         statements = list(mesh.statements)
         head.extend(text + "\n" for count, text in statements if count <= 0)
@@ -787,16 +961,21 @@ class ObjWriter:
             out.append("l " + " ".join(map(str, flat[offs[k] : offs[k + 1]])) + "\n")
         return "".join(out)
 
-    def _frame_parts(self, positions: np.ndarray | None) -> list[bytes]:
+    def _frame_parts(self, positions: np.ndarray | None, path: PathLike | None = None) -> list[bytes]:
         mesh = self.mesh
         pos = mesh.positions if positions is None else np.asarray(positions, dtype=np.float64)
         if pos.shape != mesh.positions.shape:
             raise ExportError(f"positions have shape {pos.shape}, the mesh needs {mesh.positions.shape}")
+        require_finite(pos, "vertex positions", path)
         if self._colors is not None:
             v_text = _format_rows("v", np.hstack([pos, self._colors]))
         else:
             v_text = _format_rows("v", pos)
-        vn_text = _format_rows("vn", corner_normals(mesh, pos), "%.7g") if self._has_normals else ""
+        vn_text = ""
+        if self._has_normals:
+            normals = corner_normals(mesh, pos)
+            require_finite(normals, "normals", path)
+            vn_text = _format_rows("vn", normals, "%.7g")
         return [self._head, v_text.encode("ascii"), self._uv_text, vn_text.encode("ascii"), self._tail]
 
     def text(self, positions: np.ndarray | None = None) -> str:
@@ -804,8 +983,8 @@ class ObjWriter:
         return b"".join(self._frame_parts(positions)).decode("utf-8")
 
     def write(self, path: PathLike, positions: np.ndarray | None = None) -> None:
-        """Write one frame to `path` atomically."""
-        parts = self._frame_parts(positions)
+        """Write one frame to `path` atomically (ExportError, and no file, if anything is not finite)."""
+        parts = self._frame_parts(positions, path)
         with atomic_open(path, "wb") as handle:
             for part in parts:
                 handle.write(part)

@@ -14,8 +14,13 @@ Why not trimesh or meshio: trimesh rejects files whose `face` element comes befo
   its own name); other vertex / face scalars go to `vertex_properties` / `face_properties` with
   their types; other list properties and other elements are skipped.
 
-Errors are one line: `"<path>: <element> row <r>: <what>"` or `"<path>: line <n>: <what>"` for
-the header.
+Reads are exact or refused: an ascii row must hold exactly the values its properties declare
+(one row per line, blank lines skipped, nothing after the last declared row), a binary body
+must be exactly as long as the header's counts and types say (one trailing line end is
+tolerated, as some writers add it), numbers follow C syntax, and NaN / infinite values of kept
+properties are refused (non-finite normals are dropped with a warning: the writers recompute
+them). Errors are one line: `"<path>: element '<name>' row <r>: <what>"`, `"<path>: line <n>: <what>"`
+(header, rows beyond the declared ones) or `"<path>: byte <n>: <what>"` (binary).
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ import numpy as np
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.geometry import clean_polygons, corner_normals, vertex_normals
-from meshdeform.io.obj import read_mesh_bytes
+from meshdeform.io.obj import c_float, parse_numbers, read_mesh_bytes, require_finite
 from meshdeform.mesh import Mesh
 
 __all__ = ["PLY_TYPES", "PlyWriter", "read_ply", "write_ply"]
@@ -60,6 +65,10 @@ PLY_TYPES: dict[str, str] = {
 _FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
 _END_HEADER = re.compile(rb"(?:^|[\r\n])end_header[ \t]*(\r\n|\n|\r|\Z)")
 _HEADER_JUNK = re.compile(rb"[\x00-\x08\x0e-\x1f]")
+# bytes.translate tables: the bytes an ascii body may hold (deleted, leaving the others);
+# whitespace -> 1, else 0
+_TEXT_BYTES = bytes([9, 10, 13, *range(32, 127)])
+_IS_SPACE = bytes(1 if c in b" \t\n" else 0 for c in range(256))
 _UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
 _INDEX_NAMES = ("vertex_indices", "vertex_index")
 _FACE_RESERVED = ("vertex_indices", "vertex_index", "texcoord")
@@ -150,10 +159,9 @@ class _Reader:
             elif key == "element":
                 if len(parts) != 3:
                     raise self.fail(where, "an element line needs a name and a count: 'element <name> <count>'")
-                try:
-                    count = int(parts[2])
-                except ValueError:
-                    raise self.fail(where, f"element count '{parts[2]}' is not a whole number") from None
+                if not re.fullmatch(r"[+-]?[0-9]+", parts[2]):  # int() would also take '1_000'
+                    raise self.fail(where, f"element count '{parts[2][:24]}' is not a whole number")
+                count = int(parts[2])
                 if count < 0:
                     raise self.fail(where, f"negative element count {count}")
                 if parts[1] in names:
@@ -204,7 +212,9 @@ class _Reader:
             need = dt.itemsize * count
             if need > left:
                 raise self.fail(
-                    where, f"the file ends early: {count} rows need {need} bytes, {left} are left (truncated file?)"
+                    f"{where} row {left // dt.itemsize}",
+                    f"the file ends early: {count} rows of {dt.itemsize} bytes need {need} bytes, {left} are left "
+                    "(truncated file?)",
                 )
             rows = np.frombuffer(data, dt, count, offset)
             return {p.name: rows[f"f{i}"] for i, p in enumerate(props)}, offset + need
@@ -326,113 +336,139 @@ class _Reader:
         return out, pos
 
     # ---- ascii body
-    def _ascii(self, tokens: list[bytes], pos: int, element: _Element) -> tuple[dict, int]:
-        props = element.props
+    def _ascii_body(self, data: bytes, body: int, elements: list[_Element]) -> dict[str, dict]:
+        """Every element of an ascii body, each row on its own line, read exactly or refused.
+
+        One row per non-blank line: the values of a row must be exactly what its properties
+        declare (a list's length, then that many values), and no line may follow the last
+        declared row, so a wrong count in the header or a stray value on a line is an error
+        naming the element and row instead of a read shifted by a value. Numbers are parsed in
+        one C call (C decimal syntax: no '1_000'); tokens per line are counted with NumPy.
+        """
+        text = data[body:]
+        controls = text.translate(None, _TEXT_BYTES)
+        if controls:
+            at = body + text.find(controls[:1])
+            raise self.fail(f"byte {at}", "binary data in an ascii PLY body (the header says 'format ascii')")
+        if b"\r" in text:
+            text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        first_line = len(re.split(rb"\r\n|\r|\n", data[:body]))  # the file's line number of the body's first line
+        raw = np.frombuffer(text, dtype=np.uint8)
+        space = np.frombuffer(text.translate(_IS_SPACE), dtype=np.bool_)
+        starts = ~space
+        starts[1:] &= space[:-1]
+        token_at = np.flatnonzero(starts)
+        line_start = np.concatenate([[0], np.flatnonzero(raw == 10) + 1])
+        first_token = np.append(np.searchsorted(token_at, line_start), token_at.shape[0])
+        per_line = np.diff(first_token)  # tokens on each line of the body
+        filled = np.flatnonzero(per_line)
+        row_lines = filled + first_line  # file line number of every row
+        row_width = per_line[filled]
+        row_start = np.zeros(row_width.shape[0] + 1, dtype=np.int64)
+        np.cumsum(row_width, out=row_start[1:])
+        values = parse_numbers(text, int(token_at.shape[0]))
+        if values is None:  # find the culprit token (NumPy and `c_float` agree on the syntax)
+            tokens = text.split()
+            numbers = [c_float(t.decode("ascii")) for t in tokens]
+            bad = next((k for k, v in enumerate(numbers) if v is None), None)
+            if bad is None:
+                values = np.array(numbers, dtype=np.float64)
+        if values is None:
+            row = int(np.searchsorted(row_start, bad, side="right") - 1)
+            element, r = self._element_row(elements, row)
+            raise self.fail(
+                f"element '{element}' row {r}",
+                f"cannot parse '{tokens[bad][:24].decode('latin-1')}' as a number (line {int(row_lines[row])})",
+            )
+        parsed: dict[str, dict] = {}
+        row = 0
+        n_rows = row_width.shape[0]
+        for element in elements:
+            if row + element.count > n_rows:
+                raise self.fail(
+                    f"element '{element.name}' row {n_rows - row}", "the file ends early (truncated file?)"
+                )
+            rows = slice(row, row + element.count)
+            parsed[element.name] = self._ascii_element(
+                element, values, row_start[rows], row_width[rows], row_lines[rows]
+            )
+            row += element.count
+        if row < n_rows:
+            last = elements[-1] if elements else None
+            declared = f"'{last.name}' has {last.count} rows" if last else "no elements"
+            raise self.fail(
+                f"line {int(row_lines[row])}",
+                f"more rows than the header declares (the last element {declared}; {n_rows - row} rows follow)",
+            )
+        return parsed
+
+    def _element_row(self, elements: list[_Element], row: int) -> tuple[str, int]:
+        """The element and its row number of the `row`-th row of an ascii body."""
+        for element in elements:
+            if row < element.count:
+                return element.name, row
+            row -= element.count
+        return (elements[-1].name if elements else "none"), (elements[-1].count if elements else 0) + row
+
+    def _ascii_element(
+        self, element: _Element, values: np.ndarray, start: np.ndarray, width: np.ndarray, lines: np.ndarray
+    ) -> dict:
+        """One element from the values of its rows: row k holds values[start[k] : start[k] + width[k]].
+
+        Property by property for all rows at once: a scalar takes one value, a list its length
+        and that many values; then every row must have been used up exactly.
+        """
         count = element.count
-        where = f"element '{element.name}'"
-        left = len(tokens) - pos
-        if len(props) * count > left:
-            rows_there = left // max(len(props), 1)
-            raise self.fail(f"{where} row {rows_there}", "the file ends early (truncated file?)")
-        if count == 0 or not props:
-            return {p.name: (np.zeros(0, np.int64), np.zeros(0)) if p.is_list else np.zeros(0) for p in props}, pos
-        if not element.has_lists:
-            width = len(props)
-            table = self._numbers(tokens, pos, pos + width * count, element, width).reshape(count, width)
-            return {p.name: self._typed(table[:, i], p, element) for i, p in enumerate(props)}, pos + width * count
-        # uniform list lengths: one reshape
-        counts = []
-        width = 0
-        for p in props:
-            if p.is_list:
-                c = self._count(tokens, pos + width, element, 0)
-                counts.append(c)
-                width += 1 + c
-            else:
-                width += 1
-        if width * count <= left:
-            table = self._numbers(tokens, pos, pos + width * count, element, width).reshape(count, width)
-            col = 0
-            out: dict = {}
-            uniform = True
-            for p in props:
-                if p.is_list:
-                    c = int(table[0, col])
-                    if not np.all(table[:, col] == c):
-                        uniform = False
-                        break
-                    out[p.name] = (np.full(count, c, np.int64), table[:, col + 1 : col + 1 + c].reshape(-1))
-                    col += 1 + c
-                else:
-                    out[p.name] = self._typed(table[:, col], p, element)
-                    col += 1
-            if uniform:
-                return out, pos + width * count
-        # varying list lengths: walk the rows, then gather
-        starts: dict[int, list[int]] = {i: [] for i in range(len(props))}
-        lengths: dict[int, list[int]] = {i: [] for i, p in enumerate(props) if p.is_list}
-        p0 = pos
-        n_tok = len(tokens)
-        for r in range(count):
-            for i, p in enumerate(props):
-                if p.is_list:
-                    c = self._count(tokens, pos, element, r)
-                    starts[i].append(pos + 1)
-                    lengths[i].append(c)
-                    pos += 1 + c
-                else:
-                    starts[i].append(pos)
-                    pos += 1
-            if pos > n_tok:
-                raise self.fail(f"{where} row {r}", "the file ends early (truncated file?)")
-        values = self._numbers(tokens, p0, pos, element, None)
-        out = {}
-        for i, p in enumerate(props):
-            begin = np.array(starts[i], dtype=np.int64) - p0
-            if p.is_list:
-                lens = np.array(lengths[i], dtype=np.int64)
-                first = np.zeros(lens.shape[0], dtype=np.int64)
-                np.cumsum(lens[:-1], out=first[1:])
-                local = np.arange(int(lens.sum()), dtype=np.int64) - np.repeat(first, lens)
-                out[p.name] = (lens, values[np.repeat(begin, lens) + local])
-            else:
-                out[p.name] = self._typed(values[begin], p, element)
-        return out, pos
+        out: dict = {}
+        used = np.zeros(count, dtype=np.int64)  # values taken so far in each row
+        for p in element.props:
+            short = np.flatnonzero(used >= width)
+            if short.shape[0]:
+                self._row_width_error(element, int(short[0]), width, lines, used)
+            at = start + used
+            if not p.is_list:
+                out[p.name] = self._typed(values[at], p, element)
+                used += 1
+                continue
+            lengths = values[at]
+            good = np.isfinite(lengths) & (lengths >= 0) & (lengths == np.floor(lengths))
+            if not good.all():
+                r = int(np.flatnonzero(~good)[0])
+                raise self.fail(
+                    f"element '{element.name}' row {r}",
+                    f"list length {float(lengths[r])!r} of '{p.name}' is not a whole number >= 0 "
+                    f"(line {int(lines[r])})",
+                )
+            lens = lengths.astype(np.int64)
+            over = np.flatnonzero(used + 1 + lens > width)
+            if over.shape[0]:
+                r = int(over[0])
+                raise self.fail(
+                    f"element '{element.name}' row {r}",
+                    f"the list '{p.name}' declares {int(lens[r])} values, line {int(lines[r])} holds only "
+                    f"{int(width[r] - used[r] - 1)} after it",
+                )
+            first = np.zeros(count, dtype=np.int64)
+            np.cumsum(lens[:-1], out=first[1:])
+            local = np.arange(int(lens.sum()), dtype=np.int64) - np.repeat(first, lens)
+            out[p.name] = (lens, values[np.repeat(at + 1, lens) + local])
+            used += 1 + lens
+        extra = np.flatnonzero(used != width)
+        if extra.shape[0]:
+            self._row_width_error(element, int(extra[0]), width, lines, used)
+        if not element.props:
+            return {}
+        return out
 
-    def _count(self, tokens: list[bytes], pos: int, element: _Element, row: int) -> int:
-        where = f"element '{element.name}' row {row}"
-        if pos >= len(tokens):
-            raise self.fail(where, "the file ends early (truncated file?)")
-        token = tokens[pos]
-        try:
-            c = int(token)
-        except ValueError:
-            try:
-                f = float(token)
-            except ValueError:
-                raise self.fail(where, f"cannot parse list length '{token[:24].decode('latin-1')}'") from None
-            if not f.is_integer():
-                raise self.fail(where, f"list length {f} is not a whole number") from None
-            c = int(f)
-        if c < 0:
-            raise self.fail(where, f"negative list length {c}")
-        if pos + 1 + c > len(tokens):
-            raise self.fail(where, f"the file ends early: a list of {c} values (truncated file?)")
-        return c
-
-    def _numbers(self, tokens: list[bytes], start: int, stop: int, element: _Element, width: int | None) -> np.ndarray:
-        chunk = tokens[start:stop]
-        try:
-            return np.array(chunk, dtype=np.float64)
-        except ValueError:
-            for k, token in enumerate(chunk):
-                try:
-                    float(token)
-                except ValueError:
-                    row = f" row {k // width}" if width else ""
-                    shown = token[:24].decode("latin-1")
-                    raise self.fail(f"element '{element.name}'{row}", f"cannot parse '{shown}' as a number") from None
-            raise
+    def _row_width_error(
+        self, element: _Element, r: int, width: np.ndarray, lines: np.ndarray, used: np.ndarray
+    ) -> None:
+        declared = " ".join(("list " if p.is_list else "") + p.name for p in element.props)
+        if used[r] < width[r]:
+            what = f"{int(width[r] - used[r])} values more than its properties ({declared}) take"
+        else:
+            what = f"{int(width[r])} values, too few for its properties ({declared})"
+        raise self.fail(f"element '{element.name}' row {r}", f"line {int(lines[r])} holds {what}")
 
     def _typed(self, values: np.ndarray, prop: _Property, element: _Element) -> np.ndarray:
         """ASCII values (parsed as float64) in the property's declared type, checked."""
@@ -456,18 +492,20 @@ class _Reader:
         order = _FORMATS[fmt]
         parsed: dict[str, dict] = {}
         if order is None:
-            tokens = data[body:].split()
-            pos = 0
-            for element in elements:
-                parsed[element.name], pos = self._ascii(tokens, pos, element)
-            if pos < len(tokens):
-                self.warnings.append(f"ignored {len(tokens) - pos} values after the last element")
+            parsed = self._ascii_body(data, body, elements)
         else:
             pos = body
             for element in elements:
                 parsed[element.name], pos = self._binary(data, pos, element, order)
-            if pos < len(data) and data[pos:].strip(b"\x00\r\n\t "):
-                self.warnings.append(f"ignored {len(data) - pos} bytes after the last element")
+            left = data[pos:]
+            if left and left not in (b"\n", b"\r\n", b"\r"):  # one line end after the body is tolerated
+                last = "the header"
+                if elements:
+                    last = f"the last element ('{elements[-1].name}', {elements[-1].count} rows)"
+                raise self.fail(
+                    f"byte {pos}",
+                    f"{len(left)} bytes after {last}: the header's counts or types do not match the body",
+                )
         with np.errstate(invalid="ignore", over="ignore"):  # NaN bit patterns: reported, not warned
             return self._mesh(elements, parsed)
 
@@ -495,6 +533,13 @@ class _Reader:
         if all(c in vdata and not isinstance(vdata[c], tuple) for c in ("nx", "ny", "nz")):
             normals = np.stack([np.asarray(vdata[c], dtype=np.float64) for c in ("nx", "ny", "nz")], axis=1)
             used |= {"nx", "ny", "nz"}
+            bad = ~np.isfinite(normals).all(axis=1)
+            if bad.any():  # writers recompute normals from the positions: drop them, as OBJ does
+                self.warnings.append(
+                    f"dropped the normals: {int(bad.sum())} of {n_v} are not finite (first: vertex row "
+                    f"{int(np.flatnonzero(bad)[0])})"
+                )
+                normals = None
         uvs = None
         for a, b in _UV_NAMES:
             if a in vdata and b in vdata and not isinstance(vdata[a], tuple) and not isinstance(vdata[b], tuple):
@@ -506,6 +551,9 @@ class _Reader:
             if p.name in used or p.is_list:
                 continue
             vertex_properties[p.name] = np.ascontiguousarray(vdata[p.name]).astype(np.dtype(p.code), copy=False)
+        self._refuse_nonfinite("vertex", vertex_properties)
+        if uvs is not None:
+            self._refuse_nonfinite("vertex", {"texture coordinate": uvs})
         if all(c in vertex_properties for c in ("red", "green", "blue")):
             channels = ["red", "green", "blue"] + (["alpha"] if "alpha" in vertex_properties else [])
             vertex_properties["color"] = np.stack([vertex_properties[c] for c in channels], axis=1)
@@ -541,6 +589,10 @@ class _Reader:
                     lens, flat = fdata[p.name]
                     if np.array_equal(lens, 2 * np.diff(offsets)):  # MeshLab: u v per corner
                         corner_uvs = np.asarray(flat, dtype=np.float64).reshape(-1, 2)
+            self._refuse_nonfinite("face", face_properties)
+            if corner_uvs is not None:
+                corner_row = np.repeat(np.arange(face.count), np.diff(offsets))
+                self._refuse_nonfinite("face", {"texcoord": corner_uvs}, corner_row)
         elif vertex.count:
             self.warnings.append("the file has no 'face' element, only vertices")
         skipped = [e for e in elements if e.name not in ("vertex", "face")]
@@ -549,6 +601,11 @@ class _Reader:
             self.warnings.append(f"ignored elements {listed}")
 
         cleanup = clean_polygons(face_indices, offsets)
+        if offsets.shape[0] > 1 and not cleanup.face_keep.any():
+            raise self.fail(
+                "element 'face'",
+                f"no usable face: all {offsets.shape[0] - 1} faces have fewer than 3 distinct vertices",
+            )
         if not cleanup.face_keep.all() or cleanup.repaired.any():
             n_faces = offsets.shape[0] - 1
             self._report_cleanup(cleanup)
@@ -576,6 +633,18 @@ class _Reader:
             source=Path(self.path),
             warnings=tuple(self.warnings),
         )
+
+    def _refuse_nonfinite(self, element: str, arrays: dict[str, np.ndarray], row_of: np.ndarray | None = None) -> None:
+        """MeshLoadError naming the row of the first NaN or infinity in float `arrays` (rows first;
+        `row_of` maps array rows to element rows when they differ, as for per-corner values)."""
+        for name, values in arrays.items():
+            if values.dtype.kind != "f":
+                continue
+            bad = ~np.isfinite(values.reshape(values.shape[0], -1)).all(axis=1)
+            if bad.any():
+                r = int(np.flatnonzero(bad)[0])
+                r = r if row_of is None else int(row_of[r])
+                raise self.fail(f"element '{element}' row {r}", f"non-finite {name} value")
 
     def _report_cleanup(self, cleanup) -> None:
         for mask, what in (
@@ -670,9 +739,10 @@ class PlyWriter:
 
         self._vdtype = np.dtype([(f"c{i}", self._order + code) for i, (_, code, _) in enumerate(columns)])
         self._static = np.zeros(n_v, dtype=self._vdtype)
-        for i, (_, _, values) in enumerate(columns):
+        for i, (name, _, values) in enumerate(columns):
             if values is not None:
                 self._static[f"c{i}"] = values
+                require_finite(self._static[f"c{i}"], f"vertex property '{name}'")  # as written (float32 too)
 
         face_columns = self._property_columns(mesh.face_properties, mesh.face_count, "face", set(_FACE_RESERVED))
         sizes = mesh.face_sizes
@@ -682,7 +752,10 @@ class PlyWriter:
         lines += [f"property {_PLY_NAME[code]} {name}" for name, code, _ in columns]
         lines += [f"element face {mesh.face_count}", f"property list {_PLY_NAME[count_code]} int vertex_indices"]
         if uv_corner is not None:
+            require_finite(uv_corner.astype(np.float32), "texture coordinates (per corner)")
             lines.append(f"property list {_PLY_NAME[uv_count_code]} float texcoord")
+        for name, code, values in face_columns:
+            require_finite(np.asarray(values).astype(code), f"face property '{name}'")
         lines += [f"property {_PLY_NAME[code]} {name}" for name, code, _ in face_columns]
         lines.append("end_header")
         self._header = ("\n".join(lines) + "\n").encode("latin-1", "replace")  # names as read (Latin-1)
@@ -708,7 +781,8 @@ class PlyWriter:
                 if all(c in props for c in channels[:3]):
                     continue
                 if values.dtype.kind == "f":  # OBJ colours are 0..1
-                    values = np.round(np.clip(np.nan_to_num(values, nan=0.0), 0.0, 1.0) * 255).astype(np.uint8)
+                    require_finite(values, "vertex colours")
+                    values = np.round(np.clip(values, 0.0, 1.0) * 255).astype(np.uint8)
                 for k in range(min(values.shape[1], 4)):
                     out.append((channels[k], _ply_code(values.dtype, values[:, k]), values[:, k]))
                 continue
@@ -780,10 +854,14 @@ class PlyWriter:
             out.append(" ".join(parts))
         return ("\n".join(out) + ("\n" if out else "")).encode("ascii")
 
-    def _vertex_rows(self, positions: np.ndarray) -> np.ndarray:
+    def _vertex_rows(self, positions: np.ndarray, path: PathLike | None) -> np.ndarray:
+        """The vertex records of one frame; ExportError if a position or normal is not finite as
+        written (a float64 beyond float32's range would be infinite in a `float` column)."""
         rows = self._static.copy()
-        for i in range(3):
-            rows[f"c{i}"] = positions[:, i]
+        with np.errstate(over="ignore"):  # beyond float32: infinite, refused just below
+            for i in range(3):
+                rows[f"c{i}"] = positions[:, i]
+        require_finite(np.stack([rows[f"c{i}"] for i in range(3)], axis=1), "vertex positions", path)
         if self._normals is not None:
             if self._normals == "corner":
                 normals = corner_normals(self.mesh, positions)
@@ -791,15 +869,16 @@ class PlyWriter:
                 normals = vertex_normals(self.mesh, positions)
             for i in range(3):
                 rows[f"c{3 + i}"] = normals[:, i]
+            require_finite(normals, "normals", path)
         return rows
 
-    def data(self, positions: np.ndarray | None = None) -> bytes:
-        """The bytes of the PLY file of one frame."""
+    def data(self, positions: np.ndarray | None = None, path: PathLike | None = None) -> bytes:
+        """The bytes of the PLY file of one frame (`path` only names the file in errors)."""
         mesh = self.mesh
         pos = mesh.positions if positions is None else np.asarray(positions, dtype=np.float64)
         if pos.shape != mesh.positions.shape:
             raise ExportError(f"positions have shape {pos.shape}, the mesh needs {mesh.positions.shape}")
-        rows = self._vertex_rows(pos)
+        rows = self._vertex_rows(pos, path)
         if self.encoding != "ascii":
             return self._header + rows.tobytes() + self._faces
         columns = [rows[f"c{i}"] for i in range(len(self._vertex_columns))]
@@ -810,8 +889,8 @@ class PlyWriter:
         return self._header + text.encode("ascii") + self._faces
 
     def write(self, path: PathLike, positions: np.ndarray | None = None) -> None:
-        """Write one frame to `path` atomically."""
-        payload = self.data(positions)
+        """Write one frame to `path` atomically (ExportError, and no file, if anything is not finite)."""
+        payload = self.data(positions, path)
         with atomic_open(path, "wb") as handle:
             handle.write(payload)
 
