@@ -16,6 +16,7 @@ import difflib
 import fnmatch
 import hashlib
 import json
+import math
 import tomllib
 import types
 import typing
@@ -26,6 +27,7 @@ from pathlib import Path, PurePosixPath
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import (
+    AfterValidator,
     AllowInfNan,
     BaseModel,
     BeforeValidator,
@@ -43,14 +45,17 @@ from pydantic import (
 )
 
 from meshdeform import selection as sel
-from meshdeform.errors import RecipeError
+from meshdeform.errors import MeshdeformError, RecipeError
 from meshdeform.material import KindMaterial, Material
 from meshdeform.pins import Keyframe
-from meshdeform.solvers.base import SOLVERS, SolverOptions
+from meshdeform.solvers.anchor import ANCHOR_FRAMES
+from meshdeform.solvers.base import SOLVERS, SolverOptions, solver_class
 
 __all__ = [
     "KNOWN_FORMATS",
+    "LIMITS",
     "AssetRule",
+    "Limit",
     "Recipe",
     "apply_overrides",
     "format_path",
@@ -79,10 +84,100 @@ def known_solvers() -> tuple[str, ...]:
 
 
 # ---------------------------------------------------------------------------------------------
+# limits: bounds a real production never meets but a typo does (docs/recipes.md, "Limits")
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Limit:
+    """A bound on a recipe value that stops runaway work: `minimum <= value <= maximum`, in `unit`."""
+
+    maximum: float
+    unit: str
+    minimum: float | None = None
+
+    def complaint(self, value: float) -> str | None:
+        """The one-line complaint about `value`, or None when it is within the limit."""
+        if value > self.maximum:
+            return f"{_number(value)} is above the limit of {_number(self.maximum)} {self.unit}"
+        if self.minimum is not None and value < self.minimum:
+            return f"{_number(value)} is below the limit of {_number(self.minimum)} {self.unit}"
+        return None
+
+
+#: every limit, by the key path it applies to (`[]`: any element of an array of tables); the list in
+#: docs/recipes.md gives the reason for each value
+LIMITS: dict[str, Limit] = {
+    "simulation.frames": Limit(1_000_000, "frames"),
+    "simulation.substeps": Limit(100_000, "substeps per frame"),
+    "simulation.iterations": Limit(100_000, "iterations per substep"),
+    "simulation.substeps x iterations": Limit(100_000, "solver sweeps per frame"),
+    "simulation.fps": Limit(10_000, "frames per second", minimum=0.01),
+    "simulation.start_frame": Limit(1_000_000, "(first frame number)"),
+    "simulation.tear_burst": Limit(100_000, "topology updates in a burst"),
+    "simulation.strain_iterations": Limit(100_000, "strain passes per step"),
+    "simulation.partitions": Limit(1024, "partitions"),
+    "simulation.anchor_stiffness": Limit(1e6, "1/s^2"),
+    "simulation.uniform_scale": Limit(1000, "(scale factor)"),
+    "impacts[].count": Limit(1_000_000, "repeats"),
+    "wind.turbulence": Limit(100, "(fraction of the wind speed)"),
+    "output.preview.every": Limit(1_000_000, "frames"),
+    "output.preview.sheet_tile_width": Limit(8192, "pixels"),
+    "output.preview.sheet_columns": Limit(1000, "columns"),
+    "any number": Limit(1e12, "(largest magnitude of any number in a recipe)"),
+    "any integer": Limit(2**63 - 1, "(an integer must fit in 64 bits)", minimum=-(2**63)),
+    "recipe file size": Limit(8 * 2**20, "bytes"),
+}
+
+
+def _number(value: float) -> str:
+    """A number for a message: integers in full, floats shortest (1e+12)."""
+    if isinstance(value, int) or (value.is_integer() and abs(value) < 1e7):
+        return str(int(value))
+    return f"{value:g}"
+
+
+def _limited(key: str) -> AfterValidator:
+    """A pydantic validator enforcing `LIMITS[key]` (the message names the limit and its unit)."""
+    limit = LIMITS[key]
+
+    def check(value: Any) -> Any:
+        complaint = limit.complaint(value)
+        if complaint is not None:
+            raise ValueError(complaint)
+        return value
+
+    return AfterValidator(check)
+
+
+def _bounded(value: float) -> float:
+    """Any float in a recipe: at most LIMITS['any number'] in magnitude (beyond it, squares overflow)."""
+    limit = LIMITS["any number"].maximum
+    if abs(value) > limit:
+        raise ValueError(f"{_number(value)} is beyond the limit of {_number(limit)} for any number in a recipe")
+    return value
+
+
+def _bad_numbers(data: Any, path: Path_ = ()) -> typing.Iterator[tuple[Path_, str]]:
+    """(key path, complaint) for every value of the parsed TOML, at any depth, that no key accepts:
+    non-finite floats (TOML allows `inf` and `nan`) and integers that do not fit in 64 bits."""
+    if isinstance(data, dict):
+        for key, value in data.items():
+            yield from _bad_numbers(value, (*path, key))
+    elif isinstance(data, list):
+        for i, value in enumerate(data):
+            yield from _bad_numbers(value, (*path, i))
+    elif isinstance(data, float) and not math.isfinite(data):
+        yield path, f"must be a finite number, got {show(data)}"
+    elif isinstance(data, int) and not isinstance(data, bool) and LIMITS["any integer"].complaint(data) is not None:
+        yield path, f"{data} does not fit in 64 bits (integers range from -2^63 to 2^63 - 1)"
+
+
+# ---------------------------------------------------------------------------------------------
 # value types with clear messages
 # ---------------------------------------------------------------------------------------------
 
-Float = Annotated[float, Strict(), AllowInfNan(False)]
+Float = Annotated[float, Strict(), AllowInfNan(False), AfterValidator(_bounded)]
 
 
 def toml_type(value: Any) -> str:
@@ -129,6 +224,7 @@ def _vec3(value: Any) -> tuple[float, float, float]:
             raise ValueError(f"expected 3 numbers [x, y, z], got {toml_type(v)} {show(v)} in {show(value)}")
         if v != v or v in (float("inf"), float("-inf")):
             raise ValueError(f"expected finite numbers, got {show(value)}")
+        _bounded(v)
     return (float(value[0]), float(value[1]), float(value[2]))
 
 
@@ -140,7 +236,10 @@ def _nonzero_vec3(value: Any) -> tuple[float, float, float]:
 
 
 def _scale(value: Any) -> tuple[float, float, float]:
-    v = (float(value),) * 3 if _is_number(value) else _vec3(value) if isinstance(value, list | tuple) else None
+    if _is_number(value):
+        v: tuple[float, float, float] | None = (float(_bounded(value)),) * 3
+    else:
+        v = _vec3(value) if isinstance(value, list | tuple) else None
     if v is None:
         raise ValueError(f"expected a number or an array of 3 numbers, got {toml_type(value)} {show(value)}")
     if min(v) <= 0:
@@ -269,17 +368,17 @@ class SimulationSpec(_Model):
     """[simulation]; solver options beyond these are added from SolverOptions at run time."""
 
     solver: StrictStr = "xpbd"
-    fps: Float = Field(24.0, gt=0)
-    frames: StrictInt = Field(120, ge=1)
-    substeps: StrictInt | None = Field(None, ge=1)
-    iterations: StrictInt | None = Field(None, ge=1)
+    fps: Annotated[Float, _limited("simulation.fps")] = Field(24.0, gt=0)
+    frames: Annotated[StrictInt, _limited("simulation.frames")] = Field(120, ge=1)
+    substeps: Annotated[StrictInt, _limited("simulation.substeps")] | None = Field(None, ge=1)
+    iterations: Annotated[StrictInt, _limited("simulation.iterations")] | None = Field(None, ge=1)
     damping: Float | None = Field(None, ge=0, lt=1)
     gravity: Vec3 | None = None
     up: Literal["y", "z"] = "y"
     seed: StrictInt = Field(0, ge=0)
-    start_frame: StrictInt = Field(1, ge=0)
+    start_frame: Annotated[StrictInt, _limited("simulation.start_frame")] = Field(1, ge=0)
     tear_interval: Float | None = Field(None, ge=0)
-    tear_burst: StrictInt | None = Field(None, ge=1)
+    tear_burst: Annotated[StrictInt, _limited("simulation.tear_burst")] | None = Field(None, ge=1)
 
     @field_validator("solver")
     @classmethod
@@ -309,6 +408,19 @@ class SimulationSpec(_Model):
 
     def solver_options(self) -> SolverOptions:
         return SolverOptions(**self.option_values())
+
+    def sweeps_per_frame(self) -> tuple[int, int] | None:
+        """(substeps, iterations) per frame in force: as given, else the solver's defaults; iterations
+        is 1 for solvers without constraint sweeps (springs, anchor). None when the solver is not
+        available in this build (building the simulation reports that)."""
+        try:
+            cls = solver_class(self.solver)
+        except MeshdeformError:
+            return None
+        substeps = self.substeps if self.substeps is not None else int(cls.default_substeps)
+        if int(cls.default_iterations) == 0:
+            return substeps, 1
+        return substeps, self.solver_options().iterations_for(cls)
 
     @model_validator(mode="after")
     def _options_accepted(self) -> SimulationSpec:
@@ -475,7 +587,7 @@ class ImpactSpec(_Model):
     direction: Annotated[Any, BeforeValidator(_direction)] = "radial"
     falloff: Literal["inverse_square", "smooth"] = "inverse_square"
     every: Float | None = Field(None, gt=0)
-    count: StrictInt | None = Field(None, ge=1)
+    count: Annotated[StrictInt, _limited("impacts[].count")] | None = Field(None, ge=1)
     select: SelectSpec | None = None
     relative: StrictBool = False
 
@@ -491,7 +603,7 @@ class ImpactSpec(_Model):
 
 class WindSpec(_Model):
     velocity: Vec3 = (0.0, 0.0, 0.0)
-    turbulence: Float = Field(0.0, ge=0)
+    turbulence: Annotated[Float, _limited("wind.turbulence")] = Field(0.0, ge=0)
     turbulence_scale: Float = Field(1.0, gt=0)
     turbulence_frequency: Float = Field(0.5, ge=0)
     drag: Float = Field(1.0, ge=0)
@@ -591,7 +703,7 @@ def _stretch(value: Any) -> Any:
     if _is_number(value):
         if not value > 1:
             raise ValueError(f"must be greater than 1 (1 is the rest length), got {show(value)}")
-        return float(value)
+        return float(_bounded(value))
     if isinstance(value, dict):
         for key, v in value.items():
             if key not in SPRING_KINDS:
@@ -602,6 +714,7 @@ def _stretch(value: Any) -> Any:
                 raise ValueError(f"{key}: expected a number, got {toml_type(v)} {show(v)}")
             if not v > 1:
                 raise ValueError(f"{key}: must be greater than 1 (1 is the rest length), got {show(v)}")
+            _bounded(v)
         if not value:
             raise ValueError("the table needs at least one of structural, shear, bending")
         return KindStretchSpec(**{k: float(v) for k, v in value.items()})
@@ -659,9 +772,11 @@ class PreviewSpec(BaseModel):
 
     model_config = ConfigDict(extra="allow", frozen=True)
 
-    every: StrictInt | None = Field(None, ge=1)
+    every: Annotated[StrictInt, _limited("output.preview.every")] | None = Field(None, ge=1)
     video: StrictStr | None = None
     color: StrictStr | None = None
+    sheet_tile_width: Annotated[StrictInt, _limited("output.preview.sheet_tile_width")] | None = Field(None, ge=16)
+    sheet_columns: Annotated[StrictInt, _limited("output.preview.sheet_columns")] | None = Field(None, ge=1)
 
 
 def _preview(value: Any) -> Any:
@@ -673,7 +788,10 @@ def _preview(value: Any) -> Any:
 
 
 def _formats(value: Any) -> Any:
-    return [value] if isinstance(value, str) else value
+    if isinstance(value, str):
+        example = f"formats = [{json.dumps(value)}]"
+        raise ValueError(f"expected an array of format names, e.g. {example}, got string {show(value)}")
+    return value
 
 
 class OutputSpec(_Model):
@@ -837,6 +955,29 @@ class Recipe(_Model):
 _STRICT = {float: Float, int: StrictInt, bool: StrictBool, str: StrictStr}
 
 
+def _tether_ratio(value: float) -> float:
+    if 0 < value < 1:
+        raise ValueError(f"must be 0 (no tethers) or at least 1 (1: no stretch along the path to a pin), got {value:g}")
+    return value
+
+
+#: the recipe type of each SolverOptions field beyond the ones SimulationSpec declares (iterations,
+#: damping): strict types with ranges and limits; a field missing here falls back to `_strictify`
+#: of its annotation (tests/test_limits.py asserts there is none)
+SOLVER_OPTION_FIELDS: dict[str, Any] = {
+    "strain_limit": Annotated[Float, Field(ge=1)],
+    "strain_iterations": Annotated[StrictInt, Field(ge=0), _limited("simulation.strain_iterations")],
+    "stable_substeps": StrictBool,
+    "anchor_stiffness": Annotated[Float, Field(ge=0), _limited("simulation.anchor_stiffness")],
+    "anchor_damping": Annotated[Float, Field(ge=0)],
+    "uniform_scale": Annotated[Float, Field(gt=0), _limited("simulation.uniform_scale")],
+    "anchor_frame": Literal[ANCHOR_FRAMES],
+    "neighbour_springs": StrictBool,
+    "partitions": Annotated[StrictInt, Field(ge=0), _limited("simulation.partitions")],
+    "tethers": Annotated[Float, Field(ge=0), AfterValidator(_tether_ratio)],
+}
+
+
 def _strictify(tp: Any) -> Any:
     if tp in _STRICT:
         return _STRICT[tp]
@@ -854,7 +995,8 @@ def _recipe_class(option_fields: tuple[str, ...]) -> type[Recipe]:
     for name in option_fields:
         if name in SimulationSpec.model_fields:
             continue
-        extra[name] = (_strictify(hints.get(name, Any)) | None, None)
+        spec = SOLVER_OPTION_FIELDS.get(name)
+        extra[name] = ((_strictify(hints.get(name, Any)) if spec is None else spec) | None, None)
     simulation = create_model("SimulationSpec", __base__=SimulationSpec, **extra) if extra else SimulationSpec
     return create_model("Recipe", __base__=Recipe, simulation=(simulation, Field(default_factory=simulation)))  # type: ignore[call-overload]
 
@@ -1151,12 +1293,40 @@ def _describe(error: Mapping[str, Any], model: type[BaseModel]) -> str:
 
 
 class _LocatedError(RecipeError):
-    """A RecipeError that also keeps the key path and the bare complaint (for command-line overrides)."""
+    """A RecipeError that also keeps the key path and the bare complaint (for command-line overrides);
+    `related` are other key paths the complaint is about (a limit on a product of two keys)."""
 
-    def __init__(self, label: str, path: Sequence[str | int], line: int | None, detail: str) -> None:
+    def __init__(
+        self,
+        label: str,
+        path: Sequence[str | int],
+        line: int | None,
+        detail: str,
+        related: Sequence[Path_] = (),
+    ) -> None:
         super().__init__(_message(label, path, line, detail))
         self.path = tuple(path)
         self.detail = detail
+        self.related = tuple(related)
+
+
+def _work_complaint(recipe: Recipe) -> tuple[Path_, str, tuple[Path_, ...]] | None:
+    """(key path, complaint, related key paths) when substeps x iterations per frame is above its limit."""
+    sim = recipe.simulation
+    sweeps = sim.sweeps_per_frame()
+    if sweeps is None:
+        return None
+    substeps, iterations = sweeps
+    limit = LIMITS["simulation.substeps x iterations"]
+    complaint = limit.complaint(substeps * iterations)
+    if complaint is None:
+        return None
+    given = [k for k in ("substeps", "iterations") if getattr(sim, k) is not None]
+    path: Path_ = ("simulation", given[0] if given else "solver")
+    words = [f"{substeps} substeps" + ("" if sim.substeps is not None else f" ({sim.solver}'s default)")]
+    words.append(f"{iterations} iterations" + ("" if sim.iterations is not None else f" ({sim.solver}'s default)"))
+    detail = f"{' x '.join(words)} = {complaint}"
+    return path, detail, tuple(("simulation", k) for k in given)
 
 
 def _validate(
@@ -1168,27 +1338,40 @@ def _validate(
     error_lines: bool = True,
 ) -> Recipe:
     cls = recipe_class()
+    # (key path, complaint): values no key accepts first, then what the schema says
+    problems: list[tuple[Path_, str]] = list(_bad_numbers(data))
+    recipe: Recipe | None = None
     try:
         recipe = cls.model_validate(data)
     except ValidationError as exc:
-        errors = exc.errors(include_url=False)
+        problems += [(tuple(e["loc"]), _describe(e, cls)) for e in exc.errors(include_url=False)]
+    if problems:
 
-        def where(e: Mapping[str, Any]) -> tuple[int, int]:
-            loc = (*path_prefix, *e["loc"])
+        def where(problem: tuple[Path_, str]) -> tuple[int, int]:
+            loc = (*path_prefix, *problem[0])
             for n in range(len(loc), 0, -1):
                 if tuple(loc[:n]) in lines:
                     return (lines[tuple(loc[:n])], -n)
             return (10**9, 0)
 
-        first = min(errors, key=where) if error_lines else errors[0]
-        loc = (*path_prefix, *first["loc"])
+        first = min(problems, key=where) if error_lines else problems[0]
+        loc = (*path_prefix, *first[0])
         line = None
         if error_lines:
             for n in range(len(loc), 0, -1):
                 if tuple(loc[:n]) in lines:
                     line = lines[tuple(loc[:n])]
                     break
-        raise _LocatedError(label, loc, line, _describe(first, cls)) from None
+        raise _LocatedError(label, loc, line, first[1]) from None
+    assert recipe is not None
+    work = _work_complaint(recipe)
+    if work is not None:
+        path, detail, related = work
+        loc = (*path_prefix, *path)
+        line = None
+        if error_lines:
+            line = next((lines[loc[:n]] for n in range(len(loc), 0, -1) if loc[:n] in lines), None)
+        raise _LocatedError(label, loc, line, detail, [(*path_prefix, *r) for r in related])
     recipe = recipe.model_copy(update={"source": source})
     recipe._raw = copy.deepcopy(data)
     recipe._lines = dict(lines)
@@ -1206,6 +1389,11 @@ def _rebuild(
 
 def parse_recipe(text: str, source: str = "<recipe>") -> Recipe:
     """Parse and validate recipe TOML text; `source` names it in errors (and anchors relative paths)."""
+    text = text.removeprefix("\ufeff")
+    nul = text.find("\x00")
+    if nul >= 0:
+        line = text.count("\n", 0, nul) + 1
+        raise RecipeError(f"{source}: line {line}: a NUL byte: a recipe is text (is it a binary file?)")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -1237,17 +1425,43 @@ def load_recipe(path: Path | str | None) -> Recipe:
     if path is None:
         return recipe_class()()
     p = Path(path)
+    limit = int(LIMITS["recipe file size"].maximum)
     try:
-        text = p.read_text(encoding="utf-8")
+        with open(p, "rb") as handle:
+            data = handle.read(limit + 1)
     except FileNotFoundError:
         raise RecipeError(f"{p}: no such recipe file") from None
     except IsADirectoryError:
         raise RecipeError(f"{p}: is a directory, not a recipe file") from None
-    except UnicodeDecodeError as exc:
-        raise RecipeError(f"{p}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except OSError as exc:
         raise RecipeError(f"{p}: cannot read recipe: {exc.strerror or exc}") from None
-    return parse_recipe(text, str(p))
+    if len(data) > limit:
+        raise RecipeError(f"{p}: is larger than {limit // 2**20} MB, the limit for a recipe (is it a recipe file?)")
+    return parse_recipe(decode_recipe(data, str(p)), str(p))
+
+
+#: byte order marks of encodings a recipe is not in (TOML is UTF-8)
+_BOMS = (
+    (b"\x00\x00\xfe\xff", "UTF-32"),
+    (b"\xff\xfe\x00\x00", "UTF-32"),
+    (b"\xfe\xff", "UTF-16"),
+    (b"\xff\xfe", "UTF-16"),
+)
+
+
+def decode_recipe(data: bytes, source: str) -> str:
+    """Recipe bytes as text: UTF-8, a UTF-8 byte order mark skipped; UTF-16/32 and invalid UTF-8
+    raise RecipeError naming the file and the line (NUL bytes are refused by `parse_recipe`)."""
+    name = next((name for bom, name in _BOMS if data.startswith(bom)), None)
+    if name is None and len(data) >= 4 and max(data[0::2].count(0), data[1::2].count(0)) > len(data) // 4:
+        name = "UTF-16"  # without a byte order mark: every other byte of ASCII text is NUL
+    if name is not None:
+        raise RecipeError(f"{source}: is {name} text; a recipe must be UTF-8 (save it as UTF-8)")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise RecipeError(f"{source}: line {line}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
 
 
 def merge_recipe_data(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
@@ -1331,10 +1545,11 @@ def apply_overrides(
         new = _validate(data, recipe.label, recipe.source, {}, error_lines=False)
     except _LocatedError as exc:
         # name the option rather than the file when the complaint is about an override
-        for n in range(len(exc.path), 0, -1):
-            flag = labels.get(exc.path[:n])
-            if flag is not None:
-                raise RecipeError(f"command line: {flag}: {exc.detail}") from None
+        for path in (exc.path, *exc.related):
+            for n in range(len(path), 0, -1):
+                flag = labels.get(path[:n])
+                if flag is not None:
+                    raise RecipeError(f"command line: {flag}: {exc.detail}") from None
         raise
     new._lines = dict(recipe._lines)
     new._cli = {**recipe._cli, **labels}

@@ -44,20 +44,28 @@ def register(app: typer.Typer) -> None:
         """Validate RECIPE: unknown keys, wrong types, out-of-range values are errors (exit code 2).
 
         With --mesh, also build the simulation on MESH and print how many vertices each selection
-        selects (a selection that selects nothing is an error). Nothing is written.
+        selects (a selection that selects nothing is an error). Nothing is written. The second line
+        estimates the run's cost: substeps x iterations x frames, and with --mesh the spring
+        projections and the bytes of every output.
         """
         from pipeline.build import build_simulation
+        from pipeline.estimate import estimate_run
         from pipeline.recipe import load_recipe
 
         with cli_errors():
             loaded = load_recipe(recipe)
             lines = [f"OK {recipe}: {_summary(loaded)}"]
-            if mesh is not None:
+            if mesh is None:
+                lines.append(estimate_run(loaded).summary())
+            else:
                 from meshdeform.io import load
 
                 # [[assets]] rules apply as in a batch whose folder holds the mesh
-                built = build_simulation(loaded.for_asset(mesh.name), load(mesh))
+                for_mesh = loaded.for_asset(mesh.name)
+                mesh_data = load(mesh)
+                built = build_simulation(for_mesh, mesh_data)
                 model = built.model
+                lines.append(estimate_run(for_mesh, mesh_data, model).summary())
                 lines.append(
                     f"{mesh}: {model.vertex_count} simulated vertices, {model.spring_count} springs, "
                     f"{int(model.pinned.sum())} hard-pinned, {built.settings.substeps} substeps"
