@@ -101,6 +101,7 @@ def run_job(
     from meshdeform.simulate import simulate
     from meshdeform.strain import VertexStrain
     from pipeline.build import build_simulation
+    from pipeline.estimate import estimate_run, require_disk_space
 
     started = time.perf_counter()
     recipe.check_fixed_topology_formats()  # before anything is read, run or written
@@ -108,6 +109,7 @@ def run_job(
     mesh = mesh if mesh is not None else load(mesh_path)
     built = build_simulation(recipe, mesh)
     model, settings = built.model, built.settings
+    require_disk_space(estimate_run(recipe, mesh, model).total_bytes, Path(out_dir))  # before any frame is run
     formats = list(dict.fromkeys(recipe.output.formats or ["obj"]))
     exporters = [make_exporter(name) for name in formats]
     strain = VertexStrain(model)

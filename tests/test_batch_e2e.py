@@ -83,7 +83,10 @@ def build_folder(root: Path, samples: Path, shared: Path) -> None:
     put(shared / "broken" / "empty.obj", "broken/empty.obj")
     put(shared / "broken" / "malformed.obj", "broken/malformed.obj")
     put(meshes / "rope.obj", "diverge/rope.obj")
-    (root / "diverge" / "rope.toml").write_text("pins = []\n[simulation]\ngravity = [0, -1e300, 0]\n")  # blows up
+    # explicit springs far past their stable step, under tension from the base recipe's pin: blows up
+    (root / "diverge" / "rope.toml").write_text(
+        '[simulation]\nsolver = "springs"\nsubsteps = 1\nfps = 2\nstable_substeps = false\n'
+    )
     (root / "README.txt").write_text("not a mesh")
 
 

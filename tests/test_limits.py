@@ -507,3 +507,17 @@ def test_corpus_of_mutated_recipes_ends_quickly_with_one_line(tmp_path: Path) ->
             refused += 1
             assert result.stderr.startswith(f"error: {recipe}: "), case
     assert refused > len(cases) * 0.6
+
+
+def test_simulate_refuses_a_run_whose_outputs_do_not_fit_before_writing_anything(tmp_path: Path, monkeypatch) -> None:
+    """`meshdeform simulate` checks the free space after building the model and before any frame."""
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(estimate.shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 1000, 1000))
+    mesh = tmp_path / "m.obj"
+    write_obj(mesh, grid_mesh(6, 6))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["simulate", str(mesh), "-o", str(out), "--frames", "3", "-q"])
+    assert result.exit_code == 2
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "the outputs need about" in lines[0] and "is free on" in lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.obj"]  # no output, no staging folder
