@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,7 +51,9 @@ class FakeResult:
     report: dict[str, Any]
 
 
-def fake_job(mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = None, overwrite: bool = False) -> FakeResult:
+def fake_job(
+    mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = None, overwrite: bool = False
+) -> FakeResult:
     """run_job's contract without the engine: fails on 'broken'/'diverge'/'bug' names."""
     text = mesh_path.read_text(encoding="utf-8", errors="replace")
     if "broken" in text:
