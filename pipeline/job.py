@@ -203,8 +203,9 @@ def check_output_folder(
     Refused (OutputFolderError, one line naming `label` or the path, and why): a file system root; with
     `refuse_cwd` the current folder or a folder containing it; the folder of any file in `protect`
     ({"input": mesh, "recipe": toml}) or a folder containing it (symlinks, "..", trailing slashes resolved,
-    for the file's own path and the one it links to); an existing non-folder; and, unless `overwrite`, a
-    non-empty folder that is not a previous meshdeform result alone. Returns what is at the target.
+    for the file's own path and the one it links to); an existing non-folder, or a path below one; and,
+    unless `overwrite`, a non-empty folder that is not a previous meshdeform result alone. Returns what
+    is at the target.
     """
     label = label or str(target)
     real = Path(os.path.realpath(target))
@@ -223,6 +224,11 @@ def check_output_folder(
             if _same_or_inside(folder, real):
                 where = "is the folder of" if folder == real else "contains"
                 raise OutputFolderError(f"{label}: {where} the {what} {path}; choose another --out")
+    above = real.parent
+    while not os.path.lexists(above):
+        above = above.parent
+    if not above.is_dir():
+        raise OutputFolderError(f"{label}: {above} exists and is not a folder; choose another --out")
     state = inspect_folder(real)
     message = refusal(label, state, overwrite)
     if message:
