@@ -152,19 +152,30 @@ def select(keys: Sequence[str], include: Sequence[str] = (), exclude: Sequence[s
 def output_folders(keys: Sequence[str]) -> dict[str, tuple[str, str | None]]:
     """Output folder (relative, POSIX) and note for each key: the key without its suffix, unless that
     folder would be shared (`a.obj` and `a.ply`, or names equal but for case): then every asset of the
-    clash keeps its suffix (`a.obj/`, `a.ply/`). Deterministic: it depends on the set of keys only."""
+    clash keeps its suffix (`a.obj/`, `a.ply/`); or unless it would contain another asset's folder
+    (`a.obj` beside a folder `a/` of assets: replacing `a/` would delete theirs): then it keeps its
+    suffix. Deterministic: it depends on the set of keys only."""
     full = {key: False for key in keys}  # True: this key keeps its suffix
+    holders: dict[str, str] = {}  # the folder that would hold another asset's folder -> that asset
     while True:
         names = {key: key if keep else str(PurePosixPath(key).with_suffix("")) for key, keep in full.items()}
         groups: dict[str, list[str]] = {}
         for key, name in names.items():
             groups.setdefault(name.casefold(), []).append(key)
         clashes = [group for group in groups.values() if len(group) > 1 and not all(full[k] for k in group)]
-        if not clashes:
+        parents: dict[str, str] = {}  # every folder above an output folder -> the first asset below it
+        for key in sorted(names, key=_sort_key):
+            for parent in PurePosixPath(names[key]).parents:
+                parents.setdefault(str(parent).casefold(), key)
+        nesting = [key for key, name in names.items() if not full[key] and name.casefold() in parents]
+        if not clashes and not nesting:
             break
         for group in clashes:
             for key in group:
                 full[key] = True
+        for key in nesting:
+            full[key] = True
+            holders.setdefault(key, parents[names[key].casefold()])
     result: dict[str, tuple[str, str | None]] = {}
     for key in keys:
         note = None
@@ -173,7 +184,10 @@ def output_folders(keys: Sequence[str]) -> dict[str, tuple[str, str | None]]:
             others = sorted(
                 k for k in keys if k != key and str(PurePosixPath(k).with_suffix("")).casefold() == plain.casefold()
             )
-            note = f"output folder keeps the suffix: {', '.join([key, *others])} would share {plain}/"
+            if others or key not in holders:
+                note = f"output folder keeps the suffix: {', '.join([key, *others])} would share {plain}/"
+            else:
+                note = f"output folder keeps the suffix: {plain}/ would hold the output folder of {holders[key]}"
         result[key] = (names[key], note)
     return result
 

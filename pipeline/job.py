@@ -4,6 +4,10 @@ load -> build (model, scene, settings) -> simulate -> exporters (streamed, frame
 -> previews -> report.json. Everything is written into a staging folder beside the target and
 renamed into place only when the whole job succeeded, so a failed or interrupted job never
 leaves an output folder that looks complete.
+
+The folder logic lives here too: every output folder carries `.meshdeform.json` (the files
+meshdeform wrote), and a folder holding anything else is never replaced (`check_output_folder`,
+`staged_directory`); `output_lock` keeps two runs off one folder. docs/batch.md, "Output folders".
 """
 
 from __future__ import annotations

@@ -143,6 +143,16 @@ def test_output_folders_keep_the_suffix_only_on_a_clash() -> None:
     assert names["b.obj"][0] == "b.obj" and names["B.ply"][0] == "B.ply"  # equal but for case
     assert names["c.obj"][0] == "c.obj" and names["c.obj.ply"][0] == "c.obj.ply"  # clash of the second round
     assert output_folders(["x/y.obj", "z.ply"]) == {"x/y.obj": ("x/y", None), "z.ply": ("z", None)}
+    # a folder that would hold another asset's folder keeps its suffix (replacing it would delete theirs)
+    nested = output_folders(["a.obj", "a/b.obj", "A/c/d.ply", "c.obj"])
+    assert {k: n for k, (n, _) in nested.items()} == {
+        "a.obj": "a.obj",
+        "a/b.obj": "a/b",
+        "A/c/d.ply": "A/c/d",
+        "c.obj": "c",
+    }
+    # (the first asset below it, in batch order; folder names compare without case, as on macOS and Windows)
+    assert nested["a.obj"][1] == "output folder keeps the suffix: a/ would hold the output folder of A/c/d.ply"
     assert len({n for n, _ in names.values()}) == len(names)
 
 
