@@ -7,6 +7,11 @@
 The per-asset `report.json` (written by `run_job` together with the outputs, renamed into place
 in one step) is what a rerun trusts: an asset is skipped when its report names the same input
 hash, merged-recipe hash and tool version and every output it lists exists.
+
+Folders are checked before anything runs (`check_out`): OUT may not be, contain or lie inside the
+assets folder, nor be or contain the recipe's folder, and a non-empty OUT must be a previous batch's
+(its manifest) unless `overwrite`. Each asset folder is then checked as `simulate` checks --out
+(`pipeline.job.check_output_folder`): one holding files meshdeform did not write fails that asset alone.
 """
 
 from __future__ import annotations
@@ -27,15 +32,19 @@ from typing import Any, Protocol
 from meshdeform.errors import MeshdeformError, RecipeError
 from pipeline import __version__
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
+from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
 
 #: mesh suffixes a batch picks up (case-insensitive)
 MESH_SUFFIXES = (".obj", ".ply")
 LOG_NAME = "batch.log"
 LOCK_NAME = ".meshdeform-batch.lock"
-#: staging folders of `pipeline.job.staged_directory` and atomic temp files of the manifest
-_STALE_DIR = re.compile(r"^\..+\.(partial|old)-[0-9a-f]{8}$")
+#: atomic temp files of the manifest (staging folders: `pipeline.job.STAGE_PATTERN`)
 _STALE_MANIFEST = re.compile(r"^\.manifest\..+\.part\.json$")
+#: why `discover` did not follow a symlink (the manifest's "reason" of its "skipped" entry)
+OUTSIDE_LINK = "symlink to a path outside the assets folder"
+#: the manifest's "reason" of an asset skipped because its outputs are current
+UP_TO_DATE = "up to date"
 
 
 class BatchError(MeshdeformError):
@@ -79,19 +88,56 @@ def _sort_key(relative: str) -> tuple[str, ...]:
     return tuple(relative.split("/"))
 
 
-def discover(root: Path, skip: Sequence[Path] = ()) -> list[str]:
-    """Relative POSIX paths of every .obj/.ply under `root`, sorted; hidden names and `skip` folders
-    (the output folder when it lies inside the assets folder) are left out."""
+@dataclass(frozen=True)
+class Discovery:
+    """What `discover` found under an assets folder.
+
+    keys: relative POSIX paths of the meshes, sorted folder by folder.
+    skipped: symlinks not followed, relative path (a folder's with a trailing "/") -> why.
+    """
+
+    keys: list[str]
+    skipped: dict[str, str]
+
+
+def _inside(path: Path, real_root: Path) -> bool:
+    """Does `path`, symlinks resolved (loops included: realpath stops on them), lie in `real_root`?"""
+    real = Path(os.path.realpath(path))
+    return real == real_root or real_root in real.parents
+
+
+def discover(root: Path) -> Discovery:
+    """Every .obj/.ply under `root`, hidden names left out.
+
+    Symlinks are not followed out of the folder: a linked mesh or folder whose target lies outside
+    `root` is `skipped` with the reason. A linked mesh inside `root` is an asset under the link's name;
+    a linked folder is never entered (a target inside `root` is searched under its own path anyway, so
+    no loop and no asset twice).
+    """
     root = Path(root)
-    skipped = {Path(os.path.realpath(p)) for p in skip}
+    real_root = Path(os.path.realpath(root))
     found: list[str] = []
-    for folder, dirs, files in os.walk(root):
+    skipped: dict[str, str] = {}
+    for folder, dirs, files in os.walk(root):  # followlinks=False: linked folders are listed, never entered
         here = Path(folder)
-        dirs[:] = [d for d in dirs if not d.startswith(".") and Path(os.path.realpath(here / d)) not in skipped]
+        kept = []
+        for name in dirs:
+            if name.startswith("."):
+                continue
+            if not (here / name).is_symlink():
+                kept.append(name)
+            elif not _inside(here / name, real_root):
+                skipped[(here / name).relative_to(root).as_posix() + "/"] = OUTSIDE_LINK
+        dirs[:] = kept
         for name in files:
-            if not name.startswith(".") and name.lower().endswith(MESH_SUFFIXES):
-                found.append((here / name).relative_to(root).as_posix())
-    return sorted(found, key=_sort_key)
+            if name.startswith(".") or not name.lower().endswith(MESH_SUFFIXES):
+                continue
+            key = (here / name).relative_to(root).as_posix()
+            if (here / name).is_symlink() and not _inside(here / name, real_root):
+                skipped[key] = OUTSIDE_LINK
+            else:
+                found.append(key)
+    return Discovery(sorted(found, key=_sort_key), dict(sorted(skipped.items(), key=lambda kv: _sort_key(kv[0]))))
 
 
 def select(keys: Sequence[str], include: Sequence[str] = (), exclude: Sequence[str] = ()) -> list[str]:
@@ -106,19 +152,30 @@ def select(keys: Sequence[str], include: Sequence[str] = (), exclude: Sequence[s
 def output_folders(keys: Sequence[str]) -> dict[str, tuple[str, str | None]]:
     """Output folder (relative, POSIX) and note for each key: the key without its suffix, unless that
     folder would be shared (`a.obj` and `a.ply`, or names equal but for case): then every asset of the
-    clash keeps its suffix (`a.obj/`, `a.ply/`). Deterministic: it depends on the set of keys only."""
+    clash keeps its suffix (`a.obj/`, `a.ply/`); or unless it would contain another asset's folder
+    (`a.obj` beside a folder `a/` of assets: replacing `a/` would delete theirs): then it keeps its
+    suffix. Deterministic: it depends on the set of keys only."""
     full = {key: False for key in keys}  # True: this key keeps its suffix
+    holders: dict[str, str] = {}  # the folder that would hold another asset's folder -> that asset
     while True:
         names = {key: key if keep else str(PurePosixPath(key).with_suffix("")) for key, keep in full.items()}
         groups: dict[str, list[str]] = {}
         for key, name in names.items():
             groups.setdefault(name.casefold(), []).append(key)
         clashes = [group for group in groups.values() if len(group) > 1 and not all(full[k] for k in group)]
-        if not clashes:
+        parents: dict[str, str] = {}  # every folder above an output folder -> the first asset below it
+        for key in sorted(names, key=_sort_key):
+            for parent in PurePosixPath(names[key]).parents:
+                parents.setdefault(str(parent).casefold(), key)
+        nesting = [key for key, name in names.items() if not full[key] and name.casefold() in parents]
+        if not clashes and not nesting:
             break
         for group in clashes:
             for key in group:
                 full[key] = True
+        for key in nesting:
+            full[key] = True
+            holders.setdefault(key, parents[names[key].casefold()])
     result: dict[str, tuple[str, str | None]] = {}
     for key in keys:
         note = None
@@ -127,7 +184,10 @@ def output_folders(keys: Sequence[str]) -> dict[str, tuple[str, str | None]]:
             others = sorted(
                 k for k in keys if k != key and str(PurePosixPath(k).with_suffix("")).casefold() == plain.casefold()
             )
-            note = f"output folder keeps the suffix: {', '.join([key, *others])} would share {plain}/"
+            if others or key not in holders:
+                note = f"output folder keeps the suffix: {', '.join([key, *others])} would share {plain}/"
+            else:
+                note = f"output folder keeps the suffix: {plain}/ would hold the output folder of {holders[key]}"
         result[key] = (names[key], note)
     return result
 
@@ -244,7 +304,7 @@ def remove_stale(out: Path) -> list[Path]:
     for folder, dirs, files in os.walk(out):
         here = Path(folder)
         for name in list(dirs):
-            if _STALE_DIR.match(name):
+            if STAGE_PATTERN.match(name):
                 shutil.rmtree(here / name, ignore_errors=True)
                 removed.append(here / name)
                 dirs.remove(name)
@@ -259,21 +319,64 @@ def remove_stale(out: Path) -> list[Path]:
 
 @contextlib.contextmanager
 def out_lock(out: Path) -> Iterator[None]:
-    """Hold an exclusive lock on OUT for the batch, so two batches never write into one folder."""
+    """Hold an exclusive lock on OUT (`OUT/.meshdeform-batch.lock`, filelock: every OS) for the batch,
+    so two batches never write into one folder; the second is refused at once."""
+    from filelock import FileLock, Timeout
+
+    lock = FileLock(out / LOCK_NAME, timeout=0)
     try:
-        import fcntl
-    except ImportError:  # no flock on this platform: run unlocked
-        yield
-        return
-    handle = open(out / LOCK_NAME, "a+")  # noqa: SIM115  (held for the whole batch)
+        lock.acquire()
+    except Timeout:
+        raise BatchError(f"{out}: another batch is writing into this folder") from None
+    except OSError as exc:
+        raise BatchError(f"{out}: cannot create the lock file {LOCK_NAME}: {exc.strerror or exc}") from None
     try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise BatchError(f"{out}: another batch is writing into this folder") from None
         yield
     finally:
-        handle.close()
+        lock.release()
+
+
+def is_batch_folder(out: Path) -> bool:
+    """Is `out` empty (staging leftovers aside) or a previous batch's output: a meshdeform manifest.json,
+    or the lock file every batch creates first (a batch stopped before its first manifest)?"""
+    names = [n for n in os.listdir(out) if not STAGE_PATTERN.match(n) and not _STALE_MANIFEST.match(n)]
+    if not names or LOCK_NAME in names:
+        return True
+    previous = read_manifest(out / MANIFEST_NAME)
+    return previous is not None and previous.get("tool") == "meshdeform"
+
+
+def check_out(out: Path, assets_dir: Path, recipe_path: Path, *, overwrite: bool) -> None:
+    """Refuse (BatchError, one line) an OUT that a batch must not write, before anything is read or made.
+
+    OUT may not be the assets folder, contain it or lie inside it; not be or contain the recipe's
+    folder; not be an existing non-folder; and, unless `overwrite`, a non-empty OUT must be a previous
+    batch's (`is_batch_folder`). Paths are compared with symlinks, ".." and trailing slashes resolved.
+    """
+    real_out = Path(os.path.realpath(out))
+    real_assets = Path(os.path.realpath(assets_dir))
+    if real_out == real_assets:
+        raise BatchError(f"{out}: the output folder cannot be the assets folder itself (its frames would be inputs)")
+    if real_out in real_assets.parents:
+        raise BatchError(f"{out}: contains the assets folder {assets_dir}; choose an --out outside it")
+    if real_assets in real_out.parents:
+        raise BatchError(
+            f"{out}: is inside the assets folder {assets_dir} (its frames would be inputs); choose an --out outside it"
+        )
+    recipe_folders = {Path(os.path.realpath(recipe_path.parent)), Path(os.path.realpath(recipe_path)).parent}
+    for folder in sorted(recipe_folders):
+        if folder == real_out or real_out in folder.parents:
+            where = "is the folder of" if folder == real_out else "contains"
+            raise BatchError(f"{out}: {where} the recipe {recipe_path}; choose another --out")
+    if os.path.lexists(real_out) and not real_out.is_dir():
+        raise BatchError(f"{out}: exists and is not a folder; choose another --out")
+    if real_out.is_dir() and not overwrite and not is_batch_folder(real_out):
+        names = sorted(os.listdir(real_out))
+        count = f"{len(names)} entr{'y' if len(names) == 1 else 'ies'}"
+        raise BatchError(
+            f"{out}: folder exists and is not a meshdeform batch output ({count}, e.g. {names[0]!r}); "
+            "choose another --out or pass --overwrite"
+        )
 
 
 # -- running -----------------------------------------------------------------------------------
@@ -377,15 +480,18 @@ def run_batch(
     exclude: Sequence[str] = (),
     dask: str | None = None,
     force: bool = False,
+    overwrite: bool = False,
     progress: BatchProgress | None = None,
     job: JobFunction | None = None,
     executor: Executor | None = None,
 ) -> BatchResult:
     """Run the recipe on every selected asset under `assets_dir` into `out`; see the module doc.
 
-    Raises BatchError / RecipeError for usage errors (nothing is run then). Asset failures never
-    raise: they are entries with status "failed". KeyboardInterrupt propagates after the manifest
-    (with `"complete": false`) has been written and the workers stopped.
+    Raises BatchError / RecipeError for usage errors (nothing is run or created then). Asset failures
+    never raise: they are entries with status "failed". KeyboardInterrupt propagates after the manifest
+    (with `"complete": false`) has been written and the workers stopped. `overwrite` lets the batch
+    write into a non-batch OUT and into asset folders holding other files, keeping those files (the
+    job, `run_job` or the one given, is then called with `overwrite=True`).
     """
     from pipeline.executors import available_cores
 
@@ -394,14 +500,21 @@ def run_batch(
     out = Path(os.path.abspath(out))
     if not assets_dir.is_dir():
         raise BatchError(f"{assets_dir}: no such folder")
-    if os.path.realpath(out) == os.path.realpath(assets_dir):
-        raise BatchError(f"{out}: the output folder cannot be the assets folder itself (its frames would be inputs)")
-    base = load_base_recipe(Path(os.path.abspath(recipe_path)))
-    every = discover(assets_dir, skip=[out])
+    recipe_path = Path(os.path.abspath(recipe_path))
+    check_out(out, assets_dir, recipe_path, overwrite=overwrite)
+    base = load_base_recipe(recipe_path)
+    found = discover(assets_dir)
+    every = found.keys
     keys = select(every, include, exclude)
+    links = {key: reason for key, reason in found.skipped.items() if key in select([key], include, exclude)}
     if not keys:
         filters = " with the --include/--exclude given" if include or exclude else ""
-        raise BatchError(f"{assets_dir}: no .obj or .ply files found{filters}")
+        unfollowed = f" ({len(links)} symlink(s) to paths outside the folder not followed)" if links else ""
+        raise BatchError(f"{assets_dir}: no .obj or .ply files found{filters}{unfollowed}")
+    if overwrite:
+        from pipeline.job import run_job
+
+        job = functools.partial(job or run_job, overwrite=True)
     folders = output_folders(every)  # on every asset, so names do not change with the selection
     assets = [Asset(key=k, path=assets_dir / k, output=folders[k][0], note=folders[k][1]) for k in keys]
     jobs = available_cores() if jobs is None else jobs
@@ -422,9 +535,11 @@ def run_batch(
             out,
             runner,
             started,
+            links=links,
             jobs=jobs,
             dask=dask,
             force=force,
+            overwrite=overwrite,
             progress=progress,
             job=job,
         )
@@ -443,9 +558,11 @@ def _run(
     runner: Executor,
     started: float,
     *,
+    links: dict[str, str],
     jobs: int,
     dask: str | None,
     force: bool,
+    overwrite: bool,
     progress: BatchProgress | None,
     job: JobFunction | None,
 ) -> BatchResult:
@@ -486,7 +603,10 @@ def _run(
             )
             if removed:
                 log.info("removed %d stale staging folder(s) of interrupted runs", len(removed))
-            tasks = _plan(assets, base, out, manifest, log, force=force, job=job)
+            for key, reason in links.items():
+                manifest.add(new_entry(key, None, version=__version__, status="skipped", reason=reason))
+                log.info("skipped %s: %s", key, reason)
+            tasks = _plan(assets, base, out, manifest, log, force=force, overwrite=overwrite, job=job)
             manifest.write(force=True)
             if progress is not None:
                 progress.begin(len(assets), len(assets) - len(tasks))
@@ -537,9 +657,11 @@ def _plan(
     log: logging.Logger,
     *,
     force: bool,
+    overwrite: bool,
     job: JobFunction | None,
 ) -> list[AssetTask]:
-    """Resolve each asset's recipe, record skips and recipe failures, and return the tasks to run."""
+    """Resolve each asset's recipe, record skips, recipe failures and asset folders that may not be
+    written (holding files meshdeform did not write, unless `overwrite`), and return the tasks to run."""
     from pipeline.job import file_sha256
     from pipeline.recipe import recipe_hash
 
@@ -563,12 +685,22 @@ def _plan(
         if report is not None and up_to_date(report, out_dir, asset.path, sha):
             entry.update(
                 status="skipped",
+                reason=UP_TO_DATE,
                 outputs=list(report.get("outputs", [])),
                 frames=report.get("frames"),
                 seconds=0.0,
                 input_sha256=report.get("input_sha256"),
             )
             log.info("skipped %s: up to date in %s", asset.key, asset.output)
+            continue
+        try:
+            check_output_folder(out_dir, overwrite=overwrite)
+        except OutputFolderError as exc:  # that folder holds someone's files: this asset fails alone
+            error, kind = one_line(exc)
+            entry.update(status="failed", error=error, error_type=kind, seconds=0.0)
+            with contextlib.suppress(OSError):
+                entry["input_sha256"] = file_sha256(asset.path)
+            log.error("failed %s: %s", asset.key, error)
             continue
         tasks.append(
             AssetTask(

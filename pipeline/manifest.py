@@ -27,17 +27,24 @@ MANIFEST_TIMING_KEYS = ("seconds", "total_seconds")
 
 def new_entry(
     key: str,
-    output: str,
+    output: str | None,
     *,
     version: str,
     overrides: Iterable[str] = (),
     note: str | None = None,
+    status: str = "pending",
+    reason: str | None = None,
 ) -> dict[str, Any]:
-    """A pending entry for asset `key` (its path relative to the assets folder)."""
+    """An entry for asset `key` (its path relative to the assets folder), pending unless told.
+
+    `output` is None for what has no output folder (a symlink the batch did not follow); `reason`
+    says why an entry is "skipped" ("up to date", "symlink to a path outside the assets folder").
+    """
     return {
         "input": key,
         "output": output,
-        "status": "pending",
+        "status": status,
+        "reason": reason,
         "error": None,
         "error_type": None,
         "outputs": [],

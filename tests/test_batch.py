@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,7 +51,9 @@ class FakeResult:
     report: dict[str, Any]
 
 
-def fake_job(mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = None) -> FakeResult:
+def fake_job(
+    mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = None, overwrite: bool = False
+) -> FakeResult:
     """run_job's contract without the engine: fails on 'broken'/'diverge'/'bug' names."""
     text = mesh_path.read_text(encoding="utf-8", errors="replace")
     if "broken" in text:
@@ -66,7 +67,7 @@ def fake_job(mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = Non
     if "interrupt" in text:
         raise KeyboardInterrupt
     frames = recipe.simulation.frames
-    with staged_directory(out_dir) as stage:
+    with staged_directory(out_dir, overwrite=overwrite) as stage:
         (stage / "frames").mkdir()
         outputs = []
         for i in range(1, frames + 1):
@@ -122,9 +123,8 @@ def entries(result: Any) -> dict[str, dict[str, Any]]:
 # -- discovery, names, globs -----------------------------------------------------------------
 
 
-def test_discover_sorted_recursive_and_skips_hidden_and_output(folder: Path) -> None:
-    write(folder / "out" / "old" / "frames" / "frame_0001.obj")  # an output folder inside the assets
-    found = discover(folder, skip=[folder / "out"])
+def test_discover_sorted_recursive_and_skips_hidden(folder: Path) -> None:
+    found = discover(folder).keys
     assert found == [
         "broken.obj",
         "clash/a.obj",
@@ -133,7 +133,7 @@ def test_discover_sorted_recursive_and_skips_hidden_and_output(folder: Path) -> 
         "props/chair one.obj",
         "props/deep/lampe à poser.PLY",
     ]
-    assert discover(folder, skip=[folder / "out"]) == found  # stable
+    assert discover(folder).keys == found and discover(folder).skipped == {}  # stable
 
 
 def test_output_folders_keep_the_suffix_only_on_a_clash() -> None:
@@ -143,6 +143,16 @@ def test_output_folders_keep_the_suffix_only_on_a_clash() -> None:
     assert names["b.obj"][0] == "b.obj" and names["B.ply"][0] == "B.ply"  # equal but for case
     assert names["c.obj"][0] == "c.obj" and names["c.obj.ply"][0] == "c.obj.ply"  # clash of the second round
     assert output_folders(["x/y.obj", "z.ply"]) == {"x/y.obj": ("x/y", None), "z.ply": ("z", None)}
+    # a folder that would hold another asset's folder keeps its suffix (replacing it would delete theirs)
+    nested = output_folders(["a.obj", "a/b.obj", "A/c/d.ply", "c.obj"])
+    assert {k: n for k, (n, _) in nested.items()} == {
+        "a.obj": "a.obj",
+        "a/b.obj": "a/b",
+        "A/c/d.ply": "A/c/d",
+        "c.obj": "c",
+    }
+    # (the first asset below it, in batch order; folder names compare without case, as on macOS and Windows)
+    assert nested["a.obj"][1] == "output folder keeps the suffix: a/ would hold the output folder of A/c/d.ply"
     assert len({n for n, _ in names.values()}) == len(names)
 
 
@@ -224,8 +234,9 @@ def test_rerun_skips_up_to_date_and_redoes_what_changed(folder: Path, recipe: Pa
     statuses = {k: e["status"] for k, e in entries(second).items()}
     assert statuses == {k: ("failed" if k == "broken.obj" else "skipped") for k in statuses}
     assert (out / "props" / "chair one" / "report.json").stat().st_mtime_ns == stamp  # untouched
-    kept = drop_keys(entries(first)["flag.obj"], [*MANIFEST_TIMING_KEYS, "status"])
-    assert drop_keys(entries(second)["flag.obj"], [*MANIFEST_TIMING_KEYS, "status"]) == kept
+    kept = drop_keys(entries(first)["flag.obj"], [*MANIFEST_TIMING_KEYS, "status", "reason"])
+    assert drop_keys(entries(second)["flag.obj"], [*MANIFEST_TIMING_KEYS, "status", "reason"]) == kept
+    assert entries(second)["flag.obj"]["reason"] == "up to date" and entries(first)["flag.obj"]["reason"] is None
     # change an input, a sidecar, delete an output: only those are redone
     write(folder / "clash" / "a.obj", "v 0 0 0\nv 2 0 0\nv 0 2 0\nf 1 2 3\n")
     write(folder / "flag.toml", "[simulation]\nframes = 6\n")
@@ -282,7 +293,8 @@ def test_usage_errors(folder: Path, recipe: Path, tmp_path: Path) -> None:
 def test_interrupted_batch_keeps_what_is_done_and_resumes_cleanly(folder: Path, recipe: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
     write(folder / "m_interrupt.obj", "interrupt")  # sorted after flag.obj, before props/
-    # a stale staging folder and temp manifest from a run that was killed
+    # the lock file, a stale staging folder and temp manifest from a run that was killed while planning
+    write(out / ".meshdeform-batch.lock", "")
     stale = out / "props" / ".chair one.partial-0123abcd"
     write(stale / "frames" / "frame_0001.obj")
     write(out / ".manifest.x1y2.part.json", "{")
@@ -311,9 +323,20 @@ def test_remove_stale_only_touches_staging_names(tmp_path: Path) -> None:
     assert len(removed) == 3 and keep.exists() and sorted(os.listdir(tmp_path / "a")) == [".notes"]
 
 
-def test_out_folder_inside_the_assets_folder_is_not_an_input(folder: Path, recipe: Path) -> None:
-    out = folder / "baked"
-    run_batch(folder, recipe, out, jobs=0, job=fake_job)
-    again = run_batch(folder, recipe, out, jobs=0, job=fake_job)
-    assert not any(k.startswith("baked/") for k in entries(again))
-    shutil.rmtree(out)
+def test_out_folder_inside_or_around_the_assets_or_recipe_folder_is_refused(
+    folder: Path, recipe: Path, tmp_path: Path
+) -> None:
+    for out, reason in (
+        (folder / "baked", "is inside the assets folder"),
+        (folder / "props" / ".." / "x", "is inside the assets folder"),
+        (tmp_path, "contains the assets folder"),
+        (folder / "..", "contains the assets folder"),
+    ):
+        with pytest.raises(BatchError, match=reason):
+            run_batch(folder, recipe, out, jobs=0, job=fake_job)
+    elsewhere = tmp_path / "recipes" / "r.toml"
+    write(elsewhere, RECIPE)
+    with pytest.raises(BatchError, match="is the folder of the recipe"):
+        run_batch(folder, elsewhere, tmp_path / "recipes", jobs=0, job=fake_job)
+    assert not (folder / "baked").exists() and not (folder / "x").exists()
+    assert sorted(os.listdir(tmp_path / "recipes")) == ["r.toml"]

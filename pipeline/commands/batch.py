@@ -147,7 +147,13 @@ def register(app: typer.Typer) -> None:
     def batch(
         assets: Path = typer.Argument(..., help="Folder searched recursively for .obj and .ply files."),
         recipe: Path = typer.Option(..., "--recipe", "-r", help="The recipe TOML applied to every asset."),
-        out: Path = typer.Option(..., "--out", "-o", help="Output folder: OUT/<asset path without suffix>/."),
+        out: Path = typer.Option(
+            ...,
+            "--out",
+            "-o",
+            help="Output folder: OUT/<asset path without suffix>/. Created, or a previous batch's; any other"
+            " non-empty folder, a folder inside or containing ASSETS or the recipe's folder is refused (exit 2).",
+        ),
         jobs: int | None = typer.Option(
             None, "--jobs", "-j", min=0, help="Worker processes (default: number of cores; 0: run in this process)."
         ),
@@ -161,6 +167,13 @@ def register(app: typer.Typer) -> None:
             None, "--dask", help="Run on a Dask scheduler, e.g. tcp://host:8786 (shared file system needed)."
         ),
         force: bool = typer.Option(False, "--force", help="Redo assets whose outputs are up to date."),
+        overwrite: bool = typer.Option(
+            False,
+            "--overwrite",
+            help="Write into an OUT or asset folders holding files meshdeform did not write: new outputs replace"
+            " same-named files, files of a previous result not written again are removed, all else is kept"
+            " (without it such an asset folder fails that asset alone).",
+        ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display and no summary."),
         as_json: bool = typer.Option(False, "--json", help="Print only the summary, as one JSON object on stdout."),
     ) -> None:
@@ -184,6 +197,7 @@ def register(app: typer.Typer) -> None:
                     exclude=exclude,
                     dask=dask,
                     force=force,
+                    overwrite=overwrite,
                     progress=display,
                 )
         except KeyboardInterrupt:

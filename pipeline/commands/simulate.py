@@ -25,7 +25,14 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def simulate(
         mesh: Path = typer.Argument(..., help="An OBJ or PLY file."),
-        out: Path = typer.Option(..., "--out", "-o", help="Output folder (replaced when the run succeeds)."),
+        out: Path = typer.Option(
+            ...,
+            "--out",
+            "-o",
+            help="Output folder, created. An existing one is replaced when the run succeeds only if it holds a"
+            " previous meshdeform result and nothing else; any other non-empty folder, the current folder, the"
+            " folder of the mesh or the recipe (or one containing it) and an existing file are refused (exit 2).",
+        ),
         recipe: Path | None = typer.Option(None, "--recipe", "-r", help="A recipe TOML; options below override it."),
         solver: str | None = typer.Option(None, help="anchor | verlet | xpbd | springs | implicit."),
         frames: int | None = typer.Option(None, min=1, help="Number of frames to bake."),
@@ -41,14 +48,23 @@ def register(app: typer.Typer) -> None:
             [], "--format", "-f", help="Output format, repeatable: obj, ply, pc2, mdd, usd, vtk, xdmf, npz."
         ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar, no summary."),
+        overwrite: bool = typer.Option(
+            False,
+            "--overwrite",
+            help="Write into an existing folder that holds files meshdeform did not write: the new outputs are"
+            " moved in file by file, replacing same-named files; files of a previous result that are not written"
+            " again are removed; every other file is kept.",
+        ),
     ) -> None:
         """Simulate MESH with a recipe and write frames/frame_0001.obj ... and report.json into --out."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-        from pipeline.job import run_job
+        from pipeline.job import check_output_folder, output_lock, run_job
         from pipeline.recipe import apply_overrides, load_recipe
 
         with cli_errors():
+            # before anything is read or created (run_job checks again once the lock is held)
+            check_output_folder(out, overwrite=overwrite, protect={"input": mesh, "recipe": recipe}, refuse_cwd=True)
             loaded = load_recipe(recipe).for_asset(mesh.name)  # [[assets]] rules match the file name
             loaded = apply_overrides(
                 loaded,
@@ -70,9 +86,11 @@ def register(app: typer.Typer) -> None:
                 transient=True,
                 disable=quiet,
             )
-            with progress:
+            with output_lock(out), progress:  # a second run on the same --out is refused at once
                 task = progress.add_task(mesh.name, total=loaded.simulation.frames)
-                result = run_job(mesh, loaded, out, on_frame=lambda i, n: progress.update(task, completed=i))
+                result = run_job(
+                    mesh, loaded, out, overwrite=overwrite, on_frame=lambda i, n: progress.update(task, completed=i)
+                )
         if not quiet:
             report = result.report
             typer.echo(
