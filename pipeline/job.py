@@ -212,6 +212,8 @@ def check_output_folder(
     is at the target.
     """
     label = label or str(target)
+    if os.path.islink(target) and not os.path.exists(target):
+        raise OutputFolderError(f"{label}: is a symbolic link to a missing path; choose another --out")
     real = Path(os.path.realpath(target))
     if real.parent == real:
         raise OutputFolderError(f"{label}: is a file system root; choose a folder of its own for --out")
@@ -276,6 +278,8 @@ def output_lock(target: Path, label: str | None = None) -> Iterator[None]:
     from filelock import FileLock, Timeout
 
     label = label or str(target)
+    if os.path.islink(target) and not os.path.exists(target):
+        raise OutputFolderError(f"{label}: is a symbolic link to a missing path; choose another --out")
     real = Path(os.path.realpath(target))
     created = _make_folders(real.parent, label)
     path = real.parent / f".{real.name}{LOCK_SUFFIX}"

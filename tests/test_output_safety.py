@@ -97,6 +97,7 @@ def user(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
     put(home / "work" / "todo.txt", "todo\n")
     paths["link"].symlink_to(project, target_is_directory=True)
     paths["docs_link"].symlink_to(home / "docs", target_is_directory=True)
+    (home / "work" / "dangling").symlink_to(tmp_path / "nowhere" / "out", target_is_directory=True)
     monkeypatch.chdir(home / "work")
     return paths
 
@@ -121,6 +122,7 @@ MISTYPED: list[tuple[str, Callable[[dict[str, Path]], str], str]] = [
     ("the input mesh itself", lambda p: str(p["mesh"]), "exists and is not a folder"),
     ("a file in the current folder", lambda p: "todo.txt", "exists and is not a folder"),
     ("a file system root", lambda p: "/", "is a file system root"),
+    ("a dangling symlink", lambda p: "dangling", "is a symbolic link to a missing path"),
 ]
 #: folders refused only because they hold files meshdeform did not write (--overwrite writes beside them)
 FOREIGN: list[tuple[str, Callable[[dict[str, Path]], str], str]] = [
