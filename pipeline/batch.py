@@ -221,6 +221,9 @@ def resolve_recipe(base: Any, asset: Asset) -> tuple[Any, list[str]]:
     sidecar = sidecar_path(asset.path)
     if not sidecar.is_file() or (base.source is not None and sidecar.resolve() == Path(base.source).resolve()):
         return recipe, layers
+    assets_root = Path(os.path.realpath(asset.path.parents[len(PurePosixPath(asset.key).parts) - 1]))
+    if not Path(os.path.realpath(sidecar)).is_relative_to(assets_root):
+        raise RecipeError(f"{sidecar}: sidecar recipe is a symlink to a path outside the assets folder; not read")
     recipe = apply_sidecar(recipe, sidecar)
     return recipe, [*layers, f"sidecar {sidecar.name}"]
 

@@ -416,3 +416,19 @@ def test_batch_overwrite_writes_into_someones_folder_and_keeps_their_files(batch
     again = cli("batch", batch["assets"], "-r", batch["recipe"], "-o", out, "--jobs", 0, "-q")
     assert again.exit_code == 0, again.output
     assert {e["status"] for e in manifest(out).values()} == {"skipped"}
+
+
+def test_batch_does_not_read_a_sidecar_that_links_out_of_the_assets_folder(batch: dict[str, Path]) -> None:
+    """A sidecar NAME.toml is read only when it resolves inside the assets folder: a link to a shared
+    recipe in the folder works, a link out of it fails that asset alone with the reason."""
+    put(batch["private"] / "evil.toml", "[simulation]\nframes = 3\n")
+    put(batch["assets"] / "common.toml", "[simulation]\nframes = 3\n")
+    (batch["assets"] / "a.toml").symlink_to(batch["private"] / "evil.toml")
+    (batch["assets"] / "sub" / "b.toml").symlink_to(batch["assets"] / "common.toml")
+    out = batch["root"] / "out"
+    result = cli("batch", batch["assets"], "-r", batch["recipe"], "-o", out, "--jobs", 0, "-q")
+    assert result.exit_code == 1
+    entries = manifest(out)
+    assert entries["a.obj"]["status"] == "failed"
+    assert "symlink to a path outside the assets folder" in entries["a.obj"]["error"]
+    assert entries["sub/b.obj"]["status"] == "ok" and entries["sub/b.obj"]["frames"] == 3
