@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import traceback
 from typing import Any
 
 import typer
@@ -29,18 +30,26 @@ class MeshdeformGroup(TyperGroup):
     """The app's command group: each command runs inside the signal handlers and the quiet logging.
 
     An interrupt that arrives outside a command's own `cli_errors` block (while it parses or
-    imports) still ends with one line and 128 + the signal number, not Click's "Aborted!".
+    imports) still ends with one line and 128 + the signal number, not Click's "Aborted!"; an
+    unexpected error (a bug) ends with one line and exit 1, its traceback shown with --verbose.
     """
 
     def invoke(self, ctx: typer.Context) -> Any:
-        from pipeline.commands.errors import fail, interrupted_message
+        from pipeline.commands.errors import EXIT_FAILED, fail, interrupted_message, unexpected_message
         from pipeline.interrupts import exit_code_of
 
-        with handling_signals(), quiet_libraries(verbose=bool(ctx.params.get("verbose"))):
+        verbose = bool(ctx.params.get("verbose"))
+        with handling_signals(), quiet_libraries(verbose=verbose):
             try:
                 return super().invoke(ctx)
             except KeyboardInterrupt as exc:
                 raise fail(interrupted_message(exc), exit_code_of(exc)) from None
+            except (typer.Exit, typer.Abort, typer.TyperException):
+                raise
+            except Exception as exc:
+                if verbose:
+                    traceback.print_exc()
+                raise fail(unexpected_message(exc), EXIT_FAILED) from None
 
 
 app = typer.Typer(

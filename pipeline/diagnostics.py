@@ -27,8 +27,9 @@ from collections.abc import Iterator
 from types import ModuleType
 from typing import Any
 
-#: the module whose import switches VTK's output off
+#: the module whose import switches VTK's output off, and its package
 VTK_CORE = "vtkmodules.vtkCommonCore"
+VTK_PACKAGE = "vtkmodules"
 #: at most this many distinct warnings are kept for one job
 MAX_JOB_WARNINGS = 20
 
@@ -42,30 +43,38 @@ def silence_vtk(core: Any) -> None:
 
 
 class _SilenceVtkOnImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """A meta-path finder that lets VTK's core module load as usual, then silences it."""
+    """A meta-path finder that lets VTK's core module load as usual, then silences it.
+
+    The `vtkmodules` package puts its own finder first in `sys.meta_path` when it is imported;
+    this one then moves back in front of it, to see the core module's import.
+    """
 
     def __init__(self) -> None:
-        self._loader: Any = None
+        self._loaders: dict[str, Any] = {}
 
     def find_spec(self, name: str, path: Any = None, target: Any = None) -> importlib.machinery.ModuleSpec | None:
-        if name != VTK_CORE:
+        if name not in (VTK_PACKAGE, VTK_CORE):
             return None
         for finder in sys.meta_path:
             if finder is self or not hasattr(finder, "find_spec"):
                 continue
             spec = finder.find_spec(name, path, target)
             if spec is not None and spec.loader is not None:
-                self._loader = spec.loader
+                self._loaders[name] = spec.loader
                 spec.loader = self
                 return spec
         return None
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType | None:
-        return self._loader.create_module(spec)
+        return self._loaders[spec.name].create_module(spec)
 
     def exec_module(self, module: ModuleType) -> None:
-        self._loader.exec_module(module)
-        silence_vtk(module)
+        self._loaders[module.__name__].exec_module(module)
+        if module.__name__ == VTK_CORE:
+            silence_vtk(module)
+        elif self in sys.meta_path:  # the package inserted its finder before this one
+            sys.meta_path.remove(self)
+            sys.meta_path.insert(0, self)
 
 
 def _silence_vtk_when_imported() -> Any:

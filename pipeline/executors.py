@@ -44,6 +44,9 @@ Event = tuple[Any, ...]
 
 #: environment variables that size the native thread pools of NumPy's BLAS and OpenMP
 SINGLE_THREAD_POOLS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
+#: Python warning filter for the pool's helper processes: the resource tracker would warn on stderr
+#: about the semaphores of a batch process that was killed (it could not release them itself)
+QUIET_RESOURCE_TRACKER = "ignore:resource_tracker:UserWarning"
 #: seconds between two per-frame progress messages of one job (the last frame is always sent)
 FRAME_EVENT_INTERVAL = 0.05
 #: error type recorded when the process running an asset died
@@ -128,6 +131,11 @@ def worker_environment(threads: int) -> dict[str, str]:
     env = {name: "1" for name in SINGLE_THREAD_POOLS}
     env["NUMBA_NUM_THREADS"] = str(threads)
     env.update(MALLOC_ENVIRONMENT)
+    warning_filters = os.environ.get("PYTHONWARNINGS")
+    if not warning_filters:
+        env["PYTHONWARNINGS"] = QUIET_RESOURCE_TRACKER
+    elif QUIET_RESOURCE_TRACKER not in warning_filters:
+        env["PYTHONWARNINGS"] = f"{warning_filters},{QUIET_RESOURCE_TRACKER}"
     return env
 
 
@@ -370,10 +378,10 @@ class ProcessPoolJobExecutor:
         if self._pool is not None and self._pool_size == size:
             return self._pool
         self._shutdown_pool()
-        if self._events is None:
-            self._events = self._context.SimpleQueue()  # synchronous put: no event lost on a crash
         env = worker_environment(self.threads)
-        with patched_environ(env):
+        with patched_environ(env):  # (the queue's lock starts the resource tracker: it inherits env)
+            if self._events is None:
+                self._events = self._context.SimpleQueue()  # synchronous put: no event lost on a crash
             self._pool = ProcessPoolExecutor(
                 max_workers=size,
                 mp_context=self._context,

@@ -46,25 +46,35 @@ def interrupted_message(exc: BaseException, consequence: str | None = None) -> s
 
 
 def no_room(exc: BaseException) -> int | None:
-    """The errno if `exc` or an error it came from says the output does not fit (disk full)."""
+    """The errno if `exc` or an error it came from says the output does not fit (disk full): an
+    OSError with that errno, or a library error (USD's Tf.ErrorException) quoting its text."""
     seen: set[int] = set()
     current: BaseException | None = exc
     while current is not None and id(current) not in seen:
         seen.add(id(current))
         if isinstance(current, OSError) and current.errno in NO_ROOM:
             return current.errno
+        text = str(current)
+        for code in NO_ROOM:
+            if os.strerror(code) in text:
+                return code
         current = current.__cause__ or current.__context__
     return None
 
 
 def no_room_message(exc: BaseException, code: int) -> str:
-    """`out/x: no space left on device`: the output folder named, the reason in plain words (the
-    error's own line when the folder is not known)."""
-    target = unwritten_target(exc)
-    if target is None:
-        return " ".join(str(exc).split())
+    """`out/x: no space left on device`: the output folder named (else the file, if known), the
+    reason in plain words."""
     reason = os.strerror(code)
-    return f"{target}: {reason[:1].lower()}{reason[1:]}"
+    reason = reason[:1].lower() + reason[1:]
+    target = unwritten_target(exc) or getattr(exc, "filename", None)
+    return f"{target}: {reason}" if target else reason
+
+
+def unexpected_message(exc: BaseException) -> str:
+    """The one line for an error nobody expected (a bug, or a library failing in a new way)."""
+    text = " ".join(str(exc).split()) or "(no message)"
+    return f"unexpected {type(exc).__name__}: {text} (a bug: please report it; --verbose shows the traceback)"
 
 
 @contextlib.contextmanager
@@ -86,3 +96,10 @@ def cli_errors(on_interrupt: str | None = None) -> Iterator[None]:
         if isinstance(exc, MeshdeformError):
             raise fail(str(exc), EXIT_USAGE) from None
         raise fail(f"{exc.filename or ''}: {exc.strerror or exc}", EXIT_USAGE) from None
+    except (typer.Exit, typer.Abort, typer.TyperException):
+        raise
+    except Exception as exc:  # a library error that is not ours; a full disk is still the user's to fix
+        code = no_room(exc)
+        if code is None:
+            raise
+        raise fail(no_room_message(exc, code), EXIT_USAGE) from None
