@@ -2,7 +2,7 @@
 or not, from the CLI process or from batch workers.
 
 The disk is made full for real: a 200 KiB tmpfs when the tests run as root and may mount one,
-else a file size limit (RLIMIT_FSIZE, with SIGXFSZ ignored: writes fail with EFBIG).
+else a file size limit of 1 KiB (RLIMIT_FSIZE, with SIGXFSZ ignored: writes fail with EFBIG).
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def test_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, output_format:
     disk = tmp_path / "disk"
     with small_tmpfs(disk) as mounted:
         out = disk / "x"
-        limit = None if mounted else 200 * 1024
+        limit = None if mounted else 1024  # (per file: smaller than one frame)
         done = run_cli("simulate", SHEET, "-o", out, "--frames", 200, "-f", output_format, "-q", fsize_limit=limit)
         lines = done.stderr.splitlines()
         assert done.returncode == 2, done.stderr
