@@ -1,24 +1,60 @@
 """The `meshdeform` command line: a thin Typer layer over the engine and the pipeline.
 
 Each command lives in its own module under `pipeline/commands/` and registers itself here.
-Library errors are turned into one line on stderr and an exit code at this edge.
+Library errors are turned into one line on stderr and an exit code at this edge. Every command
+runs with SIGINT / SIGTERM / SIGHUP turned into `pipeline.interrupts.Interrupted` (one line, exit
+128 + the signal number, nothing half-written left) and with library warnings and logs kept off
+stderr (`pipeline.diagnostics`; `--verbose` shows them).
 """
 
 from __future__ import annotations
 
 import importlib
 import os
+import traceback
+from typing import Any
 
 import typer
+from typer.core import TyperGroup
 
 from pipeline import __version__
+from pipeline.diagnostics import quiet_libraries
+from pipeline.interrupts import handling_signals
 from pipeline.memory import tune_malloc
 
 #: command modules, each exposing `register(app)`
 COMMANDS = ("inspect", "simulate", "check", "preview", "batch")
 
+
+class MeshdeformGroup(TyperGroup):
+    """The app's command group: each command runs inside the signal handlers and the quiet logging.
+
+    An interrupt that arrives outside a command's own `cli_errors` block (while it parses or
+    imports) still ends with one line and 128 + the signal number, not Click's "Aborted!"; an
+    unexpected error (a bug) ends with one line and exit 1, its traceback shown with --verbose.
+    """
+
+    def invoke(self, ctx: typer.Context) -> Any:
+        from pipeline.commands.errors import EXIT_FAILED, fail, interrupted_message, unexpected_message
+        from pipeline.interrupts import exit_code_of
+
+        verbose = bool(ctx.params.get("verbose"))
+        with handling_signals(), quiet_libraries(verbose=verbose):
+            try:
+                return super().invoke(ctx)
+            except KeyboardInterrupt as exc:
+                raise fail(interrupted_message(exc), exit_code_of(exc)) from None
+            except (typer.Exit, typer.Abort, typer.TyperException):
+                raise
+            except Exception as exc:
+                if verbose:
+                    traceback.print_exc()
+                raise fail(unexpected_message(exc), EXIT_FAILED) from None
+
+
 app = typer.Typer(
     name="meshdeform",
+    cls=MeshdeformGroup,
     help="Bake mass-spring cloth and soft-body deformation of OBJ/PLY meshes without a DCC tool.",
     no_args_is_help=True,
     add_completion=False,
@@ -38,8 +74,12 @@ def main(
     version: bool = typer.Option(
         False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
     ),
+    verbose: bool = typer.Option(
+        False, "--verbose", help="Show library warnings (NumPy, Numba, ...) on stderr; by default they are hidden."
+    ),
 ) -> None:
     """Bake mass-spring cloth and soft-body deformation of OBJ/PLY meshes without a DCC tool."""
+    # (`verbose` is read by MeshdeformGroup.invoke, which sets up logging around the command.)
     # Keep Numba's compiled-kernel cache beside the package unless the user chose a place.
     os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "meshdeform", "numba"))
     tune_malloc()  # freed large arrays go back to the OS (lower peak memory), see pipeline.memory

@@ -8,6 +8,9 @@ killed), becomes a failed `AssetOutcome` for that asset alone.
 
 Workers set their thread counts before the engine is imported: Numba gets `cores // jobs`
 threads (at least 1) and the BLAS/OpenMP pools 1, so N jobs on N cores do not oversubscribe.
+Pool workers die with the batch process, even when it is killed with SIGKILL, and then never put
+an output folder into place (`pipeline.interrupts.watch_parent`); they keep library warnings off
+stderr, and each job's warnings travel back in its outcome, for the batch log.
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from pipeline.diagnostics import collecting_warnings, quiet_worker
+from pipeline.interrupts import watch_parent, worker_job
 from pipeline.memory import MALLOC_ENVIRONMENT, tune_malloc
 
 #: a job: (mesh path, recipe, output folder, on_frame=callback) -> an object with a `report` dict
@@ -39,6 +44,9 @@ Event = tuple[Any, ...]
 
 #: environment variables that size the native thread pools of NumPy's BLAS and OpenMP
 SINGLE_THREAD_POOLS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
+#: Python warning filter for the pool's helper processes: the resource tracker would warn on stderr
+#: about the semaphores of a batch process that was killed (it could not release them itself)
+QUIET_RESOURCE_TRACKER = "ignore:resource_tracker:UserWarning"
 #: seconds between two per-frame progress messages of one job (the last frame is always sent)
 FRAME_EVENT_INTERVAL = 0.05
 #: error type recorded when the process running an asset died
@@ -79,6 +87,8 @@ class AssetOutcome:
     recipe_sha256: str | None = None
     #: the formatted traceback of unexpected errors (bugs), for the log only
     traceback: str | None = None
+    #: the distinct Python / library warnings the job raised (NumPy, Numba...), for the log only
+    warnings: list[str] = field(default_factory=list)
 
 
 class Reporter(Protocol):
@@ -121,6 +131,11 @@ def worker_environment(threads: int) -> dict[str, str]:
     env = {name: "1" for name in SINGLE_THREAD_POOLS}
     env["NUMBA_NUM_THREADS"] = str(threads)
     env.update(MALLOC_ENVIRONMENT)
+    warning_filters = os.environ.get("PYTHONWARNINGS")
+    if not warning_filters:
+        env["PYTHONWARNINGS"] = QUIET_RESOURCE_TRACKER
+    elif QUIET_RESOURCE_TRACKER not in warning_filters:
+        env["PYTHONWARNINGS"] = f"{warning_filters},{QUIET_RESOURCE_TRACKER}"
     return env
 
 
@@ -212,10 +227,11 @@ def execute_task(task: AssetTask, emit: Callable[[Event], None] | None = None) -
 
     out_dir = Path(task.out_dir)
     try:
-        remove_stale_stages(out_dir)
-        job = task.job or _default_job()
-        recipe = task.recipe.load() if hasattr(task.recipe, "load") else task.recipe
-        result = job(Path(task.mesh_path), recipe, out_dir, on_frame=on_frame)
+        with collecting_warnings() as warned:
+            remove_stale_stages(out_dir)
+            job = task.job or _default_job()
+            recipe = task.recipe.load() if hasattr(task.recipe, "load") else task.recipe
+            result = job(Path(task.mesh_path), recipe, out_dir, on_frame=on_frame)
         report: dict[str, Any] = dict(getattr(result, "report", None) or {})
     except Exception as exc:
         from meshdeform.errors import MeshdeformError
@@ -234,6 +250,7 @@ def execute_task(task: AssetTask, emit: Callable[[Event], None] | None = None) -
             input_sha256=_input_hash(task.mesh_path),
             recipe_sha256=recipe_sha,
             traceback=None if isinstance(exc, MeshdeformError) else traceback.format_exc(),
+            warnings=list(warned),
         )
     frames = report.get("frames")
     return AssetOutcome(
@@ -243,6 +260,7 @@ def execute_task(task: AssetTask, emit: Callable[[Event], None] | None = None) -
         frames=int(frames) if frames is not None else None,
         input_sha256=report.get("input_sha256"),
         recipe_sha256=report.get("recipe_sha256"),
+        warnings=list(warned),
     )
 
 
@@ -296,13 +314,17 @@ class SerialExecutor:
 _WORKER_EVENTS: Any = None
 
 
-def _init_worker(env: dict[str, str], events: Any, threads: int, preload: tuple[str, ...]) -> None:
-    """Pool initializer: thread pools sized, engine imported once, progress queue remembered.
+def _init_worker(env: dict[str, str], events: Any, threads: int, preload: tuple[str, ...], parent: int) -> None:
+    """Pool initializer: bound to the batch process `parent` (the worker dies with it), library
+    chatter off stderr, thread pools sized, engine imported once, progress queue remembered.
 
-    A Ctrl-C in the terminal reaches the workers too: the running job gets KeyboardInterrupt and
-    removes its staging folder; the parent then stops the pool.
+    A Ctrl-C in the terminal reaches the workers too: the running job is interrupted and removes
+    its staging folder, then the worker ends; the parent stops the pool and removes the staging
+    folders of workers it terminated.
     """
     global _WORKER_EVENTS
+    watch_parent(parent)
+    quiet_worker()
     os.environ.update(env)
     _WORKER_EVENTS = events
     for module in preload:  # numpy, numba and the engine, once per worker (an error shows in the job)
@@ -314,7 +336,8 @@ def _init_worker(env: dict[str, str], events: Any, threads: int, preload: tuple[
 def _pool_task(task: AssetTask) -> AssetOutcome:
     """What a pool worker runs: the task, with progress events to the parent's queue."""
     events = _WORKER_EVENTS
-    return execute_task(task, events.put if events is not None else None)
+    with worker_job():
+        return execute_task(task, events.put if events is not None else None)
 
 
 def _running_at_death(remaining: Sequence[AssetTask], started: dict[int, int]) -> list[AssetTask]:
@@ -355,15 +378,15 @@ class ProcessPoolJobExecutor:
         if self._pool is not None and self._pool_size == size:
             return self._pool
         self._shutdown_pool()
-        if self._events is None:
-            self._events = self._context.SimpleQueue()  # synchronous put: no event lost on a crash
         env = worker_environment(self.threads)
-        with patched_environ(env):
+        with patched_environ(env):  # (the queue's lock starts the resource tracker: it inherits env)
+            if self._events is None:
+                self._events = self._context.SimpleQueue()  # synchronous put: no event lost on a crash
             self._pool = ProcessPoolExecutor(
                 max_workers=size,
                 mp_context=self._context,
                 initializer=_init_worker,
-                initargs=(env, self._events, self.threads, self.preload),
+                initargs=(env, self._events, self.threads, self.preload, os.getpid()),
             )
         self._pool_size = size
         self.pools_created += 1

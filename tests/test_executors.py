@@ -64,6 +64,17 @@ def slow_job(mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = Non
     return fake_job(mesh_path, recipe, out_dir, on_frame=on_frame)
 
 
+def warning_job(mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = None) -> FakeResult:
+    """Like fake_job, after NumPy warns twice the same way and once another way."""
+    import numpy as np
+
+    with np.errstate(over="warn", invalid="warn"):
+        for _ in range(2):
+            np.multiply(np.array([1e308]), 10.0)
+        np.subtract(np.array([np.inf]), np.inf)
+    return fake_job(mesh_path, recipe, out_dir, on_frame=on_frame)
+
+
 class Recorder:
     def __init__(self) -> None:
         self.events: list[tuple[str, str]] = []
@@ -161,6 +172,23 @@ def test_process_pool_reuses_workers_and_sizes_threads(tmp_path: Path) -> None:
         assert env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == "1"
     assert {k: os.environ.get(k) for k in names} == before  # this process's environment is restored
     assert all(recorder.frames[f"m{i}.obj"][-1] == 3 for i in range(6))  # per-frame progress from workers
+
+
+def test_pool_workers_return_the_warnings_of_a_job_for_the_log(tmp_path: Path) -> None:
+    """Library warnings raised in a worker come back once each with the outcome (for the batch
+    log), not on the worker's stderr."""
+    (task,) = make_tasks(tmp_path, ["w.obj"], job=warning_job)
+    recorder = Recorder()
+    executor = ProcessPoolJobExecutor(jobs=1, preload=())
+    try:
+        executor.run([task], recorder)
+    finally:
+        executor.close()
+    warned = recorder.outcomes["w.obj"].warnings
+    assert recorder.outcomes["w.obj"].status == "ok"
+    assert len(warned) == 2
+    assert "RuntimeWarning: overflow encountered in multiply" in warned[0]
+    assert "RuntimeWarning: invalid value encountered in subtract" in warned[1]
 
 
 def test_process_pool_survives_a_worker_that_dies(tmp_path: Path) -> None:

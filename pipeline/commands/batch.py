@@ -1,26 +1,21 @@
 """`meshdeform batch ASSETS --recipe R.toml --out OUT`: every OBJ/PLY under a folder, in parallel.
 
 A thin layer over `pipeline.batch.run_batch`: options, the Rich progress display, the summary
-table and the exit code (0 all ok or skipped, 1 some failed, 2 usage error, 130 interrupted).
+table and the exit code (0 all ok or skipped, 1 some failed, 2 usage error, 128 + N stopped by
+signal N: 130 Ctrl-C, 143 SIGTERM; `pipeline.interrupts`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-import signal
-import threading
-from collections.abc import Iterator
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import typer
 
 from pipeline.commands.errors import EXIT_FAILED, cli_errors, fail
 
-#: exit code after Ctrl-C / SIGTERM (128 + SIGINT, as shells report it)
-EXIT_INTERRUPTED = 130
 #: how many of the slowest assets the summary lists
 SLOWEST = 5
 
@@ -125,23 +120,6 @@ def print_summary(console: Any, result: Any) -> None:
     console.print(f"manifest: {result.manifest_path}", highlight=False)
 
 
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """Turn SIGTERM into KeyboardInterrupt for the block, so `kill` cleans up like Ctrl-C."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum: int, frame: FrameType | None) -> None:
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def register(app: typer.Typer) -> None:
     @app.command()
     def batch(
@@ -186,8 +164,9 @@ def register(app: typer.Typer) -> None:
         stderr = Console(stderr=True, highlight=False)
         show = not (quiet or as_json)
         display = RichBatchProgress(stderr) if show else None
+        interrupted = f"finished assets are kept, rerun the same command to resume ({out})"
         try:
-            with cli_errors(), sigterm_as_interrupt(), display or contextlib.nullcontext():
+            with cli_errors(on_interrupt=interrupted), display or contextlib.nullcontext():
                 result = run_batch(
                     assets,
                     recipe,
@@ -200,10 +179,6 @@ def register(app: typer.Typer) -> None:
                     overwrite=overwrite,
                     progress=display,
                 )
-        except KeyboardInterrupt:
-            raise fail(
-                f"interrupted; finished assets are kept, rerun the same command to resume ({out})", EXIT_INTERRUPTED
-            ) from None
         except OSError as exc:  # e.g. Dask scheduler unreachable
             raise fail(str(exc)) from None
         if as_json:

@@ -1,0 +1,226 @@
+"""Interruptions through real signals: `simulate` and `batch` subprocesses killed mid-run leave
+nothing behind and say so in one line; pool workers die with a batch process killed by SIGKILL.
+
+The meshes are small and the runs long (thousands of frames), so every signal lands mid-run;
+each wait is bounded, so a hung process fails the test instead of hanging it.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.interrupts import Interrupted, handling_signals, publishing
+
+REPO = Path(__file__).resolve().parents[1]
+SHEET = REPO / "samples" / "meshes" / "sheet.obj"
+#: seconds a test waits for a run to reach the point where it is interrupted / for a process to end
+START_TIMEOUT = 60.0
+END_TIMEOUT = 10.0
+
+
+def meshdeform(*args: object) -> subprocess.Popen[str]:
+    """The `meshdeform` command in a subprocess (stderr captured), from this checkout."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONFAULTHANDLER": "1"}
+    command = [sys.executable, "-c", "from pipeline.cli import app; app()", *map(str, args)]
+    return subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(condition, what: str, process: subprocess.Popen[str]) -> None:
+    deadline = time.monotonic() + START_TIMEOUT
+    while not condition():
+        if process.poll() is not None:
+            raise AssertionError(f"the process ended before {what}: {process.stderr.read() if process.stderr else ''}")
+        if time.monotonic() > deadline:
+            process.kill()
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.02)
+
+
+def staging_folders(root: Path) -> list[Path]:
+    return [p for p in root.rglob("*") if ".partial-" in p.name or ".old-" in p.name]
+
+
+def finish(process: subprocess.Popen[str]) -> list[str]:
+    """Wait (bounded) for the process to end; returns its stderr lines."""
+    try:
+        _, stderr = process.communicate(timeout=END_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        process.send_signal(signal.SIGABRT)  # faulthandler prints where every thread is
+        _, stderr = process.communicate()
+        raise AssertionError(f"the process did not end within {END_TIMEOUT} s of the signal:\n{stderr}") from None
+    return stderr.splitlines()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
+def test_simulate_interrupted_leaves_nothing_and_says_one_line(tmp_path: Path, signum: signal.Signals) -> None:
+    out = tmp_path / "out" / "x"
+    process = meshdeform("simulate", SHEET, "-o", out, "--frames", 100000, "-q")
+    wait_for(lambda: bool(staging_folders(tmp_path)), "the run writes its staging folder", process)
+    time.sleep(0.2)  # frames are being written
+    process.send_signal(signum)
+    lines = finish(process)
+    assert process.returncode == 128 + signum.value
+    assert len(lines) == 1 and lines[0].startswith(f"error: interrupted by {signum.name}"), lines
+    assert not staging_folders(tmp_path)
+    assert not out.exists()
+
+
+def test_simulate_interrupt_keeps_the_previous_output(tmp_path: Path) -> None:
+    """The folder of an earlier run stays as it was: the interrupted run never replaced it."""
+    out = tmp_path / "x"
+    out.mkdir()
+    (out / "mine.txt").write_text("earlier result\n")
+    process = meshdeform("simulate", SHEET, "-o", out, "--frames", 100000, "-q")
+    wait_for(lambda: bool(staging_folders(tmp_path)), "the run writes its staging folder", process)
+    process.send_signal(signal.SIGTERM)
+    finish(process)
+    assert process.returncode == 143
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x"]
+    assert (out / "mine.txt").read_text() == "earlier result\n"
+
+
+def slow_assets(tmp_path: Path, count: int, frames: int) -> tuple[Path, Path]:
+    """`count` copies of the sample sheet and a recipe of `frames` frames."""
+    assets = tmp_path / "assets"
+    assets.mkdir()
+    for i in range(count):
+        shutil.copyfile(SHEET, assets / f"sheet{i}.obj")
+    recipe = tmp_path / "recipe.toml"
+    recipe.write_text(f'[simulation]\nsolver = "verlet"\nframes = {frames}\n[output]\nformats = ["obj"]\n')
+    return assets, recipe
+
+
+def asset_folders(out: Path) -> list[str]:
+    return sorted(p.name for p in out.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_batch_interrupted_stops_its_workers_and_leaves_no_staging(tmp_path: Path, signum: signal.Signals) -> None:
+    """The signal goes to the batch process alone (as `kill PID` does): it stops its workers,
+    removes their staging folders, writes its manifest and says so in one line."""
+    assets, recipe = slow_assets(tmp_path, 3, 100000)
+    out = tmp_path / "out"
+    process = meshdeform("batch", assets, "-r", recipe, "-o", out, "-j", 2, "-q")
+    wait_for(lambda: len(staging_folders(out)) == 2 if out.is_dir() else False, "two jobs running", process)
+    workers = children(process.pid)
+    assert len(workers) >= 2
+    process.send_signal(signum)
+    lines = finish(process)
+    assert process.returncode == 128 + signum.value
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"error: interrupted by {signum.name}; finished assets are kept"), lines
+    assert not staging_folders(out)
+    assert asset_folders(out) == []
+    assert all(gone(pid) for pid in workers)
+
+
+def children(pid: int) -> list[int]:
+    """Pids of the pool workers of process `pid` (from /proc: psutil is not needed)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            command = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue
+        parent = int(stat.rsplit(")", 1)[1].split()[1])
+        if parent == pid and b"spawn_main" in command:
+            found.append(int(entry.name))
+    return found
+
+
+def gone(pid: int) -> bool:
+    """The process has ended: no such pid, or a zombie not yet reaped by whoever adopted it."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return True
+    return state in ("Z", "X")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="reads worker processes from /proc (Linux)")
+def test_workers_die_with_a_killed_batch_and_never_publish(tmp_path: Path) -> None:
+    """kill -9 of the batch process alone: its workers end within seconds, and no asset folder
+    appears afterwards, although their jobs would have finished (a job here takes ~1-3 s)."""
+    assets, recipe = slow_assets(tmp_path, 2, 1500)
+    out = tmp_path / "out"
+    process = meshdeform("batch", assets, "-r", recipe, "-o", out, "-j", 2, "-q")
+    wait_for(lambda: len(staging_folders(out)) == 2 if out.is_dir() else False, "two jobs running", process)
+    workers = children(process.pid)
+    assert len(workers) == 2
+    before = asset_folders(out)
+    process.kill()
+    process.communicate(timeout=END_TIMEOUT)
+    deadline = time.monotonic() + 5.0
+    while not all(gone(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert all(gone(pid) for pid in workers), "pool workers outlived their batch process"
+    time.sleep(4.0)  # longer than the jobs had left to run
+    assert asset_folders(out) == before == []
+
+
+def test_a_worker_whose_parent_is_already_gone_exits_at_once(tmp_path: Path) -> None:
+    """A worker started for a parent that has died (its pid is not its parent's) exits at once."""
+    code = "import os; from pipeline.interrupts import watch_parent; watch_parent(os.getppid() + 1); print('alive')"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=END_TIMEOUT)
+    assert done.returncode == 143 and done.stdout == "" and done.stderr == ""
+
+
+# -- in this process: the handlers themselves ---------------------------------------------------
+
+
+def test_a_signal_raises_interrupted_with_the_conventional_exit_code() -> None:
+    with handling_signals(), pytest.raises(Interrupted) as raised:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(1.0)  # the handler runs at the next bytecode
+    assert raised.value.signum == signal.SIGTERM and raised.value.exit_code == 143
+    assert str(raised.value) == "interrupted by SIGTERM"
+
+
+def test_a_signal_inside_publishing_waits_for_its_end() -> None:
+    steps = []
+    with handling_signals(), pytest.raises(Interrupted) as raised:
+        with publishing():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+            steps.append("renamed")
+        steps.append("after")
+    assert steps == ["renamed"] and raised.value.exit_code == 130
+
+
+def test_signals_during_the_cleanup_of_an_interrupt_are_ignored() -> None:
+    cleaned = False
+    with handling_signals():
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1.0)
+        except Interrupted:
+            os.kill(os.getpid(), signal.SIGTERM)  # a second `kill` while cleaning up
+            time.sleep(0.05)
+            cleaned = True
+    assert cleaned
+
+
+def test_handlers_are_restored_after_the_block() -> None:
+    before = signal.getsignal(signal.SIGTERM)
+    with handling_signals():
+        assert signal.getsignal(signal.SIGTERM) is not before
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_interrupted_travels_between_processes() -> None:
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(Interrupted(signal.SIGHUP)))
+    assert isinstance(copy, KeyboardInterrupt) and copy.exit_code == 129

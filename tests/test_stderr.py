@@ -1,0 +1,120 @@
+"""One line means one line: no library chatter on stderr, in error paths (a full disk included)
+or not, from the CLI process or from batch workers.
+
+The disk is made full for real: a 200 KiB tmpfs when the tests run as root and may mount one,
+else a file size limit of 1 KiB (RLIMIT_FSIZE, with SIGXFSZ ignored: writes fail with EFBIG).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+
+REPO = Path(__file__).resolve().parents[1]
+SHEET = REPO / "samples" / "meshes" / "sheet.obj"
+#: a mesh whose coordinates overflow float64 in NumPy's cross products and norms (RuntimeWarnings)
+HUGE = "v 0 0 0\nv 1e308 0 0\nv 0 1e308 0\nf 1 2 3\n"
+TIMEOUT = 120
+
+
+def run_cli(*args: object, fsize_limit: int | None = None) -> subprocess.CompletedProcess[str]:
+    """The `meshdeform` command in a subprocess; optionally with a file size limit in bytes."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+
+    def limit() -> None:
+        import resource
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG
+        resource.setrlimit(resource.RLIMIT_FSIZE, (fsize_limit, fsize_limit))
+
+    command = [sys.executable, "-c", "from pipeline.cli import app; app()", *map(str, args)]
+    return subprocess.run(
+        command,
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT,
+        preexec_fn=limit if fsize_limit is not None else None,
+    )
+
+
+@contextlib.contextmanager
+def small_tmpfs(where: Path) -> Iterator[bool]:
+    """Mount a 200 KiB tmpfs at `where` if this process may (root); yields whether it did."""
+    where.mkdir()
+    mounted = False
+    if os.geteuid() == 0 and shutil.which("mount"):
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(where)], capture_output=True)
+        mounted = done.returncode == 0
+    try:
+        yield mounted
+    finally:
+        if mounted:
+            subprocess.run(["umount", str(where)], capture_output=True)
+
+
+@pytest.mark.parametrize("output_format", ["obj", "usd", "vtk"])
+def test_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, output_format: str) -> None:
+    disk = tmp_path / "disk"
+    with small_tmpfs(disk) as mounted:
+        out = disk / "x"
+        limit = None if mounted else 1024  # (per file: smaller than one frame)
+        done = run_cli("simulate", SHEET, "-o", out, "--frames", 200, "-f", output_format, "-q", fsize_limit=limit)
+        lines = done.stderr.splitlines()
+        assert done.returncode == 2, done.stderr
+        assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+        if output_format != "vtk":  # (VTK's writer reports a failure without its reason)
+            assert ("no space left on device" if mounted else "file too large") in lines[0]
+        assert "Traceback" not in done.stderr
+        assert list(disk.iterdir()) == []
+
+
+def test_numpy_warnings_stay_off_stderr_unless_verbose(tmp_path: Path) -> None:
+    mesh = tmp_path / "huge.obj"
+    mesh.write_text(HUGE)
+    quiet = run_cli("simulate", mesh, "-o", tmp_path / "a", "--frames", 2, "-q")
+    assert quiet.returncode == 0 and quiet.stderr == ""
+    verbose = run_cli("--verbose", "simulate", mesh, "-o", tmp_path / "b", "--frames", 2, "-q")
+    assert verbose.returncode == 0 and "RuntimeWarning: overflow" in verbose.stderr
+
+
+def test_batch_workers_keep_warnings_off_stderr(tmp_path: Path) -> None:
+    assets = tmp_path / "assets"
+    assets.mkdir()
+    (assets / "huge.obj").write_text(HUGE)
+    shutil.copyfile(SHEET, assets / "sheet.obj")
+    recipe = tmp_path / "recipe.toml"
+    recipe.write_text("[simulation]\nframes = 2\n")
+    done = run_cli("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", 2, "-q")
+    assert done.returncode == 0 and done.stderr == ""
+
+
+def test_an_unexpected_error_is_one_line(tmp_path: Path, monkeypatch: Any) -> None:
+    """A bug (here: the job raising ValueError) ends with one line and exit 1, not a traceback."""
+    import pipeline.job
+
+    def broken_job(*args: Any, **kwargs: Any) -> None:
+        raise ValueError("index 7 is out of bounds\nfor axis 0")
+
+    monkeypatch.setattr(pipeline.job, "run_job", broken_job)
+    result = CliRunner().invoke(app, ["simulate", str(SHEET), "-o", str(tmp_path / "x"), "-q"])
+    assert result.exit_code == 1
+    assert result.stderr.splitlines() == [
+        "error: unexpected ValueError: index 7 is out of bounds for axis 0 "
+        "(a bug: please report it; --verbose shows the traceback)"
+    ]
+    verbose = CliRunner().invoke(app, ["--verbose", "simulate", str(SHEET), "-o", str(tmp_path / "x"), "-q"])
+    assert verbose.exit_code == 1 and "Traceback" in verbose.stderr and "broken_job" in verbose.stderr
