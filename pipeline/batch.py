@@ -445,6 +445,8 @@ class _Recorder:
             recipe_sha256=outcome.recipe_sha256 or self.manifest.entries[task.key]["recipe_sha256"],
         )
         self.manifest.write()
+        for warning in outcome.warnings:  # library warnings of the job: the log, never stderr
+            self.log.warning("%s: %s", task.key, warning)
         if outcome.status == "ok":
             self.log.info(
                 "ok %s: %s frames in %.2f s -> %s", task.key, outcome.frames, outcome.seconds, entry["output"]
@@ -464,11 +466,13 @@ def _open_log(path: Path) -> logging.Logger:
     handler = logging.FileHandler(path, encoding="utf-8")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
     logger.addHandler(handler)
+    logging.getLogger().addHandler(handler)  # library logs and warnings of this process: the batch log
     return logger
 
 
 def _close_log(logger: logging.Logger) -> None:
     for handler in list(logger.handlers):
+        logging.getLogger().removeHandler(handler)
         handler.close()
         logger.removeHandler(handler)
 

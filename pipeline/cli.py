@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import importlib
 import os
+import sys
 import traceback
 from typing import Any
 
 import typer
+from typer._click import exceptions as click_errors  # Typer's own Click: its usage errors
 from typer.core import TyperGroup
 
 from pipeline import __version__
@@ -24,6 +26,8 @@ from pipeline.memory import tune_malloc
 
 #: command modules, each exposing `register(app)`
 COMMANDS = ("inspect", "simulate", "check", "preview", "batch")
+#: exit code when Click aborts before a command runs (Ctrl-C at a prompt: 128 + SIGINT)
+EXIT_ABORTED = 130
 
 
 class MeshdeformGroup(TyperGroup):
@@ -33,6 +37,31 @@ class MeshdeformGroup(TyperGroup):
     imports) still ends with one line and 128 + the signal number, not Click's "Aborted!"; an
     unexpected error (a bug) ends with one line and exit 1, its traceback shown with --verbose.
     """
+
+    def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
+        """Click's entry point, with its usage errors (a bad option value, an unknown option, a missing
+        argument) as one line `error: ...` and exit code 2 instead of Click's usage block."""
+        kwargs.setdefault("prog_name", "meshdeform")  # (also when run as `python -c` or `python -m`)
+        if not standalone_mode:
+            return super().main(*args, standalone_mode=False, **kwargs)
+        try:
+            code = super().main(*args, standalone_mode=False, **kwargs)
+        except click_errors.NoArgsIsHelpError as exc:  # plain `meshdeform`: the help, as before
+            exc.show()
+            sys.exit(exc.exit_code)
+        except click_errors.UsageError as exc:
+            command = exc.ctx.command_path + ": " if exc.ctx is not None else ""
+            hint = f" (see {exc.ctx.command_path} --help)" if exc.ctx is not None else ""
+            message = " ".join(exc.format_message().split())
+            typer.echo(f"error: {command}{message}{hint}", err=True)
+            sys.exit(exc.exit_code)
+        except click_errors.ClickException as exc:
+            typer.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
+            sys.exit(exc.exit_code)
+        except typer.Abort:  # Ctrl-C / end of input before a command ran
+            typer.echo("error: aborted", err=True)
+            sys.exit(EXIT_ABORTED)
+        sys.exit(code if isinstance(code, int) else 0)
 
     def invoke(self, ctx: typer.Context) -> Any:
         from pipeline.commands.errors import EXIT_FAILED, fail, interrupted_message, unexpected_message

@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import logging
 import os
 import shutil
 import signal
@@ -129,7 +130,17 @@ def _deliver(signum: int) -> None:
     if _state.interrupted:
         return  # the cleanup of the first interrupt is running: let it finish
     _state.interrupted = True
+    # The exception may land inside a library's half-built object (llvmlite while Numba compiles), whose
+    # __del__ then fails when it is collected, up to interpreter exit: that report goes to the log.
+    sys.unraisablehook = _log_unraisable
     raise Interrupted(signum)
+
+
+def _log_unraisable(unraisable: Any) -> None:
+    """`sys.unraisablehook` after an interrupt: errors in finalizers are logged, not printed on stderr."""
+    logging.getLogger("meshdeform.interrupts").debug(
+        "ignored in %r: %r", unraisable.object, unraisable.exc_value, exc_info=unraisable.exc_value
+    )
 
 
 def _handler(signum: int, frame: FrameType | None) -> None:

@@ -32,6 +32,7 @@ from meshdeform.atomic import write_text_atomic
 from meshdeform.errors import MeshdeformError
 from meshdeform.mesh import Mesh
 from pipeline import __version__
+from pipeline.interrupts import note_unwritten, publishing
 from pipeline.recipe import Recipe, recipe_hash
 
 #: report keys that hold wall-clock timings (the only ones allowed to differ between identical runs)
@@ -422,10 +423,12 @@ def staged_directory(target: Path, *, overwrite: bool = False) -> Iterator[Path]
     try:
         yield stage
         write_marker(stage, _files_under(stage))
-        _commit(stage, real, label, overwrite)
-    except BaseException:
+        with publishing(stage):  # a signal waits for the renames; a pool worker whose batch died stops here
+            _commit(stage, real, label, overwrite)
+    except BaseException as exc:
         shutil.rmtree(stage, ignore_errors=True)
         _remove_if_empty(created)
+        note_unwritten(exc, target)  # the CLI's one line names the folder that was not written
         raise
 
 

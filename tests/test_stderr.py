@@ -1,7 +1,7 @@
 """One line means one line: no library chatter on stderr, in error paths (a full disk included)
 or not, from the CLI process or from batch workers.
 
-The disk is made full for real: a 200 KiB tmpfs when the tests run as root and may mount one,
+The disk is made full for real: a tmpfs filled while the run writes, when the tests run as root and may mount one,
 else a file size limit of 1 KiB (RLIMIT_FSIZE, with SIGXFSZ ignored: writes fail with EFBIG).
 """
 
@@ -51,13 +51,20 @@ def run_cli(*args: object, fsize_limit: int | None = None) -> subprocess.Complet
     )
 
 
+def start_cli(*args: object) -> subprocess.Popen[str]:
+    """The `meshdeform` command started in a subprocess (stdout and stderr piped)."""
+    command = [sys.executable, "-c", "from pipeline.cli import app; app()", *map(str, args)]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
 @contextlib.contextmanager
-def small_tmpfs(where: Path) -> Iterator[bool]:
-    """Mount a 200 KiB tmpfs at `where` if this process may (root); yields whether it did."""
+def small_tmpfs(where: Path, size: str) -> Iterator[bool]:
+    """Mount a tmpfs of `size` at `where` if this process may (root); yields whether it did."""
     where.mkdir()
     mounted = False
     if os.geteuid() == 0 and shutil.which("mount"):
-        done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(where)], capture_output=True)
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True)
         mounted = done.returncode == 0
     try:
         yield mounted
@@ -66,20 +73,44 @@ def small_tmpfs(where: Path) -> Iterator[bool]:
             subprocess.run(["umount", str(where)], capture_output=True)
 
 
+def fill_once_staging_appears(disk: Path, process: subprocess.Popen[str]) -> Path:
+    """Wait for the run's staging folder on `disk`, then take every free byte with a filler file (the
+    run's estimate fitted when it started; the disk becomes full while it writes)."""
+    import time
+
+    deadline = time.monotonic() + TIMEOUT
+    while not any(p.name.startswith(".x.partial-") for p in disk.iterdir()):
+        assert process.poll() is None and time.monotonic() < deadline, "the run ended before writing"
+        time.sleep(0.02)
+    filler = disk / "filler.bin"
+    with open(filler, "wb") as handle, contextlib.suppress(OSError):
+        while True:
+            handle.write(b"\0" * (1 << 16))
+            handle.flush()
+    return filler
+
+
 @pytest.mark.parametrize("output_format", ["obj", "usd", "vtk"])
 def test_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, output_format: str) -> None:
     disk = tmp_path / "disk"
-    with small_tmpfs(disk) as mounted:
+    with small_tmpfs(disk, "64m") as mounted:
         out = disk / "x"
-        limit = None if mounted else 1024  # (per file: smaller than one frame)
-        done = run_cli("simulate", SHEET, "-o", out, "--frames", 200, "-f", output_format, "-q", fsize_limit=limit)
+        args = ("simulate", SHEET, "-o", out, "--frames", 200, "-f", output_format, "-q")
+        if mounted:
+            process = start_cli(*args)
+            filler = fill_once_staging_appears(disk, process)
+            stdout, stderr = process.communicate(timeout=TIMEOUT)
+            done = subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr)
+        else:
+            filler = None
+            done = run_cli(*args, fsize_limit=1024)  # (per file: smaller than one frame)
         lines = done.stderr.splitlines()
         assert done.returncode == 2, done.stderr
         assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
         if output_format != "vtk":  # (VTK's writer reports a failure without its reason)
             assert ("no space left on device" if mounted else "file too large") in lines[0]
         assert "Traceback" not in done.stderr
-        assert list(disk.iterdir()) == []
+        assert [p for p in disk.iterdir() if p != filler] == []
 
 
 def test_numpy_warnings_stay_off_stderr_unless_verbose(tmp_path: Path) -> None:
@@ -118,3 +149,21 @@ def test_an_unexpected_error_is_one_line(tmp_path: Path, monkeypatch: Any) -> No
     ]
     verbose = CliRunner().invoke(app, ["--verbose", "simulate", str(SHEET), "-o", str(tmp_path / "x"), "-q"])
     assert verbose.exit_code == 1 and "Traceback" in verbose.stderr and "broken_job" in verbose.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (("simulate", SHEET, "-o", "x", "--frames", "0"), "error: meshdeform simulate: Invalid value for '--frames'"),
+        (("simulate", SHEET, "-o", "x", "--bogus"), "error: meshdeform simulate: No such option: --bogus"),
+        (("simulate", SHEET), "error: meshdeform simulate: Missing option '--out'"),
+        (("check",), "error: meshdeform check: Missing argument 'recipe'"),
+        (("nosuch",), "error: meshdeform: No such command 'nosuch'"),
+    ],
+)
+def test_usage_errors_are_one_line_with_exit_code_2(args: tuple[object, ...], expected: str) -> None:
+    """Click's usage block (usage, hint, blank line, error) becomes one line naming the command."""
+    done = run_cli(*args)
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [done.stderr.strip()] and done.stderr.startswith(expected), done.stderr
+    assert done.stderr.rstrip().endswith("--help)")
