@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import json
 import sys
 import tempfile
 import time
@@ -37,6 +38,7 @@ def main() -> int:
     parser.add_argument("--keep", type=Path, default=Path("robustness-failures"), help="copies of failing cases")
     parser.add_argument("--category", action="append", help="only these categories (repeatable)")
     parser.add_argument("--quiet", action="store_true", help="no line per case")
+    parser.add_argument("--report", type=Path, help="write every outcome (argv, exit, stderr, reasons) as JSON here")
     args = parser.parse_args()
 
     cases = corpus.generate(args.cases, args.seed, categories=args.category)
@@ -60,6 +62,14 @@ def main() -> int:
         )  # fmt: skip
         elapsed = time.perf_counter() - started
 
+    if args.report:
+        records = [
+            {"name": o.case.name, "category": o.case.category, "description": o.case.description,
+             "argv": o.case.shown_argv(o.root), "exit": o.exit_code, "seconds": round(o.seconds, 2),
+             "stderr": o.stderr, "reasons": o.reasons, "kept": str(o.root) if o.root else None}
+            for o in outcomes
+        ]  # fmt: skip
+        args.report.write_text(json.dumps(records, indent=1) + "\n")
     table: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
     for o in outcomes:
         table[o.case.category][0 if o.passed else 1] += 1

@@ -624,6 +624,8 @@ def _recipe_case(
         argv, out = ["check", "recipe.toml", "--mesh", mesh_name], None
     else:
         argv, out = ["simulate", mesh_name, "-r", "recipe.toml", "-o", "out", "-q"], "out"
+        if category != "recipe-limits":  # a mutation that drops `frames` must not make a default 120-frame run
+            argv += ["--frames", "2"]
     return Case(
         name="",
         category=category,
@@ -774,7 +776,7 @@ def make_paths(rng: random.Random) -> Case:
         what = f"OBJ with 'mtllib {target}'"
     else:
         target = rng.choice(["my mesh.obj", "my\nmesh.obj", "mesh.OBJ", "mesh.Ply", "mesh.stl", "mesh", "mesh.obj.txt",
-                             "-mesh.obj", "ÿ.obj", "mesh\x7f.obj", ".obj", "--help"])  # fmt: skip
+                             "-mesh.obj", "ÿ.obj", "mesh\x7f.obj", ".obj", "mesh.obj "])  # fmt: skip
         source = "icosphere.ply" if target.lower().endswith(".ply") else "rope.obj"
         files[f"work/{target}"] = sample_mesh(source)
         argv, out = _command(rng, target)
