@@ -46,6 +46,8 @@ SAMPLES = REPO / "samples"
 
 #: seconds a case may take, start-up of the Python process included
 TIME_LIMIT = 10.0
+#: seconds a timed-out case has after SIGTERM to clean up before SIGKILL
+TERM_GRACE = 3.0
 #: address-space limit of every case's process (bytes): numba/LLVM start fine under it
 MEMORY_LIMIT = 6 * 1024**3
 #: what the console script `meshdeform` runs (pyproject: meshdeform = "pipeline.cli:app")
@@ -496,7 +498,7 @@ def _pick_seed(rng: random.Random, suffix: str | None = None) -> tuple[str, byte
     return rng.choice(meshes)
 
 
-def make_mesh_bytes(rng: random.Random) -> Case:
+def make_mesh_bytes(rng: random.Random, turn: int) -> Case:
     """Byte flips, truncations and line edits of any seed mesh."""
     name, data = _pick_seed(rng)
     mutation = rng.choice(["byte_flips", "truncate", "edit_lines"])
@@ -504,7 +506,7 @@ def make_mesh_bytes(rng: random.Random) -> Case:
     return _mesh_case(rng, "mesh-bytes", name, mutated, what, name)
 
 
-def make_mesh_numbers(rng: random.Random) -> Case:
+def make_mesh_numbers(rng: random.Random, turn: int) -> Case:
     """Numbers of an ascii mesh replaced by huge, negative, non-finite or malformed ones."""
     meshes = [m for m in seed_meshes() if m[0].endswith(".obj") or b"format ascii" in m[1][:200]]
     name, data = rng.choice(meshes)
@@ -512,7 +514,7 @@ def make_mesh_numbers(rng: random.Random) -> Case:
     return _mesh_case(rng, "mesh-numbers", name, mutated, what, name)
 
 
-def make_obj_faces(rng: random.Random) -> Case:
+def make_obj_faces(rng: random.Random, turn: int) -> Case:
     """OBJ face indices out of range, zero, negative beyond the count; a 20,000-corner polygon."""
     if rng.random() < 0.15:
         data = big_polygon_obj(rng.choice([20_000, 5_000]))
@@ -522,21 +524,21 @@ def make_obj_faces(rng: random.Random) -> Case:
     return _mesh_case(rng, "obj-faces", name, mutated, what, name)
 
 
-def make_ply_header(rng: random.Random) -> Case:
+def make_ply_header(rng: random.Random, turn: int) -> Case:
     """PLY header counts that do not match the body, properties added/removed, format changed."""
     name, data = _pick_seed(rng, ".ply")
     mutated, what = ply_header_counts(data, rng)
     return _mesh_case(rng, "ply-header", name, mutated, what, name)
 
 
-def make_ply_body(rng: random.Random) -> Case:
+def make_ply_body(rng: random.Random, turn: int) -> Case:
     """PLY bodies short, long, with extra values or a list count of 255."""
     name, data = _pick_seed(rng, ".ply")
     mutated, what = ply_body(data, rng)
     return _mesh_case(rng, "ply-body", name, mutated, what, name)
 
 
-def make_encoding(rng: random.Random) -> Case:
+def make_encoding(rng: random.Random, turn: int) -> Case:
     """Odd encodings of a valid mesh, or a non-mesh file (PNG, zip, ...) named .obj/.ply."""
     name, data = _pick_seed(rng)
     if rng.random() < 0.3:
@@ -546,7 +548,7 @@ def make_encoding(rng: random.Random) -> Case:
     return _mesh_case(rng, "encoding", name, mutated, what, name)
 
 
-def make_shared(rng: random.Random) -> Case:
+def make_shared(rng: random.Random, turn: int) -> Case:
     """The shared broken meshes as they are, and real/broken ones lightly mutated."""
     broken = list(broken_meshes())
     if broken and rng.random() < 0.5:
@@ -639,14 +641,14 @@ def _recipe_case(
     )
 
 
-def make_recipe_values(rng: random.Random) -> Case:
+def make_recipe_values(rng: random.Random, turn: int) -> Case:
     """Sample recipes (cut to 2 frames) with a value, number, key or type mutated."""
     name, text, mesh_name = rng.choice(seed_recipes())
     mutated, what = mutate_recipe(text, rng)
     return _recipe_case(rng, "recipe-values", mutated, mesh_name, f"{name}.toml: {what}")
 
 
-def make_recipe_bytes(rng: random.Random) -> Case:
+def make_recipe_bytes(rng: random.Random, turn: int) -> Case:
     """Sample recipes byte-flipped, truncated, re-encoded or with NUL bytes."""
     name, text, mesh_name = rng.choice(seed_recipes())
     op = rng.choice(["byte_flips", "truncate", "encoding", "edit_lines"])
@@ -670,7 +672,7 @@ LIMIT_SETTINGS = (
 )  # fmt: skip
 
 
-def make_recipe_limits(rng: random.Random) -> Case:
+def make_recipe_limits(rng: random.Random, turn: int) -> Case:
     """A small valid recipe with one setting asking for 10**9 frames, 10**6 substeps, 1e308 ..."""
     key, value, table = rng.choice(LIMIT_SETTINGS)
     if rng.random() < 0.15:
@@ -690,7 +692,7 @@ def make_recipe_limits(rng: random.Random) -> Case:
     return _recipe_case(rng, "recipe-limits", recipe, rng.choice(["sheet.obj", "rope.obj"]), f"{table}.{line}")
 
 
-def make_cli_options(rng: random.Random) -> Case:
+def make_cli_options(rng: random.Random, turn: int) -> Case:
     """`simulate` with hostile option values (0, 10**9, nan, inf, malformed vectors and pins)."""
     options = [
         ["--frames", "0"], ["--frames", "-1"], ["--frames", str(10**9)], ["--frames", str(10**30)], ["--frames", "nan"],
@@ -719,7 +721,7 @@ def make_cli_options(rng: random.Random) -> Case:
     )
 
 
-def make_paths(rng: random.Random) -> Case:
+def make_paths(rng: random.Random, turn: int) -> Case:
     """Path tricks: mesh/recipe arguments that are folders, devices, pipes, loops; collider paths;
     `mtllib` naming /etc/passwd; file names with spaces, newlines, odd suffixes."""
     recipe = minimal_recipe(rng)
@@ -771,6 +773,7 @@ def make_paths(rng: random.Random) -> Case:
             fifos.append("work/pipe.mtl")
         files["work/folder/keep.txt"] = b"user file\n"
         files["work/rope.obj"] = f"mtllib {target}\nusemtl red\n".encode() + sample_mesh("rope.obj")
+        files["work/recipe.toml"] = b'[simulation]\nframes = 2\nsubsteps = 4\n\n[output]\nformats = ["obj"]\n'
         argv, out = ["simulate", "rope.obj", "-r", "recipe.toml", "-o", "out", "-q"], "out"
         forbidden = ["/etc/passwd", "/etc/shadow"]
         what = f"OBJ with 'mtllib {target}'"
@@ -811,12 +814,15 @@ OUT_MISTYPES = (
 )  # fmt: skip
 
 
-def make_output_folder(rng: random.Random) -> Case:
-    """`-o` mistyped to a folder (or file) full of user files; the run itself is valid or fails."""
-    out = rng.choice(OUT_MISTYPES)
+def make_output_folder(rng: random.Random, turn: int) -> Case:
+    """`-o` mistyped to a folder (or file) full of user files; the run itself is valid or fails.
+
+    The mistypes are taken in turn (every one is tried with a valid recipe first), the recipe of
+    later rounds is valid three times in four."""
+    out = OUT_MISTYPES[turn % len(OUT_MISTYPES)]
     files = dict(USER_FILES)
     files["home/project/meshes/cloth.obj"] = obj_grid(6, 6, uvs=True)
-    good = rng.random() < 0.75
+    good = turn < len(OUT_MISTYPES) or rng.random() < 0.75
     files["home/project/recipes/short.toml"] = (minimal_recipe(rng) if good else "[simulation]\nframes = 0\n").encode()
     if out == "/":  # never let a broken tool loose on the machine's root: only a failing recipe there
         files["home/project/recipes/short.toml"] = b"[simulation]\nframes = 0\n"
@@ -837,7 +843,8 @@ def make_output_folder(rng: random.Random) -> Case:
     )
 
 
-CATEGORIES: dict[str, tuple[Callable[[random.Random], Case], int]] = {
+#: category -> (maker(rng, turn: how many cases of the category came before), weight)
+CATEGORIES: dict[str, tuple[Callable[[random.Random, int], Case], int]] = {
     "mesh-bytes": (make_mesh_bytes, 3),
     "mesh-numbers": (make_mesh_numbers, 3),
     "obj-faces": (make_obj_faces, 2),
@@ -864,10 +871,12 @@ def generate(
     # round-robin over the weights, so that any prefix of the cases spans the categories
     order = [n for r in range(rounds) for n in names if (CATEGORIES[n][1] if weighted else 1) > r]
     cases = []
+    turns: dict[str, int] = dict.fromkeys(names, 0)
     for i in range(count):
         category = order[i % len(order)]
         rng = random.Random(f"{seed}:{i}:{category}")
-        case = CATEGORIES[category][0](rng)
+        case = CATEGORIES[category][0](rng, turns[category])
+        turns[category] += 1
         case.name = f"{i:04d}-{category}"
         cases.append(case)
     return cases
@@ -980,9 +989,15 @@ def run_cli(
             out, err = proc.communicate(timeout=timeout)
             code: int | None = proc.returncode
         except subprocess.TimeoutExpired:
+            # as a user's `kill` or a batch system would: SIGTERM (the tool may clean up), then SIGKILL
             with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            out, err = proc.communicate()
+                os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                out, err = proc.communicate(timeout=TERM_GRACE)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                out, err = proc.communicate()
             code = None
     return code, time.perf_counter() - started, out.decode("utf-8", "replace"), err.decode("utf-8", "replace")
 
@@ -1017,7 +1032,7 @@ def judge(case: Case, root: Path, before: dict[str, str], after: dict[str, str],
     """The checks of one finished case; each failed one as a short reason."""
     reasons: list[str] = []
     if code is None:
-        reasons.append(f"timeout: still running after {TIME_LIMIT:g} s (killed)")
+        reasons.append(f"timeout: still running after {TIME_LIMIT:g} s (SIGTERM, then SIGKILL after {TERM_GRACE:g} s)")
     elif code not in ALLOWED_EXIT:
         reasons.append(f"exit code {code}" + (" (killed by a signal)" if code < 0 else ""))
     if code is not None and seconds >= TIME_LIMIT:
