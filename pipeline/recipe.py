@@ -17,6 +17,7 @@ import fnmatch
 import hashlib
 import json
 import math
+import re
 import tomllib
 import types
 import typing
@@ -46,6 +47,7 @@ from pydantic import (
 
 from meshdeform import selection as sel
 from meshdeform.errors import MeshdeformError, RecipeError
+from meshdeform.io.files import special_file_kind
 from meshdeform.material import KindMaterial, Material
 from meshdeform.pins import Keyframe
 from meshdeform.solvers.anchor import ANCHOR_FRAMES
@@ -1426,6 +1428,8 @@ def load_recipe(path: Path | str | None) -> Recipe:
         return recipe_class()()
     p = Path(path)
     limit = int(LIMITS["recipe file size"].maximum)
+    if (kind := special_file_kind(p)) is not None:
+        raise RecipeError(f"{p}: is {kind}, not a recipe file")
     try:
         with open(p, "rb") as handle:
             data = handle.read(limit + 1)
@@ -1478,14 +1482,17 @@ def merge_recipe_data(base: dict[str, Any], override: dict[str, Any]) -> dict[st
 def _cli_pin(text: str) -> dict[str, Any]:
     kind, _, rest = text.partition(":")
     kind = kind.strip().lower()
+    tokens = [v.strip() for v in rest.split(",") if v.strip()]
+    if kind == "indices":
+        if not tokens or not all(re.fullmatch(r"[0-9]{1,18}", v) for v in tokens):
+            raise RecipeError(f"command line: --pin {text!r}: expected vertex indices like indices:0,5,9")
+        return {"select": {"indices": [int(v) for v in tokens]}}
     try:
-        values = [float(v) for v in rest.split(",") if v.strip()]
+        values = [float(v) for v in tokens]
     except ValueError:
         raise RecipeError(f"command line: --pin {text!r}: expected numbers after '{kind}:'") from None
-    if kind == "indices":
-        if not values or any(v != int(v) or v < 0 for v in values):
-            raise RecipeError(f"command line: --pin {text!r}: expected vertex indices like indices:0,5,9")
-        return {"select": {"indices": [int(v) for v in values]}}
+    if not all(math.isfinite(v) for v in values):
+        raise RecipeError(f"command line: --pin {text!r}: expected finite numbers after '{kind}:'")
     if kind == "box":
         if len(values) != 6:
             raise RecipeError(

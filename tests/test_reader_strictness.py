@@ -332,3 +332,15 @@ def test_writers_refuse_nonfinite_values_and_write_nothing(tmp_path: Path) -> No
     with pytest.raises(ExportError, match=r"vertex colours, row 7: not finite"):
         ObjWriter(coloured)
     assert not list(tmp_path.iterdir())
+
+
+def test_a_named_pipe_is_refused_without_being_opened(tmp_path: Path) -> None:
+    """Opening a FIFO would wait for a writer for ever: the readers refuse it from its file type."""
+    import os
+
+    pipe = tmp_path / "pipe.obj"
+    os.mkfifo(pipe)
+    _refused(pipe, "is a named pipe, not a mesh file")
+    assert "is a named pipe" in _cli_refuses(pipe)
+    result = runner.invoke(app, ["check", str(pipe)])
+    assert result.exit_code == 2 and result.stderr.strip() == f"error: {pipe}: is a named pipe, not a recipe file"

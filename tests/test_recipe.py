@@ -372,3 +372,20 @@ def test_recipes_pickle_for_worker_processes() -> None:
     assert copy.label == "full.toml" and copy.line_of(("pins", 0, "select")) == 18
     with pytest.raises(RecipeError, match=r"^command line: --pin 'indices:30': .*out of range"):
         build_simulation(copy, grid_mesh(3, 3))
+
+
+@pytest.mark.parametrize(
+    ("pin", "expected"),
+    [
+        ("indices:1000000000000000000000000000000", "expected vertex indices like indices:0,5,9"),
+        ("indices:nan", "expected vertex indices like indices:0,5,9"),
+        ("indices:1e3", "expected vertex indices like indices:0,5,9"),
+        ("indices:-1", "expected vertex indices like indices:0,5,9"),
+        ("box:0,0,0,1,1,nan", "expected finite numbers after 'box:'"),
+        ("box:0,0,0,1,inf,1", "expected finite numbers after 'box:'"),
+    ],
+)
+def test_command_line_pins_refuse_huge_and_non_finite_numbers(pin: str, expected: str) -> None:
+    """A --pin typo is one RecipeError line, never an OverflowError or a NaN bound."""
+    with pytest.raises(RecipeError, match=rf"^command line: --pin '{re.escape(pin)}': {re.escape(expected)}$"):
+        apply_overrides(parse_recipe(""), pins=[pin])

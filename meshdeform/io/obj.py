@@ -31,6 +31,7 @@ import numpy as np
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.geometry import PolygonCleanup, clean_polygons, corner_normals
+from meshdeform.io.files import special_file_kind
 from meshdeform.mesh import Mesh
 
 __all__ = [
@@ -87,6 +88,8 @@ _FACE_DIGITS = bytes.maketrans(b"f/", b"  ")
 def read_mesh_bytes(path: PathLike) -> bytes:
     """The bytes of a mesh file, or a one-line MeshLoadError naming the file."""
     p = Path(path)
+    if (kind := special_file_kind(p)) is not None:
+        raise MeshLoadError(f"{path}: is {kind}, not a mesh file")
     try:
         return p.read_bytes()
     except FileNotFoundError:
