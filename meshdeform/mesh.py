@@ -14,6 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+#: the largest coordinate magnitude a mesh may hold (in its own units): a kilometre-sized asset in
+#: micrometres stays far below it, and squared lengths stay far from float64 overflow; past it a
+#: number is a typo or garbage, and the readers refuse it
+MAX_COORDINATE = 1e12
+
 
 @dataclass(frozen=True, eq=False)
 class Mesh:

@@ -344,3 +344,25 @@ def test_a_named_pipe_is_refused_without_being_opened(tmp_path: Path) -> None:
     assert "is a named pipe" in _cli_refuses(pipe)
     result = runner.invoke(app, ["check", str(pipe)])
     assert result.exit_code == 2 and result.stderr.strip() == f"error: {pipe}: is a named pipe, not a recipe file"
+
+
+@pytest.mark.parametrize(
+    ("text", "line"),
+    [("v 0 0 0\nv 1e19 0 0\nv 0 1 0\nf 1 2 3\n", 2), ("# c\nv 0 0 0 # x\nv 0 -2e12 0\nv 0 1 0\nf 1 2 3\n", 3)],
+)
+def test_obj_coordinates_past_the_limit_are_refused_with_their_line(tmp_path: Path, text: str, line: int) -> None:
+    from meshdeform.mesh import MAX_COORDINATE
+
+    message = _refused(_file(tmp_path, text, "huge.obj"), f"line {line}: vertex position .* is beyond the limit")
+    assert f"{MAX_COORDINATE:g}" in message
+    ok = load(_file(tmp_path, f"v 0 0 0\nv {MAX_COORDINATE!r} 0 0\nv 0 1 0\nf 1 2 3\n", "edge.obj"))
+    assert ok.positions[1, 0] == MAX_COORDINATE  # the limit itself is a coordinate
+
+
+def test_ply_coordinates_past_the_limit_are_refused_with_their_row(tmp_path: Path) -> None:
+    header = (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    body = struct.pack("<9f", 0, 0, 0, 0, 1e30, 0, 0, 1, 0) + struct.pack("<B3i", 3, 0, 1, 2)
+    _refused(_file(tmp_path, header + body, "huge.ply"), r"element 'vertex' row 1: position .* beyond the limit")

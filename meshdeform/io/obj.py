@@ -32,7 +32,7 @@ from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.geometry import PolygonCleanup, clean_polygons, corner_normals
 from meshdeform.io.files import special_file_kind
-from meshdeform.mesh import Mesh
+from meshdeform.mesh import MAX_COORDINATE, Mesh
 
 __all__ = [
     "MaterialLibrary",
@@ -567,6 +567,14 @@ class _Reader:
             column = first - int(np.sum(counts[:j]))
             what = "position" if column < 3 else ("colour" if column < 6 and counts[j] >= 6 else "value")
             raise self.fail(int(numbers[j]), f"non-finite vertex {what} '{_short(lines.text()[j])}'")
+        huge = np.abs(table).max(axis=1, initial=0.0) > MAX_COORDINATE
+        if huge.any():
+            j = int(np.flatnonzero(huge)[0])
+            raise self.fail(
+                int(numbers[j]),
+                f"vertex position '{_short(lines.text()[j])}' is beyond the limit of {MAX_COORDINATE:g} "
+                "for a coordinate",
+            )
         colors = None
         has_color = counts >= 6
         if has_color.all():

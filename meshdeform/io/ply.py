@@ -38,7 +38,7 @@ from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.geometry import clean_polygons, corner_normals, vertex_normals
 from meshdeform.io.obj import c_float, parse_numbers, read_mesh_bytes, require_finite
-from meshdeform.mesh import Mesh
+from meshdeform.mesh import MAX_COORDINATE, Mesh
 
 __all__ = ["PLY_TYPES", "PlyWriter", "read_ply", "write_ply"]
 
@@ -527,6 +527,13 @@ class _Reader:
         if not finite.all():
             r = int(np.flatnonzero(~finite)[0])
             raise self.fail(f"element 'vertex' row {r}", f"non-finite position {positions[r].tolist()}")
+        huge = np.abs(positions).max(axis=1, initial=0.0) > MAX_COORDINATE
+        if huge.any():
+            r = int(np.flatnonzero(huge)[0])
+            raise self.fail(
+                f"element 'vertex' row {r}",
+                f"position {positions[r].tolist()} is beyond the limit of {MAX_COORDINATE:g} for a coordinate",
+            )
 
         used = {"x", "y", "z"}
         normals = None
