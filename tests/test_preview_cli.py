@@ -126,3 +126,26 @@ def test_render_result_previews_returns_the_files(tmp_path: Path) -> None:
     files = render_result_previews(tmp_path / "r", {"every": 4, "size": [96, 72], "video": "mp4"})
     assert sorted(p.name for p in files) == ["0001.png", "0005.png", "preview.mp4"]
     assert all(p.is_file() for p in files)
+
+
+def test_preview_never_replaces_a_preview_file_meshdeform_did_not_write(app: typer.Typer, tmp_path: Path) -> None:
+    """A folder of someone's frames with their own preview/0001.png: refused, their file kept; a preview
+    written into a fresh --out is recorded in its marker, so rendering it again is allowed."""
+    runner = CliRunner()
+    theirs = tmp_path / "theirs"
+    make_result(theirs, ["obj"], report=False)
+    (theirs / "preview").mkdir()
+    (theirs / "preview" / "0001.png").write_bytes(b"my picture")
+    run = runner.invoke(app, ["preview", str(theirs), "--video", "none"])
+    assert run.exit_code == 2
+    assert run.stderr.strip() == (
+        f"error: {theirs}: 'preview' is there and meshdeform did not write it; previews would replace it, "
+        "choose another --out"
+    )
+    assert (theirs / "preview" / "0001.png").read_bytes() == b"my picture"
+    fresh = tmp_path / "fresh"
+    for _ in range(2):
+        run = runner.invoke(app, ["preview", str(theirs), "-o", str(fresh), "--video", "none"])
+        assert run.exit_code == 0, run.output
+    listed = json.loads((fresh / ".meshdeform.json").read_text())["files"]
+    assert listed and listed == sorted(p.relative_to(fresh).as_posix() for p in (fresh / "preview").iterdir())

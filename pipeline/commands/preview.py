@@ -6,6 +6,7 @@ No re-simulation: the frames are read from the result folder (`frames/*.obj|ply`
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -39,6 +40,34 @@ def parse_size(text: str) -> tuple[int, int]:
     if match is None:
         raise fail(f"--size: expected WIDTHxHEIGHT like 800x600, got {text!r}")
     return int(match.group(1)), int(match.group(2))
+
+
+#: what a preview writes in its folder (meshdeform.preview): `preview/...`, `preview.mp4`, `preview.gif`
+_PREVIEW_ENTRIES = ("preview", "preview.mp4", "preview.gif")
+
+
+def refuse_foreign_previews(folder: Path) -> None:
+    """Refuse (one line, exit 2) to render into `folder` where a preview file of the same name exists
+    that meshdeform did not write: previews replace only their own files."""
+    from pipeline.job import inspect_folder
+
+    state = inspect_folder(folder)
+    clash = [entry for entry in state.foreign if entry.split("/", 1)[0] in _PREVIEW_ENTRIES]
+    if clash:
+        raise fail(
+            f"{folder}: {clash[0]!r} is there and meshdeform did not write it; previews would replace it, "
+            "choose another --out"
+        )
+
+
+def record_previews(folder: Path, files: list[Path]) -> None:
+    """Add the preview files just written to `folder`'s marker (made if it has none), so a later
+    preview or run knows them as meshdeform's."""
+    from pipeline.job import read_marker, write_marker
+
+    real = Path(os.path.realpath(folder))
+    written = [Path(os.path.realpath(f)).relative_to(real).as_posix() for f in files]
+    write_marker(real, [*(read_marker(real) or ()), *written])
 
 
 def register(app: typer.Typer) -> None:
@@ -85,7 +114,10 @@ def register(app: typer.Typer) -> None:
             )
             if not (pngs or contact_sheet or options.video):
                 raise fail("nothing to render: --no-png without --contact-sheet or --video")
+            target = out if out is not None else result_dir
+            refuse_foreign_previews(target)
             seq, result = render_result(result_dir, options, out_dir=out)
+            record_previews(target, result.files)
         parts = [f"{len(result.images)} PNG" + ("" if len(result.images) == 1 else "s")]
         if result.contact_sheet is not None:
             parts.append("a contact sheet")
