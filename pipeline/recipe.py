@@ -128,7 +128,8 @@ LIMITS: dict[str, Limit] = {
     "output.preview.sheet_columns": Limit(1000, "columns"),
     "any number": Limit(1e12, "(largest magnitude of any number in a recipe)"),
     "any integer": Limit(2**63 - 1, "(an integer must fit in 64 bits)", minimum=-(2**63)),
-    "recipe file size": Limit(8 * 2**20, "bytes"),
+    "recipe file size": Limit(2 * 2**20, "bytes"),
+    "tables in one array": Limit(10_000, "tables (pins, impacts, colliders, tears, cuts, regions, asset rules)"),
 }
 
 
@@ -158,6 +159,18 @@ def _bounded(value: float) -> float:
     if abs(value) > limit:
         raise ValueError(f"{_number(value)} is beyond the limit of {_number(limit)} for any number in a recipe")
     return value
+
+
+def _too_many_tables(data: Any, path: Path_ = ()) -> typing.Iterator[tuple[Path_, str]]:
+    """(key path, complaint) for every array of tables (`[[impacts]]`, ...) longer than the limit: a
+    generated recipe gone wrong, refused before the schema spends seconds on each of its tables."""
+    limit = LIMITS["tables in one array"].maximum
+    if isinstance(data, dict):
+        for key, value in data.items():
+            if isinstance(value, list) and len(value) > limit and all(isinstance(v, dict) for v in value):
+                yield (*path, key), f"{len(value)} tables is above the limit of {_number(limit)} tables in one array"
+            elif isinstance(value, dict):
+                yield from _too_many_tables(value, (*path, key))
 
 
 def _bad_numbers(data: Any, path: Path_ = ()) -> typing.Iterator[tuple[Path_, str]]:
@@ -1340,13 +1353,16 @@ def _validate(
     error_lines: bool = True,
 ) -> Recipe:
     cls = recipe_class()
-    # (key path, complaint): values no key accepts first, then what the schema says
-    problems: list[tuple[Path_, str]] = list(_bad_numbers(data))
+    # (key path, complaint): too many tables first (the schema would take seconds over them), then
+    # values no key accepts, then what the schema says
+    problems: list[tuple[Path_, str]] = list(_too_many_tables(data))
     recipe: Recipe | None = None
-    try:
-        recipe = cls.model_validate(data)
-    except ValidationError as exc:
-        problems += [(tuple(e["loc"]), _describe(e, cls)) for e in exc.errors(include_url=False)]
+    if not problems:
+        problems = list(_bad_numbers(data))
+        try:
+            recipe = cls.model_validate(data)
+        except ValidationError as exc:
+            problems += [(tuple(e["loc"]), _describe(e, cls)) for e in exc.errors(include_url=False)]
     if problems:
 
         def where(problem: tuple[Path_, str]) -> tuple[int, int]:

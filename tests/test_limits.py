@@ -95,7 +95,7 @@ BOUNDARIES = {
     ),
 }
 # limits tested on their own below
-SPECIAL = {"simulation.substeps x iterations", "any number", "any integer", "recipe file size"}
+SPECIAL = {"simulation.substeps x iterations", "any number", "any integer", "recipe file size", "tables in one array"}
 
 
 def test_every_limit_is_tested_here_and_listed_in_the_docs() -> None:
@@ -269,7 +269,7 @@ TEXT = "[simulation]\n# café\nframes = 3\n"
         (TEXT.encode("utf-32"), "is UTF-32 text; a recipe must be UTF-8"),
         (TEXT.encode("latin-1"), "line 2: not UTF-8 text (invalid continuation byte at byte 18)"),
         (b"[simulation]\nframes = 3\n\x00\x00\n", "line 3: a NUL byte: a recipe is text"),
-        (b"# " + b"x" * (8 * 2**20) + b"\n", "is larger than 8 MB, the limit for a recipe"),
+        (b"# " + b"x" * (2 * 2**20) + b"\n", "is larger than 2 MB, the limit for a recipe"),
     ],
     ids=["utf16-bom", "utf16-le", "utf32", "latin1", "nul", "huge"],
 )
@@ -521,3 +521,13 @@ def test_simulate_refuses_a_run_whose_outputs_do_not_fit_before_writing_anything
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and "the outputs need about" in lines[0] and "is free on" in lines[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.obj"]  # no output, no staging folder
+
+
+def test_arrays_of_tables_are_limited_before_the_schema_reads_them() -> None:
+    impact = "[[impacts]]\ntime = 0.1\npoint = [0, 0, 0]\nradius = 0.1\nstrength = 1\n"
+    limit = int(LIMITS["tables in one array"].maximum)
+    assert len(parse_recipe(impact * limit).impacts) == limit
+    message = error_of(impact * (limit + 1))
+    assert message == f"r.toml: impacts (line 1): {limit + 1} tables is above the limit of {limit} tables in one array"
+    nested = "[material]\n" + "[[material.regions]]\nselect = { indices = [0] }\nstiffness = 1\n" * (limit + 1)
+    assert "material.regions" in error_of(nested) and "tables in one array" in error_of(nested)
