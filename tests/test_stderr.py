@@ -24,14 +24,31 @@ from pipeline.cli import app
 
 REPO = Path(__file__).resolve().parents[1]
 SHEET = REPO / "samples" / "meshes" / "sheet.obj"
-#: a mesh whose coordinates overflow float64 in NumPy's cross products and norms (RuntimeWarnings)
-HUGE = "v 0 0 0\nv 1e308 0 0\nv 0 1e308 0\nf 1 2 3\n"
+#: a sitecustomize module that makes every run raise a genuine NumPy RuntimeWarning (overflow) as it
+#: starts simulating, in the CLI process and in pool workers alike (valid inputs no longer raise any)
+WARN_ON_SIMULATE = """
+import numpy as np
+import meshdeform.simulate as module
+
+_simulate = module.simulate
+
+
+def simulate(*args, **kwargs):
+    np.float64(1e308) * np.float64(10.0)
+    yield from _simulate(*args, **kwargs)
+
+
+module.simulate = simulate
+"""
 TIMEOUT = 120
 
 
-def run_cli(*args: object, fsize_limit: int | None = None) -> subprocess.CompletedProcess[str]:
-    """The `meshdeform` command in a subprocess; optionally with a file size limit in bytes."""
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+def run_cli(
+    *args: object, fsize_limit: int | None = None, site: Path | None = None
+) -> subprocess.CompletedProcess[str]:
+    """The `meshdeform` command in a subprocess; optionally with a file size limit in bytes, and with a
+    folder holding a sitecustomize module first on the path."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(str(p) for p in (site, REPO) if p is not None)}
 
     def limit() -> None:
         import resource
@@ -113,24 +130,32 @@ def test_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, output_format:
         assert [p for p in disk.iterdir() if p != filler] == []
 
 
-def test_numpy_warnings_stay_off_stderr_unless_verbose(tmp_path: Path) -> None:
-    mesh = tmp_path / "huge.obj"
-    mesh.write_text(HUGE)
-    quiet = run_cli("simulate", mesh, "-o", tmp_path / "a", "--frames", 2, "-q")
+@pytest.fixture()
+def warning_site(tmp_path: Path) -> Path:
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(WARN_ON_SIMULATE)
+    return site
+
+
+def test_numpy_warnings_stay_off_stderr_unless_verbose(tmp_path: Path, warning_site: Path) -> None:
+    quiet = run_cli("simulate", SHEET, "-o", tmp_path / "a", "--frames", 2, "-q", site=warning_site)
     assert quiet.returncode == 0 and quiet.stderr == ""
-    verbose = run_cli("--verbose", "simulate", mesh, "-o", tmp_path / "b", "--frames", 2, "-q")
+    verbose = run_cli("--verbose", "simulate", SHEET, "-o", tmp_path / "b", "--frames", 2, "-q", site=warning_site)
     assert verbose.returncode == 0 and "RuntimeWarning: overflow" in verbose.stderr
 
 
-def test_batch_workers_keep_warnings_off_stderr(tmp_path: Path) -> None:
+def test_batch_workers_keep_warnings_off_stderr_and_in_the_log(tmp_path: Path, warning_site: Path) -> None:
     assets = tmp_path / "assets"
     assets.mkdir()
-    (assets / "huge.obj").write_text(HUGE)
     shutil.copyfile(SHEET, assets / "sheet.obj")
+    shutil.copyfile(SHEET, assets / "other.obj")
     recipe = tmp_path / "recipe.toml"
     recipe.write_text("[simulation]\nframes = 2\n")
-    done = run_cli("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", 2, "-q")
+    done = run_cli("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", 2, "-q", site=warning_site)
     assert done.returncode == 0 and done.stderr == ""
+    log = (tmp_path / "out" / "batch.log").read_text()
+    assert "sheet.obj: " in log and "overflow" in log
 
 
 def test_an_unexpected_error_is_one_line(tmp_path: Path, monkeypatch: Any) -> None:
