@@ -48,6 +48,16 @@ def staging_folders(root: Path) -> list[Path]:
     return [p for p in root.rglob("*") if ".partial-" in p.name or ".old-" in p.name]
 
 
+def stages_writing(root: Path) -> int:
+    """Staging folders under `root` that hold a first frame: their kernels are compiled and they are
+    simulating (a signal during a cold compile waits for the compiler to return)."""
+    return sum(1 for stage in staging_folders(root) if stage.is_dir() and any(stage.glob("frames/*.obj")))
+
+
+def writing_frames(root: Path) -> bool:
+    return stages_writing(root) > 0
+
+
 def finish(process: subprocess.Popen[str]) -> list[str]:
     """Wait (bounded) for the process to end; returns its stderr lines."""
     try:
@@ -63,8 +73,7 @@ def finish(process: subprocess.Popen[str]) -> list[str]:
 def test_simulate_interrupted_leaves_nothing_and_says_one_line(tmp_path: Path, signum: signal.Signals) -> None:
     out = tmp_path / "out" / "x"
     process = meshdeform("simulate", SHEET, "-o", out, "--frames", 100000, "-q")
-    wait_for(lambda: bool(staging_folders(tmp_path)), "the run writes its staging folder", process)
-    time.sleep(0.2)  # frames are being written
+    wait_for(lambda: writing_frames(tmp_path), "the run writes its frames", process)
     process.send_signal(signum)
     lines = finish(process)
     assert process.returncode == 128 + signum.value
@@ -81,7 +90,7 @@ def test_simulate_interrupt_keeps_the_previous_output(tmp_path: Path) -> None:
     assert earlier.returncode == 0 and not stderr, stderr
     before = {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
     process = meshdeform("simulate", SHEET, "-o", out, "--frames", 100000, "-q")
-    wait_for(lambda: bool(staging_folders(tmp_path)), "the run writes its staging folder", process)
+    wait_for(lambda: writing_frames(tmp_path), "the run writes its frames", process)
     process.send_signal(signal.SIGTERM)
     finish(process)
     assert process.returncode == 143
@@ -111,7 +120,7 @@ def test_batch_interrupted_stops_its_workers_and_leaves_no_staging(tmp_path: Pat
     assets, recipe = slow_assets(tmp_path, 3, 100000)
     out = tmp_path / "out"
     process = meshdeform("batch", assets, "-r", recipe, "-o", out, "-j", 2, "-q")
-    wait_for(lambda: len(staging_folders(out)) == 2 if out.is_dir() else False, "two jobs running", process)
+    wait_for(lambda: out.is_dir() and stages_writing(out) == 2, "two jobs running", process)
     workers = children(process.pid)
     assert len(workers) >= 2
     process.send_signal(signum)
@@ -157,7 +166,7 @@ def test_workers_die_with_a_killed_batch_and_never_publish(tmp_path: Path) -> No
     assets, recipe = slow_assets(tmp_path, 2, 1500)
     out = tmp_path / "out"
     process = meshdeform("batch", assets, "-r", recipe, "-o", out, "-j", 2, "-q")
-    wait_for(lambda: len(staging_folders(out)) == 2 if out.is_dir() else False, "two jobs running", process)
+    wait_for(lambda: out.is_dir() and stages_writing(out) == 2, "two jobs running", process)
     workers = children(process.pid)
     assert len(workers) == 2
     before = asset_folders(out)
