@@ -178,13 +178,15 @@ def one_line(exc: BaseException) -> tuple[str, str]:
 
 
 def remove_stale_stages(out_dir: Path) -> None:
-    """Delete staging folders (`.NAME.partial-*`, `.NAME.old-*`) a killed job left beside `out_dir`."""
+    """Delete the staging folders a killed job left beside `out_dir` (`pipeline.job.is_stage_of`)."""
+    from pipeline.job import is_stage_of
+
     parent = out_dir.parent
     if not parent.is_dir():
         return
-    for pattern in (f".{out_dir.name}.partial-*", f".{out_dir.name}.old-*"):
-        for stale in parent.glob(pattern):
-            shutil.rmtree(stale, ignore_errors=True)
+    for name in os.listdir(parent):
+        if is_stage_of(name, out_dir.name):
+            shutil.rmtree(parent / name, ignore_errors=True)
 
 
 def _input_hash(path: str) -> str | None:

@@ -44,12 +44,22 @@ FrameCallback = Callable[[int, int], None]
 REPORT_NAME = "report.json"
 #: the stamp in every folder meshdeform writes: {"tool", "version", "files": [what it wrote, relative]}
 MARKER_NAME = ".meshdeform.json"
-#: staging folders of `staged_directory` beside their target: `.NAME.partial-XXXXXXXX`, `.NAME.old-XXXXXXXX`
-STAGE_PATTERN = re.compile(r"^\..+\.(partial|old)-[0-9a-f]{8}$")
+#: staging folders of `staged_directory` beside their target NAME: `.NAME.partial-meshdeform-<32 hex>` and
+#: `.NAME.old-meshdeform-<32 hex>` (no name a person picks: only these are ever removed as leftovers)
+STAGE_PATTERN = re.compile(r"^\.(?P<target>.+)\.(?P<kind>partial|old)-meshdeform-[0-9a-f]{32}$")
 #: `output_lock` holds `.NAME` + this beside the target while a run writes it
 LOCK_SUFFIX = ".meshdeform.lock"
-#: what `meshdeform preview RESULT` adds to a result folder (meshdeform.preview): meshdeform's files too
-PREVIEW_FILES = re.compile(r"^(preview/(\d+|contact_sheet)\.png|preview\.(mp4|gif))$")
+
+
+def stage_path(target: Path, kind: str = "partial") -> Path:
+    """A fresh staging ("partial") or set-aside ("old") folder name beside `target` (STAGE_PATTERN)."""
+    return target.parent / f".{target.name}.{kind}-meshdeform-{uuid.uuid4().hex}"
+
+
+def is_stage_of(name: str, target_name: str) -> bool:
+    """Is `name` a staging or set-aside folder of the output folder named `target_name`?"""
+    match = STAGE_PATTERN.match(name)
+    return match is not None and match.group("target") == target_name
 
 
 @dataclass(frozen=True)
@@ -123,7 +133,8 @@ def read_marker(folder: Path) -> frozenset[str] | None:
 
 
 def _own_leftover(name: str) -> bool:
-    """Names meshdeform leaves only when a run was killed: staging folders, lock files (any depth)."""
+    """Names meshdeform leaves only when a run was killed: staging folders, lock files (in the folder
+    that holds output folders, never deeper)."""
     return bool(STAGE_PATTERN.match(name)) or (name.startswith(".") and name.endswith(LOCK_SUFFIX))
 
 
@@ -136,7 +147,7 @@ def _foreign_in_result(folder: Path, listed: frozenset[str]) -> list[str]:
         base = Path(here).relative_to(folder).as_posix()
         prefix = "" if base == "." else base + "/"
         for name in list(dirs):
-            if _own_leftover(name):
+            if not prefix and _own_leftover(name):
                 dirs.remove(name)
             elif os.path.islink(os.path.join(here, name)):
                 foreign.append(prefix + name)
@@ -145,7 +156,7 @@ def _foreign_in_result(folder: Path, listed: frozenset[str]) -> list[str]:
             foreign.append(prefix)  # an empty folder the result does not have
         for name in files:
             rel = prefix + name
-            own = rel in listed or rel == MARKER_NAME or PREVIEW_FILES.match(rel) or _own_leftover(name)
+            own = rel in listed or rel == MARKER_NAME or (not prefix and _own_leftover(name))
             if not own or os.path.islink(os.path.join(here, name)):
                 foreign.append(rel)
     return sorted(foreign)
@@ -389,7 +400,7 @@ def _commit(stage: Path, target: Path, label: str, overwrite: bool) -> None:
     if state.kind == "absent":
         os.replace(stage, target)
     elif state.kind in ("empty", "result"):
-        old = stage.with_name(stage.name.replace(".partial-", ".old-"))
+        old = stage_path(target, "old")
         os.replace(target, old)
         os.replace(stage, target)
         shutil.rmtree(old, ignore_errors=True)
@@ -412,7 +423,7 @@ def staged_directory(target: Path, *, overwrite: bool = False) -> Iterator[Path]
     state = check_output_folder(target, overwrite=overwrite, label=label)
     real = state.path
     created = _make_folders(real.parent, label)
-    stage = real.parent / f".{real.name}.partial-{uuid.uuid4().hex[:8]}"
+    stage = stage_path(real)
     try:
         stage.mkdir()
     except OSError as exc:

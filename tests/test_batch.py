@@ -27,7 +27,7 @@ from pipeline.batch import (
     run_batch,
     select,
 )
-from pipeline.job import file_sha256, staged_directory
+from pipeline.job import file_sha256, stage_path, staged_directory
 from pipeline.manifest import MANIFEST_TIMING_KEYS, drop_keys
 from pipeline.recipe import recipe_hash
 
@@ -295,7 +295,7 @@ def test_interrupted_batch_keeps_what_is_done_and_resumes_cleanly(folder: Path, 
     write(folder / "m_interrupt.obj", "interrupt")  # sorted after flag.obj, before props/
     # the lock file, a stale staging folder and temp manifest from a run that was killed while planning
     write(out / ".meshdeform-batch.lock", "")
-    stale = out / "props" / ".chair one.partial-0123abcd"
+    stale = stage_path(out / "props" / "chair one")
     write(stale / "frames" / "frame_0001.obj")
     write(out / ".manifest.x1y2.part.json", "{")
     with pytest.raises(KeyboardInterrupt):
@@ -316,11 +316,14 @@ def test_interrupted_batch_keeps_what_is_done_and_resumes_cleanly(folder: Path, 
 
 def test_remove_stale_only_touches_staging_names(tmp_path: Path) -> None:
     keep = write(tmp_path / "a" / ".notes" / "x.txt")
-    write(tmp_path / "a" / ".b.partial-deadbeef" / "f.obj")
-    write(tmp_path / "a" / ".b.old-0badc0de" / "f.obj")
+    # a person's names that look like the old short staging names (8 hex digits: a date) are kept
+    dated = [write(tmp_path / "a" / ".photos.old-20240101" / "img.txt"), write(tmp_path / ".b.partial-deadbeef" / "f")]
+    write(stage_path(tmp_path / "a" / "b") / "f.obj")
+    write(stage_path(tmp_path / "a" / "b", "old") / "f.obj")
     write(tmp_path / ".manifest.abc.part.json")
     removed = remove_stale(tmp_path)
-    assert len(removed) == 3 and keep.exists() and sorted(os.listdir(tmp_path / "a")) == [".notes"]
+    assert len(removed) == 3 and keep.exists() and all(p.exists() for p in dated)
+    assert sorted(os.listdir(tmp_path / "a")) == [".notes", ".photos.old-20240101"]
 
 
 def test_out_folder_inside_or_around_the_assets_or_recipe_folder_is_refused(

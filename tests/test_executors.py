@@ -28,6 +28,7 @@ from pipeline.executors import (
     execute_task,
     threads_per_job,
 )
+from pipeline.job import stage_path
 
 
 @dataclass
@@ -135,11 +136,15 @@ def test_execute_task_turns_errors_into_one_line_outcomes(tmp_path: Path) -> Non
 
 def test_execute_task_removes_stale_staging_folders(tmp_path: Path) -> None:
     (task,) = make_tasks(tmp_path, ["a.obj"])
-    stale = Path(task.out_dir).parent / ".a.partial-0123abcd"
+    stale = stage_path(Path(task.out_dir))
     stale.mkdir(parents=True)
     (stale / "frame_0001.txt").write_text("half")
+    kept = [Path(task.out_dir).parent / name for name in (".a.old-mybackup", ".a.partial-0123abcd", ".a1.partial-x")]
+    kept.append(stage_path(Path(task.out_dir).parent / "a1"))  # another asset's (a glob 'a*' would match)
+    for folder in kept:
+        folder.mkdir()
     assert execute_task(task).status == "ok"
-    assert not stale.exists()
+    assert not stale.exists() and all(folder.exists() for folder in kept)
 
 
 def test_serial_executor_reports_in_order(tmp_path: Path) -> None:

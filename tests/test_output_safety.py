@@ -192,6 +192,26 @@ def test_a_previous_result_is_replaced_whole(user: dict[str, Path]) -> None:
     assert {k: v for k, v in snapshot(user["root"]).items() if not k.startswith("results/cloth/")} == outside
 
 
+@pytest.mark.parametrize(
+    "theirs",
+    [
+        ".photos.old-20240101/img.txt",  # a dated folder that looks like a short staging name
+        ".backup.partial-20231231/a.txt",
+        "frames/.todo.meshdeform.lock",  # a lock-like name deep inside: not beside any target
+        "preview.gif",  # a preview of theirs: meshdeform's previews are listed in the marker
+        "preview/0001.png",
+    ],
+)
+def test_a_users_file_that_looks_like_meshdeforms_is_never_taken_for_it(user: dict[str, Path], theirs: str) -> None:
+    out = user["root"] / "cloth"
+    assert cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2").exit_code == 0
+    put(out / theirs, "mine\n")
+    before = snapshot(user["root"])
+    line = one_error_line(cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "3"))
+    assert "entry meshdeform did not write" in line
+    assert snapshot(user["root"]) == before
+
+
 def test_a_previous_result_holding_a_users_file_is_refused(user: dict[str, Path]) -> None:
     out = user["root"] / "cloth"
     assert cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2").exit_code == 0

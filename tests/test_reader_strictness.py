@@ -366,3 +366,18 @@ def test_ply_coordinates_past_the_limit_are_refused_with_their_row(tmp_path: Pat
     )
     body = struct.pack("<9f", 0, 0, 0, 0, 1e30, 0, 0, 1, 0) + struct.pack("<B3i", 3, 0, 1, 2)
     _refused(_file(tmp_path, header + body, "huge.ply"), r"element 'vertex' row 1: position .* beyond the limit")
+
+
+def test_mtllib_copies_only_material_libraries(tmp_path: Path) -> None:
+    """An OBJ inside a home folder naming `.ssh/id_rsa` or `notes.txt` as its material library: not copied."""
+    mesh_path = _cloth_with_libraries(tmp_path, "ok.mtl .ssh/id_rsa notes.txt .hidden/lib.mtl")
+    for name in (".ssh/id_rsa", "notes.txt", ".hidden/lib.mtl"):
+        (mesh_path.parent / name).parent.mkdir(parents=True, exist_ok=True)
+        (mesh_path.parent / name).write_text("private\n")
+    mesh = load(mesh_path)
+    assert len(mesh.warnings) == 1
+    for name in (".ssh/id_rsa", "notes.txt", ".hidden/lib.mtl"):
+        assert f"'{name}' (not a .mtl file, or in a hidden folder)" in mesh.warnings[0]
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    assert copy_material_libraries(mesh, frames) == [frames / "ok.mtl"]

@@ -210,7 +210,8 @@ def material_libraries(source: PathLike | None, statements: Iterable[tuple[int, 
 
     Only names inside the OBJ's folder count: an absolute name (`/x.mtl`, `C:\\x.mtl`), one
     with a `..` part, or one that resolves (through symbolic links) outside the folder is refused,
-    so copying a mesh's materials never reads a file elsewhere. Libraries that do not exist are
+    so copying a mesh's materials never reads a file elsewhere; so is a name that does not end in
+    `.mtl` or has a hidden part (`.ssh/key`): only material libraries are copied. Libraries that do not exist are
     simply absent (neither list). Texture paths inside an .mtl are not looked at. Returns
     (copyable libraries, refused names each with the reason, as "'name' (reason)").
     """
@@ -231,6 +232,9 @@ def material_libraries(source: PathLike | None, statements: Iterable[tuple[int, 
                 continue
             if ".." in parts:
                 refused.append(f"'{name}' (it climbs out of the mesh's folder)")
+                continue
+            if not name.lower().endswith(".mtl") or any(part.startswith(".") for part in parts if part):
+                refused.append(f"'{name}' (not a .mtl file, or in a hidden folder)")
                 continue
             try:
                 real = (folder / name).resolve()
