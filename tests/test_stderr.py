@@ -100,10 +100,9 @@ def fill_once_staging_appears(disk: Path, process: subprocess.Popen[str]) -> Pat
         assert process.poll() is None and time.monotonic() < deadline, "the run ended before writing"
         time.sleep(0.02)
     filler = disk / "filler.bin"
-    with open(filler, "wb") as handle, contextlib.suppress(OSError):
+    with contextlib.suppress(OSError), open(filler, "wb", buffering=0) as handle:  # (until ENOSPC)
         while True:
             handle.write(b"\0" * (1 << 16))
-            handle.flush()
     return filler
 
 
