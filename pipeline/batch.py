@@ -32,7 +32,7 @@ from typing import Any, Protocol
 from meshdeform.errors import MeshdeformError, RecipeError
 from pipeline import __version__
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
-from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder
+from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
 
 #: mesh suffixes a batch picks up (case-insensitive)
@@ -324,19 +324,8 @@ def remove_stale(out: Path) -> list[Path]:
 def out_lock(out: Path) -> Iterator[None]:
     """Hold an exclusive lock on OUT (`OUT/.meshdeform-batch.lock`, filelock: every OS) for the batch,
     so two batches never write into one folder; the second is refused at once."""
-    from filelock import FileLock, Timeout
-
-    lock = FileLock(out / LOCK_NAME, timeout=0)
-    try:
-        lock.acquire()
-    except Timeout:
-        raise BatchError(f"{out}: another batch is writing into this folder") from None
-    except OSError as exc:
-        raise BatchError(f"{out}: cannot create the lock file {LOCK_NAME}: {exc.strerror or exc}") from None
-    try:
+    with exclusive_lock(out / LOCK_NAME, str(out), "another batch is writing into this folder", BatchError):
         yield
-    finally:
-        lock.release()
 
 
 def is_batch_folder(out: Path) -> bool:

@@ -279,36 +279,46 @@ def _remove_if_empty(folders: Sequence[Path]) -> None:
 
 
 @contextlib.contextmanager
+def exclusive_lock(path: Path, label: str, busy: str, error: type[MeshdeformError]) -> Iterator[None]:
+    """Hold the file lock `path` (filelock: every OS) for the block. A second holder is refused at once
+    with `error("label: busy")`; a lock file that cannot be made with `error` naming it (one line each)."""
+    from filelock import FileLock, Timeout
+
+    lock = FileLock(path, timeout=0)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise error(f"{label}: {busy}") from None
+    except OSError as exc:
+        raise error(f"{label}: cannot create the lock file {path}: {exc.strerror or exc}") from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+@contextlib.contextmanager
 def output_lock(target: Path, label: str | None = None) -> Iterator[None]:
-    """Hold `<parent>/.<name>.meshdeform.lock` (filelock) while one run writes `target`.
+    """Hold `<parent>/.<name>.meshdeform.lock` while one run writes `target` (`exclusive_lock`).
 
     A second run on the same folder is refused at once (OutputFolderError). The lock sits beside the
     target because the target itself is replaced; it is deleted while still held, so nothing stays
-    behind (filelock retries when the file it locked was unlinked meanwhile). Missing parent folders
-    are created, and removed again when the run leaves them empty.
+    behind (filelock >= 4.3 retries when the file it locked was unlinked meanwhile). Missing parent
+    folders are created, and removed again when the run leaves them empty.
     """
-    from filelock import FileLock, Timeout
-
     label = label or str(target)
     if os.path.islink(target) and not os.path.exists(target):
         raise OutputFolderError(f"{label}: is a symbolic link to a missing path; choose another --out")
     real = Path(os.path.realpath(target))
     created = _make_folders(real.parent, label)
     path = real.parent / f".{real.name}{LOCK_SUFFIX}"
-    lock = FileLock(path, timeout=0)
     try:
-        try:
-            lock.acquire()
-        except Timeout:
-            raise OutputFolderError(f"{label}: another meshdeform run is writing this folder") from None
-        except OSError as exc:
-            raise OutputFolderError(f"{label}: cannot create the lock file {path}: {exc.strerror or exc}") from None
-        try:
-            yield
-        finally:
-            with contextlib.suppress(OSError):  # Windows: filelock deletes it on release instead
-                path.unlink()
-            lock.release()
+        with exclusive_lock(path, label, "another meshdeform run is writing this folder", OutputFolderError):
+            try:
+                yield
+            finally:
+                with contextlib.suppress(OSError):  # Windows: filelock deletes it on release instead
+                    path.unlink()
     finally:
         _remove_if_empty(created)
 
