@@ -381,3 +381,13 @@ def test_mtllib_copies_only_material_libraries(tmp_path: Path) -> None:
     frames = tmp_path / "frames"
     frames.mkdir()
     assert copy_material_libraries(mesh, frames) == [frames / "ok.mtl"]
+
+
+def test_mtllib_with_a_leading_dot_folder_is_copied(tmp_path: Path) -> None:
+    """`mtllib ./name.mtl` (as some exporters write it) names the mesh's own folder: copied, no warning."""
+    mesh_path = _cloth_with_libraries(tmp_path, "./ok.mtl")
+    mesh = load(mesh_path)
+    assert mesh.warnings == ()
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    assert copy_material_libraries(mesh, frames) == [frames / "ok.mtl"]

@@ -233,7 +233,8 @@ def material_libraries(source: PathLike | None, statements: Iterable[tuple[int, 
             if ".." in parts:
                 refused.append(f"'{name}' (it climbs out of the mesh's folder)")
                 continue
-            if not name.lower().endswith(".mtl") or any(part.startswith(".") for part in parts if part):
+            hidden = any(part.startswith(".") for part in parts if part not in ("", "."))
+            if hidden or not name.lower().endswith(".mtl"):
                 refused.append(f"'{name}' (not a .mtl file, or in a hidden folder)")
                 continue
             try:

@@ -35,11 +35,11 @@ def register(app: typer.Typer) -> None:
         ),
         recipe: Path | None = typer.Option(None, "--recipe", "-r", help="A recipe TOML; options below override it."),
         solver: str | None = typer.Option(None, help="anchor | verlet | xpbd | springs | implicit."),
-        frames: int | None = typer.Option(None, min=1, help="Number of frames to bake."),
-        fps: float | None = typer.Option(None, min=1e-6, help="Frames per second."),
-        substeps: int | None = typer.Option(None, min=1, help="Solver steps per frame."),
-        iterations: int | None = typer.Option(None, min=1, help="Constraint iterations per step."),
-        damping: float | None = typer.Option(None, min=0.0, help="Velocity damping (see docs/recipes.md)."),
+        frames: int | None = typer.Option(None, help="Number of frames to bake."),
+        fps: float | None = typer.Option(None, help="Frames per second."),
+        substeps: int | None = typer.Option(None, help="Solver steps per frame."),
+        iterations: int | None = typer.Option(None, help="Constraint iterations per step."),
+        damping: float | None = typer.Option(None, help="Velocity damping (see docs/recipes.md)."),
         gravity: str | None = typer.Option(None, help="Gravity X,Y,Z in m/s^2 (default 0,-9.81,0: Y up)."),
         pin: list[str] = typer.Option(
             [], "--pin", help="Hard pin: 'indices:0,5,9' or 'box:x0,y0,z0,x1,y1,z1' (box relative 0..1 to bounds)."
