@@ -175,7 +175,7 @@ def inspect_folder(target: Path) -> FolderState:
     listed = read_marker(path)
     if listed is None:
         return FolderState(path, "foreign", foreign=tuple(names))
-    foreign = _foreign_in_result(path, listed)
+    foreign = sorted({*_foreign_in_result(path, listed), *_changed_since_written(path)})
     return FolderState(path, "mixed" if foreign else "result", listed, tuple(foreign))
 
 
@@ -332,10 +332,51 @@ def _files_under(folder: Path) -> list[str]:
     return sorted(found)
 
 
-def write_marker(folder: Path, files: Sequence[str]) -> None:
-    """Write MARKER_NAME: tool, version and the files meshdeform wrote into `folder` (deterministic)."""
-    stamp = {"tool": "meshdeform", "version": __version__, "files": sorted(set(files) - {MARKER_NAME})}
+def file_sizes(root: Path, files: Sequence[str]) -> dict[str, int]:
+    """Byte sizes of the `files` (relative POSIX) that exist under `root`."""
+    sizes: dict[str, int] = {}
+    for name in files:
+        with contextlib.suppress(OSError):
+            sizes[name] = os.stat(root / name).st_size
+    return sizes
+
+
+def write_marker(folder: Path, files: Sequence[str], sizes: Mapping[str, int] | None = None) -> None:
+    """Write MARKER_NAME: tool, version, the files meshdeform wrote into `folder` and their sizes in bytes
+    (`sizes`, else read from `folder`), so a listed file the user changed since is not taken for
+    meshdeform's. Deterministic: the same outputs give the same bytes (no times)."""
+    listed = sorted(set(files) - {MARKER_NAME})
+    sizes = file_sizes(folder, listed) if sizes is None else sizes
+    stamp = {
+        "tool": "meshdeform",
+        "version": __version__,
+        "files": listed,
+        # (not report.json's: its timings change its length from run to run, and the marker stays the same bytes)
+        "sizes": {name: sizes[name] for name in listed if name in sizes and name != REPORT_NAME},
+    }
     write_text_atomic(folder / MARKER_NAME, json.dumps(stamp, indent=2) + "\n")
+
+
+def marker_sizes(folder: Path) -> dict[str, int]:
+    """The sizes `write_marker` recorded in `folder`'s marker ({} for none, or for an older marker)."""
+    try:
+        data = json.loads((folder / MARKER_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    sizes = data.get("sizes") if isinstance(data, dict) else None
+    if not isinstance(sizes, dict):
+        return {}
+    return {k: v for k, v in sizes.items() if isinstance(k, str) and isinstance(v, int) and _is_safe_relative(k)}
+
+
+def _changed_since_written(folder: Path) -> list[str]:
+    """Listed files whose size is no longer the one the marker recorded: the user changed them."""
+    changed = []
+    for name, size in marker_sizes(folder).items():
+        with contextlib.suppress(OSError):
+            if os.lstat(folder / name).st_size != size:
+                changed.append(name)
+    return sorted(changed)
 
 
 def _blocked(target: Path, relative: str) -> str | None:
@@ -383,7 +424,8 @@ def _merge(stage: Path, target: Path, previous: frozenset[str], label: str) -> N
                 f"{label}: cannot write {relative!r} there: {problem!r} is in the way and meshdeform did not "
                 "write it; the folder was left as it was"
             )
-    write_marker(target, [*previous, *new])
+    changed = set(_changed_since_written(target))  # listed files the user changed since: theirs now, kept
+    write_marker(target, [*previous, *new], {**marker_sizes(target), **file_sizes(stage, new)})
     if REPORT_NAME in previous:
         _remove_own_file(target, REPORT_NAME)
     last = (REPORT_NAME, MARKER_NAME)
@@ -396,7 +438,7 @@ def _merge(stage: Path, target: Path, previous: frozenset[str], label: str) -> N
     for relative in new:
         if relative not in last:
             move(relative)
-    for old in sorted(previous - set(new)):
+    for old in sorted(previous - set(new) - changed):
         _remove_own_file(target, old)
     for relative in last:
         if relative in new:

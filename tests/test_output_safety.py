@@ -452,3 +452,18 @@ def test_batch_does_not_read_a_sidecar_that_links_out_of_the_assets_folder(batch
     assert entries["a.obj"]["status"] == "failed"
     assert "symlink to a path outside the assets folder" in entries["a.obj"]["error"]
     assert entries["sub/b.obj"]["status"] == "ok" and entries["sub/b.obj"]["frames"] == 3
+
+
+def test_a_result_file_the_user_changed_is_theirs(user: dict[str, Path]) -> None:
+    """The marker records each file's size: a frame the user edited since is not replaced without
+    --overwrite, and --overwrite keeps it when the new run does not write that file again."""
+    out = user["root"] / "cloth"
+    assert cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "3").exit_code == 0
+    edited = out / "frames" / "frame_0003.obj"
+    edited.write_text(edited.read_text() + "# my cleanup\n")
+    before = snapshot(user["root"])
+    line = one_error_line(cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2"))
+    assert "1 entry meshdeform did not write (e.g. 'frames/frame_0003.obj')" in line
+    assert snapshot(user["root"]) == before
+    assert cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2", "--overwrite").exit_code == 0
+    assert edited.read_text().endswith("# my cleanup\n")

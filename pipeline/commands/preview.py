@@ -63,11 +63,12 @@ def refuse_foreign_previews(folder: Path) -> None:
 def record_previews(folder: Path, files: list[Path]) -> None:
     """Add the preview files just written to `folder`'s marker (made if it has none), so a later
     preview or run knows them as meshdeform's."""
-    from pipeline.job import read_marker, write_marker
+    from pipeline.job import file_sizes, marker_sizes, read_marker, write_marker
 
     real = Path(os.path.realpath(folder))
     written = [Path(os.path.realpath(f)).relative_to(real).as_posix() for f in files]
-    write_marker(real, [*(read_marker(real) or ()), *written])
+    # the sizes of earlier files stay as recorded: a preview never vouches for a file it did not write
+    write_marker(real, [*(read_marker(real) or ()), *written], {**marker_sizes(real), **file_sizes(real, written)})
 
 
 def register(app: typer.Typer) -> None:
