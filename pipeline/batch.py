@@ -102,8 +102,7 @@ class Discovery:
 
 def _inside(path: Path, real_root: Path) -> bool:
     """Does `path`, symlinks resolved (loops included: realpath stops on them), lie in `real_root`?"""
-    real = Path(os.path.realpath(path))
-    return real == real_root or real_root in real.parents
+    return Path(os.path.realpath(path)).is_relative_to(real_root)
 
 
 def discover(root: Path) -> Discovery:

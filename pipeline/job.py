@@ -202,10 +202,6 @@ def refusal(label: str, state: FolderState, overwrite: bool) -> str | None:
     return None
 
 
-def _same_or_inside(path: Path, folder: Path) -> bool:
-    return path == folder or folder in path.parents
-
-
 def check_output_folder(
     target: Path,
     *,
@@ -231,7 +227,7 @@ def check_output_folder(
         raise OutputFolderError(f"{label}: is a file system root; choose a folder of its own for --out")
     if refuse_cwd:
         cwd = Path(os.path.realpath(os.getcwd()))
-        if _same_or_inside(cwd, real):
+        if cwd.is_relative_to(real):
             where = "is" if cwd == real else "contains"
             raise OutputFolderError(f"{label}: {where} the current folder; choose a folder of its own for --out")
     for what, path in (protect or {}).items():
@@ -239,7 +235,7 @@ def check_output_folder(
             continue
         folders = {Path(os.path.realpath(Path(os.path.abspath(path)).parent)), Path(os.path.realpath(path)).parent}
         for folder in sorted(folders):
-            if _same_or_inside(folder, real):
+            if folder.is_relative_to(real):
                 where = "is the folder of" if folder == real else "contains"
                 raise OutputFolderError(f"{label}: {where} the {what} {path}; choose another --out")
     above = real.parent
