@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from meshdeform.arrays import run_lengths
 from meshdeform.model import SpringModel
 from meshdeform.tearing.corners import Corners
 from meshdeform.tearing.detect import SpringState, tested_structural
@@ -77,10 +78,8 @@ def choose_ends(
     cand_idx = best[spring_rows]
     vert = ends[cand_idx]
     order = np.lexsort((springs[spring_rows], -ratio[spring_rows], vert))
-    vs = vert[order]
-    first = np.ones(vs.shape[0], dtype=bool)
-    first[1:] = vs[1:] != vs[:-1]
-    chosen = order[first]
+    starts, _ = run_lengths(vert[order])
+    chosen = order[starts]
     none_rows = np.flatnonzero(~has)
     return (
         np.concatenate([spring_rows[chosen], none_rows]),

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from meshdeform.arrays import argsort_int
+from meshdeform.arrays import argsort_int, run_lengths
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, _frozen
 
@@ -49,12 +49,11 @@ class OutputLayout:
         keys = cv[moved] * vcount + inputs
         order = argsort_int(keys)
         sk = keys[order]
-        first = np.ones(sk.shape[0], dtype=bool)
-        first[1:] = sk[1:] != sk[:-1]
+        starts, lengths = run_lengths(sk)
         out_ids = np.empty(moved.shape[0], dtype=np.int64)
-        out_ids[order] = self.sim.shape[0] + np.cumsum(first) - 1
+        out_ids[order] = self.sim.shape[0] + np.repeat(np.arange(starts.shape[0], dtype=np.int64), lengths)
         self.corner_out[moved] = out_ids
-        uniq = sk[first]
+        uniq = sk[starts]
         self.sim = np.concatenate([self.sim, uniq // vcount])
         self.source = np.concatenate([self.source, uniq % vcount])
 

@@ -25,9 +25,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from meshdeform.arrays import argsort_int, lexsort_int, run_lengths
+from meshdeform.arrays import argsort_int, lexsort_int, run_lengths, unique_int
 from meshdeform.mesh import Mesh
-from meshdeform.model import SpringModel, _frozen
+from meshdeform.model import SpringModel, _frozen, lumped_area
 from meshdeform.tearing.corners import Corners
 from meshdeform.topology import SpringKind, derive_springs
 
@@ -115,15 +115,6 @@ def split_vertices(
     return out, index_map
 
 
-def _lumped_area(rest: np.ndarray, triangles: np.ndarray, n: int) -> np.ndarray:
-    if triangles.shape[0] == 0:
-        return np.zeros(n)
-    e1 = rest[triangles[:, 1]] - rest[triangles[:, 0]]
-    e2 = rest[triangles[:, 2]] - rest[triangles[:, 0]]
-    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
-    return np.bincount(triangles.ravel(), weights=np.repeat(area / 3.0, 3), minlength=n)
-
-
 def mesh_pieces(model: SpringModel, referenced: np.ndarray | None = None) -> int:
     """Connected pieces of a model: components of its structural springs among the vertices
     that polygons or polylines use (`referenced` (W,) bool; default every vertex)."""
@@ -135,7 +126,7 @@ def mesh_pieces(model: SpringModel, referenced: np.ndarray | None = None) -> int
     _, labels = connected_components(graph, directed=False)
     if referenced is not None:
         labels = labels[referenced]
-    return int(np.unique(labels).shape[0]) if labels.size else 0
+    return int(unique_int(labels).shape[0]) if labels.size else 0
 
 
 def rebuild(
@@ -193,7 +184,7 @@ def rebuild(
         olo = np.minimum(oa[candidates], ob[candidates]).astype(np.int64)
         ohi = np.maximum(oa[candidates], ob[candidates]).astype(np.int64)
         okeys = (olo * n_old + ohi) * 3 + okinds[candidates]
-        korder = np.argsort(okeys, kind="stable")
+        korder = argsort_int(okeys)
         okeys = okeys[korder]
         ma, mb = index_map[pairs[:, 0]], index_map[pairs[:, 1]]
         keys = (np.minimum(ma, mb) * n_old + np.maximum(ma, mb)) * 3 + kinds
@@ -271,7 +262,7 @@ def _masses(
     touch = split[triangles].any(axis=1)
     tris = triangles[touch]
     n = index_map.shape[0]
-    area = _lumped_area(rest, tris, n)
+    area = lumped_area(rest, tris, n)
     corners = np.bincount(cv, minlength=n).astype(np.float64)
     idx = np.flatnonzero(split)
     a = area[idx]
