@@ -64,22 +64,17 @@ class Corners:
         at = cv[cs]
         starts, lengths = run_lengths(at)
         pos = np.searchsorted(at[starts], vertices)
-        first = starts[pos]
-        count = lengths[pos]
-        owner = np.repeat(np.arange(vertices.shape[0], dtype=np.int64), count)
-        begin = np.cumsum(count) - count
-        local = np.arange(owner.shape[0], dtype=np.int64) - np.repeat(begin, count)
-        return owner, cs[np.repeat(first, count) + local]
+        owner, index = expand_ranges(starts[pos], lengths[pos])
+        return owner, cs[index]
 
     def centroids(self, cv: np.ndarray, x: np.ndarray, faces: np.ndarray) -> np.ndarray:
         """Current centroids (k, 3) of these polygons for positions x (n, 3)."""
         if faces.shape[0] == 0:
             return np.zeros((0, 3))
         size = self.sizes[faces]
-        begin = np.cumsum(size) - size
-        local = np.arange(int(size.sum()), dtype=np.int64) - np.repeat(begin, size)
-        pts = x[cv[np.repeat(self.offsets[faces], size) + local]]
-        return np.add.reduceat(pts, begin, axis=0) / size[:, None]
+        _, corners = expand_ranges(self.offsets[faces], size)
+        pts = x[cv[corners]]
+        return np.add.reduceat(pts, np.cumsum(size) - size, axis=0) / size[:, None]
 
     def on_boundary(self, cv: np.ndarray, n: int, vertices: np.ndarray) -> np.ndarray:
         """(k,) bool: whether each vertex has an edge used by one polygon only."""
@@ -106,3 +101,12 @@ class Corners:
         out = np.zeros(n, dtype=bool)
         out[cv[faces[self.face]]] = True
         return out
+
+
+def expand_ranges(start: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every index of k ranges [start, start + count) ((k,) int each), in order: (the range of
+    each item, the item), both (sum(count),) int64. Reads a CSR row set without a Python loop."""
+    owner = np.repeat(np.arange(start.shape[0], dtype=np.int64), count)
+    begin = np.cumsum(count) - count
+    local = np.arange(owner.shape[0], dtype=np.int64) - np.repeat(begin, count)
+    return owner, np.repeat(start, count) + local

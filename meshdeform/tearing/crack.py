@@ -22,7 +22,7 @@ import numpy as np
 
 from meshdeform.arrays import run_lengths
 from meshdeform.model import SpringModel
-from meshdeform.tearing.corners import Corners
+from meshdeform.tearing.corners import Corners, expand_ranges
 from meshdeform.tearing.detect import SpringState, tested_structural
 from meshdeform.tearing.settings import TearSettings
 
@@ -119,12 +119,8 @@ def crack_ahead(
     found_n: list[np.ndarray] = []
 
     def springs_at(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        start = indptr[verts]
-        count = indptr[verts + 1] - start
-        owner = np.repeat(np.arange(verts.shape[0], dtype=np.int64), count)
-        begin = np.cumsum(count) - count
-        local = np.arange(owner.shape[0], dtype=np.int64) - np.repeat(begin, count)
-        return owner, slots[np.repeat(start, count) + local]
+        owner, index = expand_ranges(indptr[verts], indptr[verts + 1] - indptr[verts])
+        return owner, slots[index]
 
     for _ in range(s.lookahead):
         # neighbours of the front that lie near its plane: where the opening ends
