@@ -166,12 +166,7 @@ def lumped_mass(positions: np.ndarray, triangles: np.ndarray, structural: np.nda
     n = positions.shape[0]
     if material.vertex_mass is not None:
         return np.full(n, float(material.vertex_mass))
-    mass = np.zeros(n)
-    if triangles.shape[0]:
-        e1 = positions[triangles[:, 1]] - positions[triangles[:, 0]]
-        e2 = positions[triangles[:, 2]] - positions[triangles[:, 0]]
-        area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
-        mass += np.bincount(triangles.ravel(), weights=np.repeat(area / 3.0, 3), minlength=n)
+    mass = lumped_area(positions, triangles, n)
     mass *= material.density
     if structural.shape[0]:
         d = positions[structural[:, 1]] - positions[structural[:, 0]]
@@ -181,6 +176,17 @@ def lumped_mass(positions: np.ndarray, triangles: np.ndarray, structural: np.nda
     positive = mass > 0
     fallback = float(mass[positive].mean()) if positive.any() else max(material.density, 1e-6) * 1e-3
     return np.where(positive, mass, fallback)
+
+
+def lumped_area(positions: np.ndarray, triangles: np.ndarray, n: int) -> np.ndarray:
+    """(n,) area each vertex carries (m^2): a third of each incident triangle's area, for
+    positions (W, 3) and triangles (T, 3); the mass a vertex lumps is this times the density."""
+    if triangles.shape[0] == 0:
+        return np.zeros(n)
+    e1 = positions[triangles[:, 1]] - positions[triangles[:, 0]]
+    e2 = positions[triangles[:, 2]] - positions[triangles[:, 0]]
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    return np.bincount(triangles.ravel(), weights=np.repeat(area / 3.0, 3), minlength=n)
 
 
 @dataclass
