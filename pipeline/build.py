@@ -11,16 +11,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshdeform import colliders as col
-from meshdeform.effects import Plasticity, Pressure, Tethers, boundary_edge_count
 from meshdeform.errors import MeshdeformError
-from meshdeform.forces import Impact, Wind, ray_hit, up_vector
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, lumped_mass
-from meshdeform.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
+from meshdeform.scene import Constraint, Force, Scene
+from meshdeform.scene import colliders as col
+from meshdeform.scene.effects import Plasticity, Pressure, Tethers, boundary_edge_count
+from meshdeform.scene.forces import Impact, Wind, ray_hit, up_vector
+from meshdeform.scene.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
-from meshdeform.simulate import Constraint, Force, Scene, Settings
+from meshdeform.simulate import Settings
 from meshdeform.solvers.base import SOLVERS
 from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
 from meshdeform.topology import SpringKind, Springs, Welding, build_springs

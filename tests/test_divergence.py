@@ -16,15 +16,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from meshdeform.colliders import Collider, Plane
-from meshdeform.effects import Tethers
 from meshdeform.errors import SimulationDiverged
-from meshdeform.forces import Impact
 from meshdeform.io import load
 from meshdeform.io.obj import write_obj
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh, grid_mesh
 from meshdeform.model import SpringModel
+from meshdeform.scene.colliders import Collider, Plane
+from meshdeform.scene.effects import Tethers
+from meshdeform.scene.forces import Impact
 from meshdeform.simulate import Frame, Scene, Settings, simulate
 from meshdeform.solvers import SolverOptions
 from meshdeform.tearing import Tearer, TearRegion, TearSettings

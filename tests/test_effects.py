@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from meshdeform.effects import Plasticity, Pressure, Tethers, enclosed_volume
 from meshdeform.errors import RecipeError
 from meshdeform.material import KindMaterial, Material
 from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.effects import Plasticity, Pressure, Tethers, enclosed_volume
 from meshdeform.simulate import simulate
 from pipeline.build import build_simulation
 from pipeline.recipe import parse_recipe

@@ -17,8 +17,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from meshdeform.forces import scatter_triangles
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.base import Constraint, Force, Remappable
+from meshdeform.scene.forces import scatter_triangles
 
 
 def boundary_edge_count(triangles: np.ndarray) -> int:
@@ -39,7 +40,7 @@ def enclosed_volume(positions: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
 
 
-class Pressure:
+class Pressure(Force):
     """Volume-keeping pressure for a closed mesh.
 
     stiffness: pressure in Pa at 100% volume loss; volume: target volume as a fraction of the rest
@@ -68,7 +69,7 @@ class Pressure:
         out += force / model.mass[:, None]
 
 
-class Plasticity:
+class Plasticity(Force, Constraint, Remappable):
     """Anchor-style pull toward an owned rest copy that yields past a threshold (dents stay).
 
     stiffness: pull in 1/s^2 (acceleration per metre from the rest copy); damping: 1/s, pull on
@@ -107,7 +108,7 @@ class Plasticity:
         self.rest[rows] += d[rows] * (fraction * excess[rows] / length[rows])[:, None]
 
 
-class Tethers:
+class Tethers(Constraint, Remappable):
     """Long-range attachments: each vertex within `max_stretch` x rest graph distance of its nearest anchor.
 
     anchors: welded vertices the tethers start from (pinned ones); distances run over every

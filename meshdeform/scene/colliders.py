@@ -17,7 +17,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from meshdeform.model import SpringModel, State
-from meshdeform.pins import Keyframes
+from meshdeform.scene.base import Constraint, Remappable
+from meshdeform.scene.pins import Keyframes
 
 
 def _unit(v: Sequence[float]) -> np.ndarray:
@@ -241,7 +242,7 @@ class TriangleMesh(Shape):
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
 
 
-class Collider:
+class Collider(Constraint, Remappable):
     """A shape as a Constraint: keeps vertices `thickness` outside it, with Coulomb friction.
 
     friction: 0 (ice) .. 1 and above (sticky); thickness: metres kept between surface and vertices;

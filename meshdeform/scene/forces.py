@@ -14,6 +14,7 @@ import numba as nb
 import numpy as np
 
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.base import Force, Remappable
 
 STANDARD_GRAVITY = 9.81
 AIR_DENSITY = 1.2
@@ -145,7 +146,7 @@ class Turbulence:
         _noise_add(pts, float(time), self.k, self.omega, self.phase, self.amplitude, self.advect, float(gain), out)
 
 
-class Wind:
+class Wind(Force, Remappable):
     """Aerodynamic drag and lift per triangle from the air's velocity relative to the cloth.
 
     For each triangle with unit normal n, area A and relative air velocity u (wind at the centroid
@@ -257,7 +258,7 @@ class _Occurrence:
     normal: np.ndarray
 
 
-class Impact:
+class Impact(Force, Remappable):
     """A scripted push: during [time, time + duration) vertices gain a velocity change of
     `strength * falloff(d)` m/s spread evenly over the duration (so the result does not depend on
     the substep size), along `direction`: "radial" (away from the point; negative strength pulls
