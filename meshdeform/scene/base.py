@@ -13,7 +13,7 @@ per object, on the items `Scene.remappables()` lists. The scene's remappable ite
 - `forces.Wind`: its cached inverse masses (masses change where a vertex splits);
 - `forces.Impact`: its vertex mask (copies inherit it);
 - `effects.Plasticity`: its rest copy (copies inherit the dented rest position);
-- `effects.Tethers`: its anchors and rest path distances (measured again over the
+- `effects.NearestPinTethers`: its anchors and rest path distances (measured again over the
   springs left, so a torn-off piece is no longer held);
 - `pins.SoftPins`: its pinned vertices (copies of a soft-pinned vertex are pulled to the same target);
 - `colliders.Collider`: the side of an open mesh collider each vertex was last seen on.
@@ -57,6 +57,24 @@ class Remappable(Protocol):
     def remap(self, model: SpringModel, index_map: np.ndarray) -> None: ...
 
 
+#: m/s^2, the default gravity's magnitude
+STANDARD_GRAVITY = 9.81
+
+
+def gravity_vector(up: str = "y", g: float = STANDARD_GRAVITY) -> tuple[float, float, float]:
+    """Gravity pointing down the up axis: Y-up (OBJ) -> (0, -g, 0), Z-up -> (0, 0, -g)."""
+    if up == "y":
+        return (0.0, -g, 0.0)
+    if up == "z":
+        return (0.0, 0.0, -g)
+    raise ValueError(f"up axis must be 'y' or 'z', not {up!r}")
+
+
+def up_vector(up: str = "y") -> np.ndarray:
+    """The unit up axis (3,): Y-up (OBJ) -> (0, 1, 0), otherwise Z-up -> (0, 0, 1)."""
+    return np.array([0.0, 1.0, 0.0]) if up == "y" else np.array([0.0, 0.0, 1.0])
+
+
 #: maps a time in seconds to target positions (P, 3) of the model's pinned vertices, in
 #: the order of `np.flatnonzero(model.pinned)`
 PinMotion = Callable[[float], np.ndarray]
@@ -64,9 +82,14 @@ PinMotion = Callable[[float], np.ndarray]
 
 @dataclass
 class Scene:
-    """Everything acting on the model besides its springs."""
+    """Everything acting on the model besides its springs.
 
-    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
+    gravity: m/s^2, added to every vertex's external acceleration (default 9.81 down Y).
+    forces / constraints: see `Force`, `Constraint` (constraints run in this order).
+    pin_motion: targets of the hard pins (None: they stay at rest). tearing: a `Tearer` or None.
+    """
+
+    gravity: tuple[float, float, float] = gravity_vector()
     forces: list[Force] = field(default_factory=list)
     constraints: list[Constraint] = field(default_factory=list)
     pin_motion: PinMotion | None = None

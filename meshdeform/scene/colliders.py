@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 from meshdeform.scene.pins import Keyframes
+from meshdeform.topology import is_closed
 
 
 def _unit(v: Sequence[float]) -> np.ndarray:
@@ -179,16 +180,6 @@ def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: 
     m = (d1 <= 0) & (d2 <= 0)
     result[m] = a[m]
     return result
-
-
-def is_closed(triangles: np.ndarray) -> bool:
-    """True when every edge is shared by exactly two triangles (a watertight surface)."""
-    if triangles.shape[0] == 0:
-        return False
-    e = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
-    key = e[:, 0].astype(np.int64) * (int(triangles.max()) + 1) + e[:, 1]
-    _, counts = np.unique(key, return_counts=True)
-    return bool(np.all(counts == 2))
 
 
 class TriangleMesh(Shape):
