@@ -22,7 +22,7 @@ _EXPORTS = {
     "KindMaterial": "meshdeform.material",
     "SpringModel": "meshdeform.model",
     "State": "meshdeform.model",
-    "Scene": "meshdeform.simulate",
+    "Scene": "meshdeform.scene",
     "Settings": "meshdeform.simulate",
     "Frame": "meshdeform.simulate",
     "simulate": "meshdeform.simulate",

@@ -23,6 +23,9 @@ __all__ = [
     "polygon_area_vectors",
     "polygon_areas",
     "polygon_normals",
+    "scatter_triangles",
+    "triangle_area_vectors",
+    "triangle_vertex_normals",
     "vertex_normals",
 ]
 
@@ -183,6 +186,37 @@ def vertex_normals(mesh_or_arrays: MeshOrArrays, positions: np.ndarray | None = 
     area_vectors = polygon_area_vectors(mesh_or_arrays, pos)
     pair_face, pair_vertex = _cached_pairs(topo, topo.face_indices, n_vertices)
     return _normalise(_scatter_sum(pair_face, pair_vertex, area_vectors, n_vertices))[0]
+
+
+def triangle_area_vectors(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area vectors (T, 3) of a triangle list (T, 3): unit normal times area, (p1 - p0) x (p2 - p0) / 2."""
+    p0 = positions[triangles[:, 0]]
+    p1 = positions[triangles[:, 1]]
+    p2 = positions[triangles[:, 2]]
+    return 0.5 * np.cross(p1 - p0, p2 - p0)
+
+
+def scatter_triangles(triangles: np.ndarray, per_triangle: np.ndarray, n: int) -> np.ndarray:
+    """Spread a per-triangle vector (T, 3) equally over its three corners: (n, 3) sums per vertex."""
+    out = np.empty((n, 3))
+    flat = triangles.ravel()
+    for c in range(3):
+        out[:, c] = np.bincount(flat, weights=np.repeat(per_triangle[:, c] / 3.0, 3), minlength=n)
+    return out
+
+
+def triangle_vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (W, 3) of a triangle list (T, 3) (zero for vertices
+    without triangles): a third of each triangle's area vector to each corner, normalised.
+
+    For the simulation model, whose `triangles` fan-triangulate its polygons over welded
+    vertices. On a triangle mesh this is `vertex_normals` up to rounding; on polygons a corner
+    counts only the fan triangles that touch it. Kept apart from `vertex_normals` because the
+    impacts directed along the surface normal (`scene.forces.Impact`) depend on its exact bytes.
+    """
+    n = scatter_triangles(triangles, triangle_area_vectors(positions, triangles), positions.shape[0])
+    length = np.linalg.norm(n, axis=1)
+    return np.where(length[:, None] > 0, n / np.maximum(length, 1e-300)[:, None], 0.0)
 
 
 def corner_normals(mesh: Mesh, positions: np.ndarray | None = None) -> np.ndarray:

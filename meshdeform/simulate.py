@@ -47,56 +47,22 @@ force, and the springs broken, vertices added and connected pieces.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from meshdeform.errors import SimulationDiverged
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.base import Scene
 from meshdeform.solvers import kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions, make_solver, solver_class
 from meshdeform.solvers.common import structural_mask
 
 if TYPE_CHECKING:
     from meshdeform.tearing import Tearer
-
-
-class Force(Protocol):
-    """Adds accelerations (m/s^2) for welded vertices at a time into `out` (W, 3)."""
-
-    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None: ...
-
-
-class Constraint(Protocol):
-    """Projects positions after each solver substep (colliders, soft pins)."""
-
-    def project(self, model: SpringModel, state: State, time: float, dt: float) -> None: ...
-
-
-class Remappable(Protocol):
-    """A force or constraint with per-vertex data follows a tear: `index_map` (W',) gives the
-    previous vertex of every vertex of the new `model` (copies appended after the old ones)."""
-
-    def remap(self, model: SpringModel, index_map: np.ndarray) -> None: ...
-
-
-#: maps a time in seconds to target positions (P, 3) of the model's pinned vertices, in
-#: the order of `np.flatnonzero(model.pinned)`
-PinMotion = Callable[[float], np.ndarray]
-
-
-@dataclass
-class Scene:
-    """Everything acting on the model besides its springs."""
-
-    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
-    forces: list[Force] = field(default_factory=list)
-    constraints: list[Constraint] = field(default_factory=list)
-    pin_motion: PinMotion | None = None
-    tearing: Tearer | None = None
 
 
 @dataclass(frozen=True)

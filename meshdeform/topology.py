@@ -102,6 +102,51 @@ def _pair_keys(pairs: np.ndarray, n: int) -> np.ndarray:
     return pairs[:, 0].astype(np.int64) * n + pairs[:, 1].astype(np.int64)
 
 
+def edge_incidence(start: np.ndarray, end: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct undirected edges among the directed edges start -> end and how often each occurs.
+
+    start, end: (E,) vertex indices below n. Returns the edges (K, 2) int64 as pairs (lo, hi) in
+    lexicographic order and the number of directed edges giving each (K,) int64: 1 on an open
+    boundary (a hole, the outline of a sheet, the lips of a tear), 2 inside a manifold surface,
+    more at non-manifold edges. Self-edges (start == end, a collapsed edge of a degenerate
+    polygon) count like any other; callers that must not count them drop them first.
+    """
+    n = max(int(n), 1)
+    lo = np.minimum(start, end).astype(np.int64)
+    hi = np.maximum(start, end).astype(np.int64)
+    keys = np.sort(lo * n + hi)
+    starts, counts = run_lengths(keys)
+    distinct = keys[starts]
+    return np.stack([distinct // n, distinct % n], axis=1), counts
+
+
+def boundary_edges(start: np.ndarray, end: np.ndarray, n: int) -> np.ndarray:
+    """The edges (B, 2) int64 that exactly one of the directed edges start -> end gives (see
+    `edge_incidence`): the open boundary of a surface, as sorted pairs in lexicographic order."""
+    edges, counts = edge_incidence(start, end, n)
+    return edges[counts == 1]
+
+
+def triangle_edge_counts(triangles: np.ndarray) -> np.ndarray:
+    """How many triangles (T, 3) use each of their distinct edges (K,) (`edge_incidence`)."""
+    if triangles.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    start = triangles.ravel()
+    end = triangles[:, [1, 2, 0]].ravel()
+    return edge_incidence(start, end, int(triangles.max()) + 1)[1]
+
+
+def boundary_edge_count(triangles: np.ndarray) -> int:
+    """Number of edges used by exactly one triangle (0 for a closed surface)."""
+    return int(np.count_nonzero(triangle_edge_counts(triangles) == 1))
+
+
+def is_closed(triangles: np.ndarray) -> bool:
+    """True when every edge is shared by exactly two triangles (a watertight surface)."""
+    counts = triangle_edge_counts(triangles)
+    return bool(counts.shape[0]) and bool(np.all(counts == 2))
+
+
 def polygon_edges(mesh: Mesh, vertex_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Directed edge of every polygon corner on welded indices: (start, end), each (C,)."""
     start = vertex_map[mesh.face_indices]
@@ -314,9 +359,8 @@ def topology_stats(mesh: Mesh, welding: Welding, springs: Springs) -> TopologySt
     n = max(welding.count, 1)
     s, e = polygon_edges(mesh, welding.vertex_map)
     keep = s != e
-    keys = np.minimum(s[keep], e[keep]) * n + np.maximum(s[keep], e[keep])
-    _, per_edge = run_lengths(np.sort(keys))
     # an edge used twice by the same polygon direction still counts per incidence
+    _, per_edge = edge_incidence(s[keep], e[keep], n)
     referenced = np.zeros(welding.count, dtype=bool)
     referenced[welding.vertex_map[mesh.face_indices]] = True
     if mesh.line_count:

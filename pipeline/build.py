@@ -11,19 +11,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshdeform import colliders as col
-from meshdeform.effects import Plasticity, Pressure, Tethers, boundary_edge_count
 from meshdeform.errors import MeshdeformError
-from meshdeform.forces import Impact, Wind, ray_hit, up_vector
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, lumped_mass
-from meshdeform.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
+from meshdeform.scene import Constraint, Force, Scene, up_vector
+from meshdeform.scene import colliders as col
+from meshdeform.scene.effects import NearestPinTethers, Plasticity, Pressure
+from meshdeform.scene.forces import Impact, Wind, ray_hit
+from meshdeform.scene.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
-from meshdeform.simulate import Constraint, Force, Scene, Settings
+from meshdeform.simulate import Settings
 from meshdeform.solvers.base import SOLVERS
 from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
-from meshdeform.topology import SpringKind, Springs, Welding, build_springs
+from meshdeform.topology import SpringKind, Springs, Welding, boundary_edge_count, build_springs
 from pipeline.recipe import (
     ColliderSpec,
     KeySpec,
@@ -392,7 +393,7 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
         anchor_idx = np.unique(np.concatenate(anchors))
         if anchor_idx.size == 0:
             raise recipe.error(("material", "tethers"), "tethers need pins to attach to; the recipe pins nothing")
-        constraints.append(Tethers(model, anchor_idx, spec.tethers.max_stretch))
+        constraints.append(NearestPinTethers(model, anchor_idx, spec.tethers.max_stretch))
 
     # -- colliders last, so nothing is left inside one after a substep --------------------------------
     constraints.extend(_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders))

@@ -49,7 +49,7 @@ from meshdeform import selection as sel
 from meshdeform.errors import MeshdeformError, RecipeError
 from meshdeform.io.files import special_file_kind
 from meshdeform.material import KindMaterial, Material
-from meshdeform.pins import Keyframe
+from meshdeform.scene.pins import Keyframe
 from meshdeform.solvers.anchor import ANCHOR_FRAMES
 from meshdeform.solvers.base import SOLVERS, SolverOptions, solver_class
 

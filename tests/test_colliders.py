@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from meshdeform.colliders import Box, Capsule, Collider, Plane, Sphere, TriangleMesh, closest_points_on_triangles
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
-from meshdeform.pins import Keyframe, Keyframes
+from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Sphere, TriangleMesh, closest_points_on_triangles
+from meshdeform.scene.pins import Keyframe, Keyframes
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers.base import SolverOptions
 from pipeline.build import build_simulation

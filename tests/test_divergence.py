@@ -16,15 +16,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from meshdeform.colliders import Collider, Plane
-from meshdeform.effects import Tethers
 from meshdeform.errors import SimulationDiverged
-from meshdeform.forces import Impact
 from meshdeform.io import load
 from meshdeform.io.obj import write_obj
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh, grid_mesh
 from meshdeform.model import SpringModel
+from meshdeform.scene.colliders import Collider, Plane
+from meshdeform.scene.effects import NearestPinTethers
+from meshdeform.scene.forces import Impact
 from meshdeform.simulate import Frame, Scene, Settings, simulate
 from meshdeform.solvers import SolverOptions
 from meshdeform.tearing import Tearer, TearRegion, TearSettings
@@ -52,7 +52,7 @@ def unstable_tethered_cloth() -> tuple[SpringModel, Scene, Settings]:
     pinned = np.zeros(n * n, dtype=bool)
     pinned[[n * (n - 1), n * n - 1]] = True
     model = SpringModel.from_mesh(mesh, Material(stretch_modulus=1e5), pinned_input=pinned)
-    scene = Scene(constraints=[Tethers(model, np.flatnonzero(model.pinned), 1.05)])
+    scene = Scene(constraints=[NearestPinTethers(model, np.flatnonzero(model.pinned), 1.05)])
     settings = Settings(solver="springs", frames=48, substeps=1, options=SolverOptions(stable_substeps=False))
     return model, scene, settings
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from meshdeform.effects import Plasticity, Pressure, Tethers, enclosed_volume
 from meshdeform.errors import RecipeError
 from meshdeform.material import KindMaterial, Material
 from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.effects import NearestPinTethers, Plasticity, Pressure, enclosed_volume
 from meshdeform.simulate import simulate
 from pipeline.build import build_simulation
 from pipeline.recipe import parse_recipe
@@ -164,7 +164,7 @@ def test_tether_anchor_is_the_nearest_pin_along_the_mesh() -> None:
         grid_mesh(5, 2, size=(4.0, 1.0)),
         Material(shear=KindMaterial(enabled=False), bending=KindMaterial(enabled=False)),
     )
-    tethers = Tethers(model, np.array([0, 4]), max_stretch=1.5)
+    tethers = NearestPinTethers(model, np.array([0, 4]), max_stretch=1.5)
     anchor = dict(zip(tethers.vertices.tolist(), tethers.anchor.tolist(), strict=True))
     assert anchor[1] == 0 and anchor[3] == 4 and anchor[6] == 0 and anchor[8] == 4
     limit = dict(zip(tethers.vertices.tolist(), tethers.limit.tolist(), strict=True))

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from meshdeform.forces import Impact, Turbulence, Wind, falloff, gravity_vector, ray_hit
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
+from meshdeform.scene import gravity_vector
+from meshdeform.scene.forces import Impact, Turbulence, Wind, falloff, ray_hit
 from meshdeform.simulate import simulate
 from pipeline.build import build_simulation
 from pipeline.recipe import parse_recipe

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from meshdeform.mesh import grid_mesh
-from meshdeform.pins import SOFT_PIN_RATE, Keyframe, Keyframes, SoftPins
+from meshdeform.scene.pins import SOFT_PIN_RATE, Keyframe, Keyframes, SoftPins
 from meshdeform.simulate import simulate
 from pipeline.build import build_simulation
 from pipeline.recipe import parse_recipe

@@ -334,7 +334,7 @@ def test_polyline_cut_opens_a_slit_only_where_the_polyline_runs() -> None:
 
 
 def test_a_cut_through_animated_pins_keeps_both_copies_on_their_target() -> None:
-    from meshdeform.pins import HardPinMotion, Keyframe, Keyframes
+    from meshdeform.scene.pins import HardPinMotion, Keyframe, Keyframes
 
     mesh, model = hanging_grid(11)
     top = np.flatnonzero(model.pinned)
@@ -351,7 +351,7 @@ def test_a_cut_through_animated_pins_keeps_both_copies_on_their_target() -> None
 
 
 def test_a_torn_off_piece_falls_onto_a_collider() -> None:
-    from meshdeform.colliders import Collider, Plane
+    from meshdeform.scene.colliders import Collider, Plane
 
     mesh = grid_mesh(10, 10, plane="xz")
     mesh = mesh.with_positions(mesh.positions + [0, 0.3, 0])
@@ -374,7 +374,7 @@ def test_non_tearable_springs_all_survive_and_tearing_is_repeatable() -> None:
     band = (x > 0.3) & (x < 0.7)
 
     def scene() -> tuple[Scene, Tearer]:
-        from meshdeform.pins import HardPinMotion, Keyframe, Keyframes
+        from meshdeform.scene.pins import HardPinMotion, Keyframe, Keyframes
 
         apart = [
             (np.flatnonzero(side), Keyframes([Keyframe(0.0, (0, 0, 0)), Keyframe(1.0, (s * 0.6, 0, 0))], (0, 0, 0)))
@@ -438,7 +438,7 @@ def test_averaging_keeps_a_one_substep_spike_from_tearing() -> None:
 
 
 def test_remap_lets_soft_pins_follow_copies() -> None:
-    from meshdeform.pins import SoftPins
+    from meshdeform.scene.pins import SoftPins
 
     pins = SoftPins(np.array([1, 3]), np.array([[0, 0, 0], [1, 1, 1.0]]), 0.5)
     pins.remap(None, np.array([0, 1, 2, 3, 3, 1]))  # type: ignore[arg-type]

@@ -6,7 +6,16 @@ import numpy as np
 import pytest
 
 from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
-from meshdeform.topology import SpringKind, build_springs, topology_stats, weld
+from meshdeform.topology import (
+    SpringKind,
+    boundary_edge_count,
+    boundary_edges,
+    build_springs,
+    edge_incidence,
+    is_closed,
+    topology_stats,
+    weld,
+)
 
 
 def expected_grid_counts(n: int, m: int) -> dict[str, int]:
@@ -152,3 +161,18 @@ def test_two_pieces_are_counted() -> None:
     mesh = Mesh(positions=positions, face_indices=faces, face_offsets=offsets)
     welding, springs = build_springs(mesh)
     assert topology_stats(mesh, welding, springs).pieces == 2
+
+
+def test_edge_incidence_boundary_and_closed_surfaces() -> None:
+    """A grid's boundary is its outline; a tetrahedron is closed; opening a face opens three edges."""
+    n, m = 5, 4
+    mesh = grid_mesh(n, m)
+    edges = boundary_edges(mesh.face_indices, mesh.face_indices[mesh.corner_next], mesh.vertex_count)
+    assert edges.shape == (2 * (n - 1) + 2 * (m - 1), 2)
+    assert (edges[:, 0] < edges[:, 1]).all()
+    tetra = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    pairs, counts = edge_incidence(tetra.ravel(), tetra[:, [1, 2, 0]].ravel(), 4)
+    assert pairs.shape == (6, 2) and (counts == 2).all()
+    assert is_closed(tetra) and boundary_edge_count(tetra) == 0
+    assert not is_closed(tetra[1:]) and boundary_edge_count(tetra[1:]) == 3
+    assert not is_closed(np.zeros((0, 3), dtype=np.int64)) and boundary_edge_count(np.zeros((0, 3))) == 0

@@ -23,7 +23,7 @@ N = 32  # 32 x 32 has more springs than AUTO_PARALLEL_SPRINGS: two slabs and a s
 
 def pulled_apart() -> tuple[SpringModel, Scene]:
     """A cloth held at its left and right edges pulled apart; it may tear in a middle band."""
-    from meshdeform.pins import HardPinMotion, Keyframe, Keyframes
+    from meshdeform.scene.pins import HardPinMotion, Keyframe, Keyframes
 
     mesh = grid_mesh(N, N)
     x = mesh.positions[:, 0]

@@ -24,6 +24,7 @@ import numpy as np
 from meshdeform.atomic import atomic_path
 from meshdeform.errors import ExportError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.geometry import vertex_normals
 from meshdeform.mesh import Mesh
 
 ROOT = "/Root"
@@ -56,13 +57,6 @@ def usd_prim_name(mesh: Mesh) -> str:
     stem = mesh.source.stem if mesh.source is not None else "mesh"
     name = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "mesh"
     return name if not name[0].isdigit() else f"_{name}"
-
-
-def vertex_normals_of(mesh: Mesh, positions: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3) of the polygons at these positions."""
-    from meshdeform.geometry import vertex_normals
-
-    return np.asarray(vertex_normals(mesh.with_positions(positions)), dtype=np.float64)
 
 
 class UsdExporter(BaseExporter):
@@ -170,7 +164,7 @@ class UsdExporter(BaseExporter):
             self._geom.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points32), time)
             self._geom.GetExtentAttr().Set(extent, time)
             if self.normals:
-                normals = convert_up_axis(vertex_normals_of(mesh, positions), ctx.up_axis)
+                normals = convert_up_axis(vertex_normals(mesh, positions), ctx.up_axis)
                 self._geom.GetNormalsAttr().Set(
                     Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, dtype=np.float32)), time
                 )

@@ -1,8 +1,8 @@
-"""External forces of a scene as `Force` objects: gravity helper, wind with turbulence, impacts.
+"""External forces of a scene as `Force` objects: wind with turbulence, impacts.
 
 Every force adds accelerations (m/s^2) for welded vertices into `out` in `accumulate`, vectorised
-over faces and vertices. Gravity itself is `Scene.gravity`; `gravity_vector` only picks it from
-the up axis.
+over faces and vertices. Gravity itself is `Scene.gravity` (`scene.base.gravity_vector` picks it
+from the up axis).
 """
 
 from __future__ import annotations
@@ -13,49 +13,11 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from meshdeform.geometry import triangle_vertex_normals
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.base import Force, Remappable
 
-STANDARD_GRAVITY = 9.81
 AIR_DENSITY = 1.2
-
-
-def gravity_vector(up: str = "y", g: float = STANDARD_GRAVITY) -> tuple[float, float, float]:
-    """Gravity pointing down the up axis: Y-up (OBJ) -> (0, -g, 0), Z-up -> (0, 0, -g)."""
-    if up == "y":
-        return (0.0, -g, 0.0)
-    if up == "z":
-        return (0.0, 0.0, -g)
-    raise ValueError(f"up axis must be 'y' or 'z', not {up!r}")
-
-
-def up_vector(up: str = "y") -> np.ndarray:
-    return np.array([0.0, 1.0, 0.0]) if up == "y" else np.array([0.0, 0.0, 1.0])
-
-
-def triangle_geometry(positions: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per triangle: area vectors (T, 3) (normal times area) and centroids (T, 3)."""
-    p0 = positions[triangles[:, 0]]
-    p1 = positions[triangles[:, 1]]
-    p2 = positions[triangles[:, 2]]
-    area_vectors = 0.5 * np.cross(p1 - p0, p2 - p0)
-    return area_vectors, (p0 + p1 + p2) / 3.0
-
-
-def scatter_triangles(triangles: np.ndarray, per_triangle: np.ndarray, n: int) -> np.ndarray:
-    """Spread a per-triangle vector (T, 3) equally over its three corners: (n, 3) sums."""
-    out = np.empty((n, 3))
-    flat = triangles.ravel()
-    for c in range(3):
-        out[:, c] = np.bincount(flat, weights=np.repeat(per_triangle[:, c] / 3.0, 3), minlength=n)
-    return out
-
-
-def vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (W, 3) (zero for vertices without faces)."""
-    area_vectors, _ = triangle_geometry(positions, triangles)
-    n = scatter_triangles(triangles, area_vectors, positions.shape[0])
-    length = np.linalg.norm(n, axis=1)
-    return np.where(length[:, None] > 0, n / np.maximum(length, 1e-300)[:, None], 0.0)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=True)
@@ -145,7 +107,7 @@ class Turbulence:
         _noise_add(pts, float(time), self.k, self.omega, self.phase, self.amplitude, self.advect, float(gain), out)
 
 
-class Wind:
+class Wind(Force, Remappable):
     """Aerodynamic drag and lift per triangle from the air's velocity relative to the cloth.
 
     For each triangle with unit normal n, area A and relative air velocity u (wind at the centroid
@@ -257,7 +219,7 @@ class _Occurrence:
     normal: np.ndarray
 
 
-class Impact:
+class Impact(Force, Remappable):
     """A scripted push: during [time, time + duration) vertices gain a velocity change of
     `strength * falloff(d)` m/s spread evenly over the duration (so the result does not depend on
     the substep size), along `direction`: "radial" (away from the point; negative strength pulls
@@ -337,7 +299,8 @@ class Impact:
             normal = np.zeros(3)
             if isinstance(self.direction, str) and self.direction == "normal":
                 nearest = int(np.argmin(np.einsum("ij,ij->i", x - point, x - point)))
-                normal = vertex_normals(x, model.triangles)[nearest] if model.triangles.shape[0] else np.zeros(3)
+                if model.triangles.shape[0]:
+                    normal = triangle_vertex_normals(x, model.triangles)[nearest]
                 towards = x[nearest] - point
                 if np.linalg.norm(towards) < 1e-12:
                     towards = -normal

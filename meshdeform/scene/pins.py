@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.base import Constraint, Remappable
 
 #: soft-pin spring constant per unit stiffness-odds: k = SOFT_PIN_RATE * s / (1 - s) in 1/s^2,
 #: so stiffness 0.5 sags 1 cm under 9.81 m/s^2 and 0.9 about 1 mm
@@ -156,7 +157,7 @@ def soft_pin_rate(stiffness: np.ndarray | float) -> np.ndarray:
     return SOFT_PIN_RATE * s / (1.0 - s)
 
 
-class SoftPins:
+class SoftPins(Constraint, Remappable):
     """Constraint pulling vertices toward (animated) targets like zero-length springs.
 
     indices: welded vertices; stiffness: (P,) in [0, 1) (see `soft_pin_rate`); keys: optional

@@ -17,7 +17,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from meshdeform.model import SpringModel, State
-from meshdeform.pins import Keyframes
+from meshdeform.scene.base import Constraint, Remappable
+from meshdeform.scene.pins import Keyframes
+from meshdeform.topology import is_closed
 
 
 def _unit(v: Sequence[float]) -> np.ndarray:
@@ -180,16 +182,6 @@ def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: 
     return result
 
 
-def is_closed(triangles: np.ndarray) -> bool:
-    """True when every edge is shared by exactly two triangles (a watertight surface)."""
-    if triangles.shape[0] == 0:
-        return False
-    e = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
-    key = e[:, 0].astype(np.int64) * (int(triangles.max()) + 1) + e[:, 1]
-    _, counts = np.unique(key, return_counts=True)
-    return bool(np.all(counts == 2))
-
-
 class TriangleMesh(Shape):
     """A static triangle mesh. Closed meshes are solids (behind the nearest triangle = inside);
     open ones are thin two-sided sheets whose side is remembered from the previous position.
@@ -241,7 +233,7 @@ class TriangleMesh(Shape):
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
 
 
-class Collider:
+class Collider(Constraint, Remappable):
     """A shape as a Constraint: keeps vertices `thickness` outside it, with Coulomb friction.
 
     friction: 0 (ice) .. 1 and above (sticky); thickness: metres kept between surface and vertices;

@@ -6,9 +6,10 @@
   after each substep, wherever a vertex is further than `yield_distance` from its rest copy, the
   copy creeps toward it (`rate` of the excess per second), so impacts leave dents. The model's
   arrays stay read-only: the only mutable rest state is this effect's own copy.
-- `Tethers` (Constraint): long-range attachments. Every vertex may be at most `max_stretch`
-  times its rest graph distance (shortest path over springs) from its nearest pin; beyond that it
-  is projected back, which stops the "rubber cloth" stretch of hanging cloth at any iteration count.
+- `NearestPinTethers` (Constraint): long-range attachments. Every vertex may be at most
+  `max_stretch` times its rest graph distance (shortest path over springs) from its nearest pin;
+  beyond that it is projected back, which stops the "rubber cloth" stretch of hanging cloth at
+  any iteration count, with any solver.
 """
 
 from __future__ import annotations
@@ -17,18 +18,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from meshdeform.forces import scatter_triangles
+from meshdeform.geometry import scatter_triangles, triangle_area_vectors
 from meshdeform.model import SpringModel, State
-
-
-def boundary_edge_count(triangles: np.ndarray) -> int:
-    """Number of edges used by exactly one triangle (0 for a closed surface)."""
-    if triangles.shape[0] == 0:
-        return 0
-    e = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
-    key = e[:, 0].astype(np.int64) * (int(triangles.max()) + 1) + e[:, 1]
-    _, counts = np.unique(key, return_counts=True)
-    return int(np.count_nonzero(counts == 1))
+from meshdeform.scene.base import Constraint, Force, Remappable
 
 
 def enclosed_volume(positions: np.ndarray, triangles: np.ndarray) -> float:
@@ -39,7 +31,7 @@ def enclosed_volume(positions: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
 
 
-class Pressure:
+class Pressure(Force):
     """Volume-keeping pressure for a closed mesh.
 
     stiffness: pressure in Pa at 100% volume loss; volume: target volume as a fraction of the rest
@@ -63,12 +55,11 @@ class Pressure:
             return
         x = state.positions
         p = self.pressure(x, tri)
-        area_vectors = 0.5 * np.cross(x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]])
-        force = scatter_triangles(tri, area_vectors * (self.orientation * p), x.shape[0])
+        force = scatter_triangles(tri, triangle_area_vectors(x, tri) * (self.orientation * p), x.shape[0])
         out += force / model.mass[:, None]
 
 
-class Plasticity:
+class Plasticity(Force, Constraint, Remappable):
     """Anchor-style pull toward an owned rest copy that yields past a threshold (dents stay).
 
     stiffness: pull in 1/s^2 (acceleration per metre from the rest copy); damping: 1/s, pull on
@@ -107,11 +98,20 @@ class Plasticity:
         self.rest[rows] += d[rows] * (fraction * excess[rows] / length[rows])[:, None]
 
 
-class Tethers:
+class NearestPinTethers(Constraint, Remappable):
     """Long-range attachments: each vertex within `max_stretch` x rest graph distance of its nearest anchor.
 
-    anchors: welded vertices the tethers start from (pinned ones); distances run over every
-    spring of the model weighted by rest length. Vertices not connected to an anchor are free.
+    anchors: welded vertices the tethers start from (the recipe's `[material.tethers]` passes
+    every hard and soft pin); distances run over every spring of the model weighted by rest
+    length. Vertices not connected to an anchor are free. Projected after each solver substep,
+    with the velocity away from the anchor removed, so it holds with every solver and follows
+    animated and soft pins (the anchors' current positions) and tears (`remap`).
+
+    Not the solvers' option `tethers` (`[simulation] tethers`, `solvers.layout.Tethers`): that
+    one is on by default (ratio 1.0) for verlet and xpbd only, runs inside their kernels within
+    each substep, ties every free vertex to the nearest hard pin of each of its (up to 4)
+    nearest pin groups (paths over structural springs; xpbd's over shear ones too), moves
+    positions only, and recipes that tear switch it off unless they set it.
     """
 
     def __init__(self, model: SpringModel, anchors: np.ndarray, max_stretch: float = 1.05) -> None:
