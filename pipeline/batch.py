@@ -263,10 +263,8 @@ def apply_sidecar(recipe: Any, sidecar: Path) -> Any:
         raise RecipeError(f"{sidecar}: [[assets]] rules belong in the batch recipe, not in a sidecar")
     data = recipe_module.merge_recipe_data(recipe.raw, partial.raw)
     label = f"{recipe.label} + {sidecar}"
-    # The recipe module's validation of merged data, as Recipe.for_asset and apply_overrides use it
-    # (no public entry point takes data rather than text yet). No line numbers: the keys come from
-    # two files; the message names both and the key path.
-    return recipe_module._validate(data, label, recipe.source, {}, error_lines=False)
+    # no line numbers: the keys come from two files; the message names both and the key path
+    return recipe_module.recipe_from_data(data, label, recipe.source)
 
 
 # -- resume ------------------------------------------------------------------------------------
