@@ -30,13 +30,12 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Protocol
 
 from meshdeform.errors import MeshdeformError, RecipeError
+from meshdeform.io import MESH_SUFFIXES  # the suffixes a batch picks up (case-insensitive)
 from pipeline import __version__
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
 from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
 
-#: mesh suffixes a batch picks up (case-insensitive)
-MESH_SUFFIXES = (".obj", ".ply")
 LOG_NAME = "batch.log"
 LOCK_NAME = ".meshdeform-batch.lock"
 #: atomic temp files of the manifest (staging folders: `pipeline.job.STAGE_PATTERN`)

@@ -14,14 +14,13 @@ import numpy as np
 from meshdeform import colliders as col
 from meshdeform.effects import Plasticity, Pressure, Tethers, boundary_edge_count
 from meshdeform.errors import MeshdeformError
-from meshdeform.forces import Impact, Wind, ray_hit, up_vector
+from meshdeform.forces import Impact, Wind, gravity_vector, ray_hit, up_vector
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, lumped_mass
 from meshdeform.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
 from meshdeform.simulate import Constraint, Force, Scene, Settings
-from meshdeform.solvers.base import SOLVERS
 from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
 from meshdeform.topology import SpringKind, Springs, Welding, build_springs
 from pipeline.recipe import (
@@ -252,13 +251,6 @@ def _tearing(
 def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     """Resolve the recipe on a mesh: material, model with hard pins, forces, colliders, effects, settings."""
     sim = recipe.simulation
-    if sim.solver not in SOLVERS:
-        import meshdeform.solvers  # noqa: F401  (registers the built-in solvers)
-    if sim.solver not in SOLVERS:
-        raise recipe.error(
-            ("simulation", "solver"),
-            f"solver {sim.solver!r} is not available in this build (available: {', '.join(sorted(SOLVERS))})",
-        )
     options = sim.solver_options()
     if recipe.tears and "tethers" not in sim.option_values():
         # the solvers' tethers tie every vertex to every pin group within its rest distance: with
@@ -397,7 +389,8 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     # -- colliders last, so nothing is left inside one after a substep --------------------------------
     constraints.extend(_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders))
 
-    scene = Scene(gravity=sim.gravity_vector, forces=forces, constraints=constraints, pin_motion=pin_motion)
+    gravity = sim.gravity if sim.gravity is not None else gravity_vector(sim.up)
+    scene = Scene(gravity=gravity, forces=forces, constraints=constraints, pin_motion=pin_motion)
     scene.tearing = _tearing(recipe, res, mesh, model, settings, warnings)
     return BuiltSimulation(
         model=model,

@@ -40,6 +40,18 @@ def test_every_command_has_help_text() -> None:
         assert command.commands[name].help, f"{name} has no help text"
 
 
+def test_simulate_help_lists_the_registered_solvers_and_formats() -> None:
+    from meshdeform.export import EXPORTERS
+    from meshdeform.solvers import SOLVERS
+
+    text = " ".join(run("simulate", "--help").stdout.split())
+    assert all(name in text for name in SOLVERS)
+    for name, cls in EXPORTERS.items():
+        assert cls.summary and f"{name}: {cls.summary}" in text, name
+    fixed = [name for name, cls in EXPORTERS.items() if not cls.supports_topology_change]
+    assert fixed and f"cannot write {', '.join(fixed)}" in text
+
+
 @pytest.mark.parametrize(("n", "m"), [(5, 9), (13, 4)])
 def test_inspect_json_counts_springs_of_quad_grids(tmp_path: Path, n: int, m: int) -> None:
     path = tmp_path / "grid.obj"

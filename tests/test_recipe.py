@@ -102,11 +102,14 @@ def test_full_recipe_parses_into_typed_sections() -> None:
 
 def test_defaults_and_gravity_following_the_up_axis() -> None:
     r = load_recipe(None)
-    assert r.simulation.gravity_vector == (0.0, -9.81, 0.0)
+    assert r.simulation.gravity is None
+    assert build_simulation(r, grid_mesh(3, 3)).scene.gravity == (0.0, -9.81, 0.0)
     assert r.pins == () and r.wind is None and r.output.formats == ("obj",)
     z_up = parse_recipe('[simulation]\nup = "z"\n')
-    assert z_up.simulation.gravity_vector == (0.0, 0.0, -9.81)
+    assert build_simulation(z_up, grid_mesh(3, 3)).scene.gravity == (0.0, 0.0, -9.81)
     assert z_up.up_axis == "z"
+    given = parse_recipe('[simulation]\nup = "z"\ngravity = [0, -1, 0]\n')
+    assert build_simulation(given, grid_mesh(3, 3)).scene.gravity == (0.0, -1.0, 0.0)
 
 
 @pytest.mark.parametrize("path", sorted(SAMPLES.glob("*.toml")), ids=lambda p: p.name)
@@ -174,6 +177,38 @@ def test_bad_recipes_give_one_line_with_file_key_path_and_line(text: str, expect
     assert re.search(expected, error_of(text)), error_of(text)
 
 
+def test_formats_and_solvers_are_the_registries_names() -> None:
+    from meshdeform.export import EXPORTERS
+    from meshdeform.solvers import SOLVERS
+
+    assert parse_recipe(f"[output]\nformats = {list(EXPORTERS)!r}\n".replace("'", '"')).output.formats == tuple(
+        EXPORTERS
+    )
+    assert error_of('[output]\nformats = ["objj"]\n').endswith(
+        f"unknown format 'objj' (did you mean 'obj'?); choose from: {', '.join(EXPORTERS)}"
+    )
+    for name in SOLVERS:
+        assert parse_recipe(f'[simulation]\nsolver = "{name}"\n').simulation.solver == name
+    assert error_of('[simulation]\nsolver = "nope"\n').endswith(f"choose one of: {', '.join(sorted(SOLVERS))}")
+
+
+def test_a_recipe_that_tears_is_refused_the_formats_that_need_a_fixed_vertex_count() -> None:
+    from meshdeform.export import EXPORTERS
+
+    tears = "[[tears]]\nmax_stretch = 1.5\n[output]\nformats = [{}]\n"
+    following = [name for name, cls in EXPORTERS.items() if cls.supports_topology_change]
+    for name, cls in EXPORTERS.items():
+        recipe = parse_recipe(tears.format(f'"{name}"'), "t.toml")
+        if cls.supports_topology_change:
+            recipe.check_fixed_topology_formats()
+            continue
+        with pytest.raises(RecipeError) as info:
+            recipe.check_fixed_topology_formats()
+        message = str(info.value)
+        assert message.startswith(f"t.toml: output.formats[0] (line 4): {name} needs a fixed vertex count"), message
+        assert f"write {', '.join(following[:-1])} or {following[-1]} instead" in message
+
+
 def test_load_recipe_errors_name_the_file(tmp_path: Path) -> None:
     path = tmp_path / "r.toml"
     path.write_text("[material]\ndensity = 'heavy'\n")
@@ -232,7 +267,7 @@ def test_apply_overrides_win_and_add_hard_pins() -> None:
         formats=["usd"],
     )
     assert (o.simulation.solver, o.simulation.frames, o.simulation.fps) == ("xpbd", 7, 12.0)
-    assert o.simulation.gravity_vector == (0.0, 0.0, -9.81)
+    assert o.simulation.gravity == (0.0, 0.0, -9.81)
     assert o.output.formats == ("usd",)
     assert len(o.pins) == 3 and o.pins[1].select.indices == (0, 5) and o.pins[2].select.relative
     assert r.simulation.frames == 12  # the original is unchanged

@@ -27,7 +27,6 @@ from pipeline.recipe.load import decode_recipe, load_recipe, parse_recipe, recip
 from pipeline.recipe.messages import format_path, parse_path
 from pipeline.recipe.overrides import apply_overrides
 from pipeline.recipe.schema import (
-    KNOWN_FORMATS,
     AssetRule,
     ColliderSpec,
     KeySpec,
@@ -37,7 +36,6 @@ from pipeline.recipe.schema import (
 from pipeline.recipe.selection import SelectSpec
 
 __all__ = [
-    "KNOWN_FORMATS",
     "LIMITS",
     "SOLVER_OPTION_FIELDS",
     "AssetRule",

@@ -14,9 +14,9 @@ from typing import Any
 from pydantic import Field, PrivateAttr
 
 from meshdeform.errors import RecipeError
+from meshdeform.export import EXPORTERS
 from pipeline.recipe.messages import KeyPath, line_at, message, parse_path
 from pipeline.recipe.schema import (
-    POINT_CACHE_FORMATS,
     AssetRule,
     AssetRuleSpec,
     ColliderSpec,
@@ -80,16 +80,19 @@ class Recipe(Table):
         return bool(self.tears or self.cuts)
 
     def check_fixed_topology_formats(self) -> None:
-        """RecipeError naming output.formats when a point cache is asked of a recipe that tears."""
+        """RecipeError naming output.formats when a recipe that tears or cuts asks for a format that
+        needs a fixed vertex count (an exporter without `supports_topology_change`: point caches)."""
         if not self.changes_topology:
             return
         for i, name in enumerate(self.output.formats):
-            if name in POINT_CACHE_FORMATS:
+            if not EXPORTERS[name].supports_topology_change:
                 what = "[[tears]]" if self.tears else "[[cuts]]"
+                following = [n for n, cls in EXPORTERS.items() if cls.supports_topology_change]
+                choices = " or ".join([", ".join(following[:-1]), following[-1]] if len(following) > 1 else following)
                 raise self.error(
                     ("output", "formats", i),
                     f"{name} needs a fixed vertex count, but this recipe opens the mesh ({what}) and adds "
-                    "vertices where it tears; write obj, ply, usd or vtk instead, or remove the tearing",
+                    f"vertices where it tears; write {choices} instead, or remove the tearing",
                 )
 
     @property

@@ -29,27 +29,15 @@ from pydantic import (
 )
 
 from meshdeform.errors import MeshdeformError
+from meshdeform.export import EXPORTERS
 from meshdeform.material import KindMaterial, Material
 from meshdeform.pins import Keyframe
-from meshdeform.solvers.base import SOLVERS, SolverOptions, solver_class
+from meshdeform.solvers import SOLVERS, solver_class
+from meshdeform.solvers.base import SolverOptions
 from pipeline.recipe.limits import bounded, limited
 from pipeline.recipe.messages import close_match, show, toml_type
 from pipeline.recipe.selection import PlaneSpec, SelectSpec, SphereSpec
 from pipeline.recipe.values import Direction3, Float, Scale3, Table, Vec3, is_number, nonzero_vec3, one_of
-
-#: solvers of DESIGN.md section 3; the registry may hold more (and must hold the one used to run)
-DESIGN_SOLVERS = ("anchor", "verlet", "xpbd", "springs", "implicit")
-#: output formats the exporters provide (meshdeform/export)
-KNOWN_FORMATS = ("obj", "ply", "pc2", "mdd", "usd", "vtk", "xdmf", "npz")
-#: formats that need a fixed vertex count: refused when the recipe tears or cuts
-POINT_CACHE_FORMATS = ("pc2", "mdd", "xdmf", "npz")
-
-
-def known_solvers() -> tuple[str, ...]:
-    import meshdeform.solvers  # noqa: F401  (registers the built-in solvers)
-
-    return tuple(sorted(set(DESIGN_SOLVERS) | set(SOLVERS)))
-
 
 # ---------------------------------------------------------------------------------------------
 # [simulation]
@@ -75,17 +63,10 @@ class SimulationSpec(Table):
     @field_validator("solver")
     @classmethod
     def _known_solver(cls, value: str) -> str:
-        names = known_solvers()
+        names = tuple(sorted(SOLVERS))
         if value not in names:
             raise ValueError(f"unknown solver {value!r}{close_match(value, names)}; choose one of: {', '.join(names)}")
         return value
-
-    @property
-    def gravity_vector(self) -> tuple[float, float, float]:
-        """The gravity in force: as given, else 9.81 m/s^2 down the `up` axis."""
-        if self.gravity is not None:
-            return self.gravity
-        return (0.0, -9.81, 0.0) if self.up == "y" else (0.0, 0.0, -9.81)
 
     @property
     def duration(self) -> float:
@@ -535,6 +516,8 @@ def _formats(value: Any) -> Any:
 
 
 class OutputSpec(Table):
+    """[output]: `formats` are names of the export registry (`meshdeform.export.EXPORTERS`)."""
+
     formats: Annotated[tuple[StrictStr, ...], BeforeValidator(_formats)] = ("obj",)
     preview: Annotated[PreviewSpec | None, BeforeValidator(_preview)] = None
     up_axis: Literal["y", "z"] | None = None
@@ -543,9 +526,9 @@ class OutputSpec(Table):
     @classmethod
     def _known_formats(cls, value: tuple[str, ...]) -> tuple[str, ...]:
         for name in value:
-            if name not in KNOWN_FORMATS:
-                hint = close_match(name, KNOWN_FORMATS)
-                raise ValueError(f"unknown format {name!r}{hint}; choose from: {', '.join(KNOWN_FORMATS)}")
+            if name not in EXPORTERS:
+                hint = close_match(name, tuple(EXPORTERS))
+                raise ValueError(f"unknown format {name!r}{hint}; choose from: {', '.join(EXPORTERS)}")
         if len(set(value)) != len(value):
             raise ValueError("a format is listed twice")
         return value
