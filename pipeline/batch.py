@@ -593,6 +593,8 @@ def _run(
                 len(every),
                 ", --force" if force else "",
             )
+            if base.deprecation is not None:
+                log.warning("%s", base.deprecation)
             if removed:
                 log.info("removed %d stale staging folder(s) of interrupted runs", len(removed))
             for key, reason in links.items():

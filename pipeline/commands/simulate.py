@@ -95,7 +95,10 @@ def register(app: typer.Typer) -> None:
         with cli_errors():
             # before anything is read or created (run_job checks again once the lock is held)
             check_output_folder(out, overwrite=overwrite, protect={"input": mesh, "recipe": recipe}, refuse_cwd=True)
-            loaded = load_recipe(recipe).for_asset(mesh.name)  # [[assets]] rules match the file name
+            base = load_recipe(recipe)
+            if base.deprecation is not None:
+                typer.echo(f"warning: {base.deprecation}", err=True)
+            loaded = base.for_asset(mesh.name)  # [[assets]] rules match the file name
             loaded = apply_overrides(
                 loaded,
                 solver=solver,

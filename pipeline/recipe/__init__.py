@@ -8,6 +8,7 @@ keys, wrong types and out-of-range values are errors) and raise `RecipeError` wi
 | module      | what                                                                          |
 |-------------|-------------------------------------------------------------------------------|
 | `schema`    | the section models ([simulation], [material], [[pins]], ... [[assets]])        |
+| `solver_options` | `[simulation.<solver>]`: each solver's options, read into its options class |
 | `selection` | selection tables (`select = { box = ... }`) and their engine selection trees   |
 | `values`    | strict value types (numbers, vectors) and the `Table` base model               |
 | `limits`    | `LIMITS`: bounds that stop runaway work, and the checks over the whole document |
@@ -21,7 +22,6 @@ keys, wrong types and out-of-range values are errors) and raise `RecipeError` wi
 
 from pipeline.recipe.digest import recipe_hash
 from pipeline.recipe.document import Recipe, resolve_path
-from pipeline.recipe.generated import SOLVER_OPTION_FIELDS
 from pipeline.recipe.limits import LIMITS, Limit
 from pipeline.recipe.load import decode_recipe, load_recipe, parse_recipe, recipe_from_data
 from pipeline.recipe.messages import format_path, parse_path
@@ -37,7 +37,6 @@ from pipeline.recipe.selection import SelectSpec
 
 __all__ = [
     "LIMITS",
-    "SOLVER_OPTION_FIELDS",
     "AssetRule",
     "ColliderSpec",
     "KeySpec",

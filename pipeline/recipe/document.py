@@ -51,12 +51,9 @@ class Recipe(Table):
     _lines: dict[KeyPath, int] = PrivateAttr(default_factory=dict)
     _cli: dict[KeyPath, str] = PrivateAttr(default_factory=dict)
     _label: str | None = PrivateAttr(default=None)
-
-    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
-        """Pickle as the data it was validated from (the model class is built at run time)."""
-        from pipeline.recipe.load import rebuild
-
-        return (rebuild, (self._raw, self.label, self.source, self._lines, self._cli))
+    #: key paths of the deprecated solver options written directly under [simulation]
+    _flat: tuple[KeyPath, ...] = PrivateAttr(default=())
+    _deprecation: str | None = PrivateAttr(default=None)
 
     @property
     def label(self) -> str:
@@ -64,6 +61,13 @@ class Recipe(Table):
         if self._label is not None:
             return self._label
         return str(self.source) if self.source is not None else "<recipe>"
+
+    @property
+    def deprecation(self) -> str | None:
+        """One warning line when the recipe (or one of its [[assets]] rules) writes solver options
+        directly under [simulation], naming the file, the first such key and the table each belongs
+        in; None otherwise. The command line prints it on stderr, a batch writes it to its log."""
+        return self._deprecation
 
     @property
     def raw(self) -> dict[str, Any]:

@@ -38,8 +38,8 @@ class Limit:
         return None
 
 
-#: every limit, by the key path it applies to (`[]`: any element of an array of tables); the list in
-#: docs/recipes.md gives the reason for each value
+#: every limit, by the key path it applies to (`[]`: any element of an array of tables, `<solver>`: the
+#: table of any solver that has the option); the list in docs/recipes.md gives the reason for each value
 LIMITS: dict[str, Limit] = {
     "simulation.frames": Limit(1_000_000, "frames"),
     "simulation.substeps": Limit(100_000, "substeps per frame"),
@@ -48,10 +48,10 @@ LIMITS: dict[str, Limit] = {
     "simulation.fps": Limit(10_000, "frames per second", minimum=0.01),
     "simulation.start_frame": Limit(1_000_000, "(first frame number)"),
     "simulation.tear_burst": Limit(100_000, "topology updates in a burst"),
-    "simulation.strain_iterations": Limit(100_000, "strain passes per step"),
-    "simulation.partitions": Limit(1024, "partitions"),
-    "simulation.anchor_stiffness": Limit(1e6, "1/s^2"),
-    "simulation.uniform_scale": Limit(1000, "(scale factor)"),
+    "simulation.<solver>.strain_iterations": Limit(100_000, "strain passes per step"),
+    "simulation.<solver>.partitions": Limit(1024, "partitions"),
+    "simulation.<solver>.anchor_stiffness": Limit(1e6, "1/s^2"),
+    "simulation.<solver>.uniform_scale": Limit(1000, "(scale factor)"),
     "impacts[].count": Limit(1_000_000, "repeats"),
     "wind.turbulence": Limit(100, "(fraction of the wind speed)"),
     "output.preview.every": Limit(1_000_000, "frames"),
@@ -77,11 +77,20 @@ def limited(key: str) -> AfterValidator:
     return AfterValidator(check)
 
 
-def bounded(value: float) -> float:
-    """Any float in a recipe: at most LIMITS['any number'] in magnitude (beyond it, squares overflow)."""
+def magnitude_complaint(value: float) -> str | None:
+    """The complaint about a number beyond LIMITS['any number'] in magnitude (beyond it, squares
+    overflow), or None."""
     limit = LIMITS["any number"].maximum
     if abs(value) > limit:
-        raise ValueError(f"{number(value)} is beyond the limit of {number(limit)} for any number in a recipe")
+        return f"{number(value)} is beyond the limit of {number(limit)} for any number in a recipe"
+    return None
+
+
+def bounded(value: float) -> float:
+    """Any float in a recipe: `value`, or ValueError beyond LIMITS['any number'] in magnitude."""
+    complaint = magnitude_complaint(value)
+    if complaint is not None:
+        raise ValueError(complaint)
     return value
 
 
@@ -115,10 +124,7 @@ def bad_numbers(data: Any, path: KeyPath = ()) -> Iterator[tuple[KeyPath, str]]:
 def work_complaint(recipe: Recipe) -> tuple[KeyPath, str, tuple[KeyPath, ...]] | None:
     """(key path, complaint, related key paths) when substeps x iterations per frame is above its limit."""
     sim = recipe.simulation
-    sweeps = sim.sweeps_per_frame()
-    if sweeps is None:
-        return None
-    substeps, iterations = sweeps
+    substeps, iterations = sim.sweeps_per_frame()
     limit = LIMITS["simulation.substeps x iterations"]
     complaint = limit.complaint(substeps * iterations)
     if complaint is None:

@@ -19,14 +19,15 @@ from pydantic import ValidationError
 from meshdeform.errors import RecipeError
 from meshdeform.io.files import special_file_kind
 from pipeline.recipe.document import Recipe
-from pipeline.recipe.generated import recipe_class
 from pipeline.recipe.limits import LIMITS, bad_numbers, too_many_tables, work_complaint
 from pipeline.recipe.locate import key_lines
 from pipeline.recipe.messages import KeyPath, LocatedError, describe, line_at
-from pipeline.recipe.schema import merge_recipe_data
+from pipeline.recipe.schema import SimulationSpec, merge_recipe_data
+from pipeline.recipe.solver_options import Problem, SolverTables, deprecation_note, read_solver_tables
 
-#: a complaint about the data: (key path, what is wrong)
-Problem = tuple[KeyPath, str]
+#: the keys of [simulation] itself (the solver tables aside), and the solver when it names none
+SIMULATION_KEYS = tuple(SimulationSpec.model_fields)
+DEFAULT_SOLVER: str = SimulationSpec.model_fields["solver"].default
 
 
 def validate(
@@ -40,17 +41,20 @@ def validate(
     """The Recipe of parsed TOML `data`, or LocatedError about its first problem (by line when
     `error_lines`); `label` names the data in errors, `lines` locates its keys, `path_prefix` is
     where `data` sits in the document `lines` is of (an [[assets]] rule's merged recipe)."""
-    cls = recipe_class()
     # too many tables first (the schema would take seconds over them), then values no key accepts,
-    # then what the schema says
-    problems: list[Problem] = list(too_many_tables(data))
+    # the solver tables, then what the schema says about the rest
+    problems: list[Problem] = [(path, what, ()) for path, what in too_many_tables(data)]
     recipe: Recipe | None = None
+    tables = SolverTables(rest=None)
     if not problems:
-        problems = list(bad_numbers(data))
+        problems = [(path, what, ()) for path, what in bad_numbers(data)]
+        tables = read_solver_tables(data.get("simulation"), SIMULATION_KEYS, DEFAULT_SOLVER)
+        problems += tables.problems
         try:
-            recipe = cls.model_validate(data)
+            rest = {**data, "simulation": tables.rest} if "simulation" in data else data
+            recipe = Recipe.model_validate(rest)
         except ValidationError as exc:
-            problems += [(tuple(e["loc"]), describe(e, cls)) for e in exc.errors(include_url=False)]
+            problems += [(tuple(e["loc"]), describe(e, Recipe), ()) for e in exc.errors(include_url=False)]
     if problems:
 
         def where(problem: Problem) -> tuple[int, int]:
@@ -60,10 +64,12 @@ def validate(
                     return (lines[tuple(loc[:n])], -n)
             return (10**9, 0)
 
-        first = min(problems, key=where) if error_lines else problems[0]
-        loc = (*path_prefix, *first[0])
-        raise LocatedError(label, loc, line_at(lines, loc) if error_lines else None, first[1]) from None
+        path, detail, related = min(problems, key=where) if error_lines else problems[0]
+        loc = (*path_prefix, *path)
+        line = line_at(lines, loc) if error_lines else None
+        raise LocatedError(label, loc, line, detail, [(*path_prefix, *r) for r in related]) from None
     assert recipe is not None
+    recipe.simulation._options = tables.values
     work = work_complaint(recipe)
     if work is not None:
         path, detail, related = work
@@ -74,15 +80,11 @@ def validate(
     recipe._raw = copy.deepcopy(data)
     recipe._lines = dict(lines)
     recipe._label = label
-    return recipe
-
-
-def rebuild(
-    data: dict[str, Any], label: str, source: Path | None, lines: dict[KeyPath, int], cli: dict[KeyPath, str]
-) -> Recipe:
-    """A pickled Recipe, validated again from the data it was made of."""
-    recipe = validate(data, label, source, lines)
-    recipe._cli = dict(cli)
+    recipe._flat = tuple(tables.flat)
+    if tables.flat:
+        place = (("simulation",), recipe.simulation.solver, [str(p[-1]) for p in tables.flat])
+        first = (*path_prefix, *tables.flat[0])
+        recipe._deprecation = deprecation_note(label, [place], line_at(lines, first) if error_lines else None)
     return recipe
 
 
@@ -107,9 +109,18 @@ def parse_recipe(text: str, source: str = "<recipe>") -> Recipe:
     source_path = None if source.startswith("<") else Path(source)
     recipe = validate(data, source, source_path, lines)
     # every [[assets]] override must give a valid recipe once merged (errors point into the rule)
+    places = [(("simulation",), recipe.simulation.solver, [str(p[-1]) for p in recipe._flat])] if recipe._flat else []
+    first = recipe._flat[0] if recipe._flat else None
     for i, rule in enumerate(recipe.asset_rules):
         merged = merge_recipe_data({k: v for k, v in data.items() if k != "assets"}, dict(rule.override))
-        validate(merged, source, source_path, lines, path_prefix=("assets", i))
+        layered = validate(merged, source, source_path, lines, path_prefix=("assets", i))
+        own = rule.override.get("simulation") or {}
+        flat = [str(p[-1]) for p in layered._flat if p[-1] in own]
+        if flat:  # the rule's own deprecated flat options
+            places.append((("assets", i, "simulation"), layered.simulation.solver, flat))
+            first = first or ("assets", i, "simulation", flat[0])
+    if places and first is not None:
+        recipe._deprecation = deprecation_note(source, places, line_at(lines, first))
     return recipe
 
 
@@ -122,7 +133,7 @@ def recipe_from_data(data: Mapping[str, Any], label: str = "<recipe>", source: P
 def load_recipe(path: Path | str | None) -> Recipe:
     """Read and validate a recipe file; None gives the all-defaults recipe."""
     if path is None:
-        return recipe_class()()
+        return Recipe()
     p = Path(path)
     limit = int(LIMITS["recipe file size"].maximum)
     if (kind := special_file_kind(p)) is not None:

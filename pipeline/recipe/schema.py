@@ -21,6 +21,7 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    PrivateAttr,
     StrictBool,
     StrictInt,
     StrictStr,
@@ -28,15 +29,15 @@ from pydantic import (
     model_validator,
 )
 
-from meshdeform.errors import MeshdeformError
 from meshdeform.export import EXPORTERS
 from meshdeform.material import KindMaterial, Material
 from meshdeform.pins import Keyframe
 from meshdeform.solvers import SOLVERS, solver_class
-from meshdeform.solvers.base import SolverOptions
+from meshdeform.solvers.options import SolverOptions
 from pipeline.recipe.limits import bounded, limited
 from pipeline.recipe.messages import close_match, show, toml_type
 from pipeline.recipe.selection import PlaneSpec, SelectSpec, SphereSpec
+from pipeline.recipe.solver_options import options_class
 from pipeline.recipe.values import Direction3, Float, Scale3, Table, Vec3, is_number, nonzero_vec3, one_of
 
 # ---------------------------------------------------------------------------------------------
@@ -45,7 +46,13 @@ from pipeline.recipe.values import Direction3, Float, Scale3, Table, Vec3, is_nu
 
 
 class SimulationSpec(Table):
-    """[simulation]; solver options beyond these are added from SolverOptions at run time."""
+    """[simulation]: the keys every solver takes.
+
+    Each solver's own options are in a table named after it, `[simulation.<solver>]` (for example
+    `[simulation.xpbd] tethers = 1.05`), whose keys are the fields of that solver's options class
+    (meshdeform/solvers/options.py: `XPBDOptions`, `AnchorOptions`, ...). `solver_options.py` reads
+    those tables before this model validates the rest; the options given are kept here, by solver.
+    """
 
     solver: StrictStr = "xpbd"
     fps: Annotated[Float, limited("simulation.fps")] = Field(24.0, gt=0)
@@ -60,6 +67,10 @@ class SimulationSpec(Table):
     tear_interval: Float | None = Field(None, ge=0)
     tear_burst: Annotated[StrictInt, limited("simulation.tear_burst")] | None = Field(None, ge=1)
 
+    #: solver -> {option: value} of its [simulation.<solver>] table (validated, the keys given);
+    #: set by `pipeline.recipe.load.validate`
+    _options: dict[str, dict[str, Any]] = PrivateAttr(default_factory=dict)
+
     @field_validator("solver")
     @classmethod
     def _known_solver(cls, value: str) -> str:
@@ -72,34 +83,24 @@ class SimulationSpec(Table):
     def duration(self) -> float:
         return self.frames / self.fps
 
-    def option_values(self) -> dict[str, Any]:
-        """Solver options given in the recipe (SolverOptions field name -> value)."""
-        names = {f.name for f in dataclasses.fields(SolverOptions)}
-        return {n: getattr(self, n) for n in sorted(names) if getattr(self, n, None) is not None}
+    def given_options(self, solver: str | None = None) -> dict[str, Any]:
+        """The options `[simulation.<solver>]` gives (the solver in force by default), validated."""
+        return dict(self._options.get(self.solver if solver is None else solver, {}))
 
     def solver_options(self) -> SolverOptions:
-        return SolverOptions(**self.option_values())
+        """The options object of the solver in force: its table, with [simulation]'s iterations and
+        damping; what neither gives takes the options class's defaults."""
+        shared = {k: v for k, v in (("iterations", self.iterations), ("damping", self.damping)) if v is not None}
+        return options_class(self.solver)(**shared, **self.given_options())
 
-    def sweeps_per_frame(self) -> tuple[int, int] | None:
+    def sweeps_per_frame(self) -> tuple[int, int]:
         """(substeps, iterations) per frame in force: as given, else the solver's defaults; iterations
-        is 1 for solvers without constraint sweeps (springs, anchor). None when the solver is not
-        available in this build (building the simulation reports that)."""
-        try:
-            cls = solver_class(self.solver)
-        except MeshdeformError:
-            return None
+        is 1 for solvers without constraint sweeps (springs, anchor)."""
+        cls = solver_class(self.solver)
         substeps = self.substeps if self.substeps is not None else int(cls.default_substeps)
         if int(cls.default_iterations) == 0:
             return substeps, 1
-        return substeps, self.solver_options().iterations_for(cls)
-
-    @model_validator(mode="after")
-    def _options_accepted(self) -> SimulationSpec:
-        try:
-            self.solver_options()
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"invalid solver options: {exc}") from None
-        return self
+        return substeps, self.iterations if self.iterations is not None else int(cls.default_iterations)
 
 
 # ---------------------------------------------------------------------------------------------
