@@ -270,6 +270,18 @@ def test_every_option_of_every_solver_is_read_from_its_table_with_strict_types()
     assert checked >= 10
 
 
+def test_every_option_of_every_solver_is_in_the_docs_table() -> None:
+    from meshdeform.solvers import SOLVERS
+    from pipeline.recipe.solver_options import own_options
+
+    section = DOCS.read_text(encoding="utf-8").split("### [simulation.<solver>]", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| `")]
+    for solver in SOLVERS:
+        for option in own_options(solver):
+            row = next((r for r in rows if r.split("|")[2].strip() == f"`{option}`"), None)
+            assert row is not None and f"`{solver}`" in row.split("|")[1], (solver, option)
+
+
 def test_solver_options_within_range_reach_the_solver() -> None:
     text = (
         "[simulation.xpbd]\ntethers = 0\npartitions = 1024\n"
