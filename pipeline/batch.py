@@ -234,8 +234,8 @@ def _load_cached(path: str, mtime_ns: int, size: int) -> Any:
 @dataclass(frozen=True)
 class AssetRecipe:
     """How a worker rebuilds one asset's merged recipe: the batch recipe's path, the asset's key and
-    mesh path. Recipe objects (pydantic models made at run time) do not pickle, and rebuilding from
-    the files keeps every error's file, key path and line. The base is parsed once per worker."""
+    mesh path: rebuilding from the files keeps every error's file, key path and line (and a small
+    task to send). The base is parsed once per worker."""
 
     base: str
     key: str
