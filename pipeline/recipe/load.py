@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import copy
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +23,7 @@ from pipeline.recipe.limits import LIMITS, bad_numbers, too_many_tables, work_co
 from pipeline.recipe.locate import key_lines
 from pipeline.recipe.messages import KeyPath, LocatedError, describe, line_at
 from pipeline.recipe.schema import SimulationSpec, merge_recipe_data
-from pipeline.recipe.solver_options import Problem, SolverTables, deprecation_note, read_solver_tables
+from pipeline.recipe.solver_options import FlatPlace, Problem, SolverTables, deprecation_note, read_solver_tables
 
 #: the keys of [simulation] itself (the solver tables aside), and the solver when it names none
 SIMULATION_KEYS = tuple(SimulationSpec.model_fields)
@@ -81,11 +81,17 @@ def validate(
     recipe._lines = dict(lines)
     recipe._label = label
     recipe._flat = tuple(tables.flat)
-    if tables.flat:
-        place = (("simulation",), recipe.simulation.solver, [str(p[-1]) for p in tables.flat])
-        first = (*path_prefix, *tables.flat[0])
-        recipe._deprecation = deprecation_note(label, [place], line_at(lines, first) if error_lines else None)
+    place = _flat_place((*path_prefix, "simulation"), recipe)
+    if place is not None:
+        recipe._deprecation = deprecation_note(label, [place], lines if error_lines else {})
     return recipe
+
+
+def _flat_place(table: KeyPath, recipe: Recipe, within: Collection[str] | None = None) -> FlatPlace | None:
+    """Where `recipe` (validated from the [simulation] table at `table`) has deprecated flat options
+    (those in `within` only, when given), for `deprecation_note`; None when it has none."""
+    options = [str(path[-1]) for path in recipe._flat if within is None or path[-1] in within]
+    return (table, recipe.simulation.solver, options) if options else None
 
 
 def parse_recipe(text: str, source: str = "<recipe>") -> Recipe:
@@ -108,19 +114,16 @@ def parse_recipe(text: str, source: str = "<recipe>") -> Recipe:
     lines = key_lines(text)
     source_path = None if source.startswith("<") else Path(source)
     recipe = validate(data, source, source_path, lines)
-    # every [[assets]] override must give a valid recipe once merged (errors point into the rule)
-    places = [(("simulation",), recipe.simulation.solver, [str(p[-1]) for p in recipe._flat])] if recipe._flat else []
-    first = recipe._flat[0] if recipe._flat else None
+    # every [[assets]] override must give a valid recipe once merged (errors point into the rule);
+    # the deprecation line covers the flat options of the rules too
+    places = [_flat_place(("simulation",), recipe)]
     for i, rule in enumerate(recipe.asset_rules):
         merged = merge_recipe_data({k: v for k, v in data.items() if k != "assets"}, dict(rule.override))
         layered = validate(merged, source, source_path, lines, path_prefix=("assets", i))
-        own = rule.override.get("simulation") or {}
-        flat = [str(p[-1]) for p in layered._flat if p[-1] in own]
-        if flat:  # the rule's own deprecated flat options
-            places.append((("assets", i, "simulation"), layered.simulation.solver, flat))
-            first = first or ("assets", i, "simulation", flat[0])
-    if places and first is not None:
-        recipe._deprecation = deprecation_note(source, places, line_at(lines, first))
+        places.append(_flat_place(("assets", i, "simulation"), layered, rule.override.get("simulation") or {}))
+    given = [place for place in places if place is not None]
+    if given:
+        recipe._deprecation = deprecation_note(source, given, lines)
     return recipe
 
 

@@ -44,7 +44,17 @@ from meshdeform.solvers.options import (
     XPBDOptions,
 )
 from pipeline.recipe.limits import LIMITS, magnitude_complaint
-from pipeline.recipe.messages import KeyPath, close_match, describe, format_path, message, number, show, toml_type
+from pipeline.recipe.messages import (
+    KeyPath,
+    close_match,
+    describe,
+    format_path,
+    line_at,
+    message,
+    number,
+    show,
+    toml_type,
+)
 
 #: a complaint about the data: (key path, what is wrong, other key paths it is about)
 Problem = tuple[KeyPath, str, tuple[KeyPath, ...]]
@@ -229,10 +239,13 @@ def flat_options(simulation: Mapping[str, Any], solver: str) -> dict[str, Any]:
     return out
 
 
-def deprecation_note(label: str, places: Sequence[tuple[KeyPath, str, Sequence[str]]], line: int | None) -> str:
-    """The one warning line about deprecated flat options: `places` are (key path of the
-    [simulation] table holding them, the solver in force there, the options), the first one at
-    `line`."""
+#: deprecated flat options found: (key path of the [simulation] table holding them, the solver in
+#: force there, the options)
+FlatPlace = tuple[KeyPath, str, Sequence[str]]
+
+
+def deprecation_note(label: str, places: Sequence[FlatPlace], lines: Mapping[KeyPath, int]) -> str:
+    """The one warning line about deprecated flat options, at the first one (located by `lines`)."""
     moves = []
     for table, solver, options in places:
         target = format_path((*table, solver))
@@ -242,4 +255,4 @@ def deprecation_note(label: str, places: Sequence[tuple[KeyPath, str, Sequence[s
         "solver options directly under [simulation] are deprecated and will be refused in the next release: "
         + "; ".join(moves)
     )
-    return message(label, first, line, what)
+    return message(label, first, line_at(lines, first), what)
