@@ -30,13 +30,12 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Protocol
 
 from meshdeform.errors import MeshdeformError, RecipeError
+from meshdeform.io import MESH_SUFFIXES  # the suffixes a batch picks up (case-insensitive)
 from pipeline import __version__
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
 from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
 
-#: mesh suffixes a batch picks up (case-insensitive)
-MESH_SUFFIXES = (".obj", ".ply")
 LOG_NAME = "batch.log"
 LOCK_NAME = ".meshdeform-batch.lock"
 #: atomic temp files of the manifest (staging folders: `pipeline.job.STAGE_PATTERN`)
@@ -235,8 +234,8 @@ def _load_cached(path: str, mtime_ns: int, size: int) -> Any:
 @dataclass(frozen=True)
 class AssetRecipe:
     """How a worker rebuilds one asset's merged recipe: the batch recipe's path, the asset's key and
-    mesh path. Recipe objects (pydantic models made at run time) do not pickle, and rebuilding from
-    the files keeps every error's file, key path and line. The base is parsed once per worker."""
+    mesh path: rebuilding from the files keeps every error's file, key path and line (and a small
+    task to send). The base is parsed once per worker."""
 
     base: str
     key: str
@@ -263,10 +262,8 @@ def apply_sidecar(recipe: Any, sidecar: Path) -> Any:
         raise RecipeError(f"{sidecar}: [[assets]] rules belong in the batch recipe, not in a sidecar")
     data = recipe_module.merge_recipe_data(recipe.raw, partial.raw)
     label = f"{recipe.label} + {sidecar}"
-    # The recipe module's validation of merged data, as Recipe.for_asset and apply_overrides use it
-    # (no public entry point takes data rather than text yet). No line numbers: the keys come from
-    # two files; the message names both and the key path.
-    return recipe_module._validate(data, label, recipe.source, {}, error_lines=False)
+    # no line numbers: the keys come from two files; the message names both and the key path
+    return recipe_module.recipe_from_data(data, label, recipe.source)
 
 
 # -- resume ------------------------------------------------------------------------------------
@@ -596,6 +593,8 @@ def _run(
                 len(every),
                 ", --force" if force else "",
             )
+            if base.deprecation is not None:
+                log.warning("%s", base.deprecation)
             if removed:
                 log.info("removed %d stale staging folder(s) of interrupted runs", len(removed))
             for key, reason in links.items():

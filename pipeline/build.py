@@ -15,14 +15,15 @@ from meshdeform.errors import MeshdeformError
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, lumped_mass
-from meshdeform.scene import Constraint, Force, Scene, up_vector
+from meshdeform.scene import Constraint, Force, Scene, gravity_vector, up_vector
 from meshdeform.scene import colliders as col
 from meshdeform.scene.effects import NearestPinTethers, Plasticity, Pressure
 from meshdeform.scene.forces import Impact, Wind, ray_hit
 from meshdeform.scene.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
 from meshdeform.simulate import Settings
-from meshdeform.solvers.base import SOLVERS
+from meshdeform.solvers.base import SolverOptions as EngineOptions
+from meshdeform.solvers.options import SolverOptions, SweepOptions
 from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
 from meshdeform.topology import SpringKind, Springs, Welding, boundary_edge_count, build_springs
 from pipeline.recipe import (
@@ -250,23 +251,26 @@ def _tearing(
     return Tearer(mesh, model, tear_settings, cuts)
 
 
+def _engine_options(options: SolverOptions) -> EngineOptions:
+    """The solver's options in the form the solvers of this tree take: the shared
+    `meshdeform.solvers.base.SolverOptions`, every field of `options` copied. Temporary: once the
+    solvers take their own options class (`Solver.options_class`), `Settings.options` is `options`
+    itself and this goes."""
+    return EngineOptions(**dataclasses.asdict(options))
+
+
 def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     """Resolve the recipe on a mesh: material, model with hard pins, forces, colliders, effects, settings."""
     sim = recipe.simulation
-    if sim.solver not in SOLVERS:
-        import meshdeform.solvers  # noqa: F401  (registers the built-in solvers)
-    if sim.solver not in SOLVERS:
-        raise recipe.error(
-            ("simulation", "solver"),
-            f"solver {sim.solver!r} is not available in this build (available: {', '.join(sorted(SOLVERS))})",
-        )
     options = sim.solver_options()
-    if recipe.tears and "tethers" not in sim.option_values():
+    if recipe.tears and isinstance(options, SweepOptions) and "tethers" not in sim.given_options():
         # the solvers' tethers tie every vertex to every pin group within its rest distance: with
         # pins moving apart they stretch the cloth at the pins without limit and yank torn pieces,
         # so a recipe that tears runs without them unless it asks for them
         options = dataclasses.replace(options, tethers=None)
-    settings = Settings(solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=options)
+    settings = Settings(
+        solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=_engine_options(options)
+    )
     res = _Resolver(recipe, mesh)
     material = recipe.material.to_material()
     welding, springs = build_springs(mesh)
@@ -398,7 +402,8 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     # -- colliders last, so nothing is left inside one after a substep --------------------------------
     constraints.extend(_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders))
 
-    scene = Scene(gravity=sim.gravity_vector, forces=forces, constraints=constraints, pin_motion=pin_motion)
+    gravity = sim.gravity if sim.gravity is not None else gravity_vector(sim.up)
+    scene = Scene(gravity=gravity, forces=forces, constraints=constraints, pin_motion=pin_motion)
     scene.tearing = _tearing(recipe, res, mesh, model, settings, warnings)
     return BuiltSimulation(
         model=model,

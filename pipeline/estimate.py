@@ -54,29 +54,27 @@ class RunEstimate:
     """The cost of one run.
 
     substeps / iterations: per frame and per substep in force (the solver's defaults when the
-    recipe gives none; iterations 1 for solvers without sweeps); None when the solver is unknown.
+    recipe gives none; iterations 1 for solvers without sweeps).
     springs / vertices: of the built model / the input mesh (None without a mesh).
     output_bytes: estimated bytes per output format, plus "preview" (None without a mesh).
     """
 
     frames: int
-    substeps: int | None
-    iterations: int | None
+    substeps: int
+    iterations: int
     springs: int | None = None
     vertices: int | None = None
     output_bytes: dict[str, int] | None = field(default=None)
 
     @property
-    def sweeps(self) -> int | None:
+    def sweeps(self) -> int:
         """Solver sweeps over the springs for the whole run (substeps x iterations x frames)."""
-        if self.substeps is None or self.iterations is None:
-            return None
         return self.substeps * self.iterations * self.frames
 
     @property
     def spring_projections(self) -> int | None:
         """springs x substeps x iterations x frames: the work of the solver's inner loop."""
-        if self.springs is None or self.sweeps is None:
+        if self.springs is None:
             return None
         return self.springs * self.sweeps
 
@@ -87,13 +85,9 @@ class RunEstimate:
 
     def summary(self) -> str:
         """One line for `meshdeform check`."""
-        if self.sweeps is None:
-            work = f"{self.frames} frames"
-        else:
-            work = f"{self.substeps} substeps x {self.iterations} iterations x {self.frames} frames"
+        work = f"{self.substeps} substeps x {self.iterations} iterations x {self.frames} frames"
         if self.spring_projections is None or self.output_bytes is None:
-            total = _count(self.sweeps or self.frames)
-            return f"estimate: {work} = {total} sweeps; springs and output size need --mesh"
+            return f"estimate: {work} = {_count(self.sweeps)} sweeps; springs and output size need --mesh"
         parts = ", ".join(f"{name} {human_bytes(n)}" for name, n in self.output_bytes.items())
         return (
             f"estimate: {_count(self.springs or 0)} springs x {work} = {_count(self.spring_projections)} spring "
@@ -234,8 +228,7 @@ def _preview_bytes(recipe: Recipe) -> int:
 def estimate_run(recipe: Recipe, mesh: Mesh | None = None, model: SpringModel | None = None) -> RunEstimate:
     """The run's cost: sweeps per frame from the recipe (and the solver's defaults); springs and
     output bytes when the mesh and its built model are given."""
-    sweeps = recipe.simulation.sweeps_per_frame()
-    substeps, iterations = sweeps if sweeps is not None else (None, None)
+    substeps, iterations = recipe.simulation.sweeps_per_frame()
     return RunEstimate(
         frames=recipe.simulation.frames,
         substeps=substeps,

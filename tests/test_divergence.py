@@ -198,7 +198,8 @@ def test_cli_stops_a_tethered_explosion_with_exit_1_one_line_and_no_output(tmp_p
     write_obj(mesh_path, grid_mesh(n, n, plane="xy"))
     recipe = tmp_path / "explode.toml"
     recipe.write_text(
-        '[simulation]\nsolver = "springs"\nsubsteps = 1\nframes = 48\nstable_substeps = false\n\n'
+        '[simulation]\nsolver = "springs"\nsubsteps = 1\nframes = 48\n\n'
+        "[simulation.springs]\nstable_substeps = false\n\n"
         "[material]\nstretch_modulus = 100000.0\n\n[material.tethers]\nmax_stretch = 1.05\n\n"
         f"[[pins]]\nselect = {{ indices = [{n * (n - 1)}, {n * n - 1}] }}\n"
     )

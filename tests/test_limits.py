@@ -22,12 +22,11 @@ from meshdeform.errors import RecipeError
 from meshdeform.io import load
 from meshdeform.io.obj import write_obj
 from meshdeform.mesh import grid_mesh
-from meshdeform.solvers.base import SolverOptions
 from pipeline import estimate
 from pipeline.cli import app
 from pipeline.estimate import InsufficientDiskSpace, estimate_run, output_bytes, require_disk_space
 from pipeline.job import run_job
-from pipeline.recipe import LIMITS, SOLVER_OPTION_FIELDS, SimulationSpec, apply_overrides, load_recipe, parse_recipe
+from pipeline.recipe import LIMITS, apply_overrides, load_recipe, parse_recipe
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "recipes.md"
 runner = CliRunner()
@@ -64,20 +63,30 @@ BOUNDARIES = {
     "simulation.fps": ("[simulation]\nfps = {}\n", 10_000, 10_000.5, "simulation.fps (line 2)"),
     "simulation.start_frame": ("[simulation]\nstart_frame = {}\n", 1_000_000, 1_000_001, "simulation.start_frame"),
     "simulation.tear_burst": ("[simulation]\ntear_burst = {}\n", 100_000, 100_001, "simulation.tear_burst"),
-    "simulation.strain_iterations": (
-        "[simulation]\nstrain_iterations = {}\n",
+    "simulation.<solver>.strain_iterations": (
+        "[simulation.springs]\nstrain_iterations = {}\n",
         100_000,
         100_001,
-        "simulation.strain_iterations",
+        "simulation.springs.strain_iterations (line 2)",
     ),
-    "simulation.partitions": ("[simulation]\npartitions = {}\n", 1024, 1025, "simulation.partitions"),
-    "simulation.anchor_stiffness": (
-        "[simulation]\nanchor_stiffness = {}\n",
+    "simulation.<solver>.partitions": (
+        "[simulation.verlet]\npartitions = {}\n",
+        1024,
+        1025,
+        "simulation.verlet.partitions (line 2)",
+    ),
+    "simulation.<solver>.anchor_stiffness": (
+        "[simulation.anchor]\nanchor_stiffness = {}\n",
         1e6,
         1.0001e6,
-        "simulation.anchor_stiffness",
+        "simulation.anchor.anchor_stiffness (line 2)",
     ),
-    "simulation.uniform_scale": ("[simulation]\nuniform_scale = {}\n", 1000, 1000.5, "simulation.uniform_scale"),
+    "simulation.<solver>.uniform_scale": (
+        "[simulation.anchor]\nuniform_scale = {}\n",
+        1000,
+        1000.5,
+        "simulation.anchor.uniform_scale (line 2)",
+    ),
     "impacts[].count": (IMPACT, 1_000_000, 1_000_001, "impacts[0].count (line 7)"),
     "wind.turbulence": ("[wind]\nvelocity = [1, 0, 0]\nturbulence = {}\n", 100, 100.5, "wind.turbulence (line 3)"),
     "output.preview.every": ("[output]\npreview = {{ every = {} }}\n", 1_000_000, 1_000_001, "output.preview.every"),
@@ -209,43 +218,79 @@ def test_64_bit_and_magnitude_limits_accept_their_boundary() -> None:
     assert parse_recipe("[material]\ndensity = 1000000000000\n").material.density == 1e12
 
 
-def test_every_solver_option_has_an_explicit_recipe_type() -> None:
-    declared = set(SimulationSpec.model_fields)
-    options = {f.name for f in dataclasses.fields(SolverOptions)} - declared
-    assert options == set(SOLVER_OPTION_FIELDS)
-
-
 @pytest.mark.parametrize(
-    ("line", "expected"),
+    ("table", "line", "expected"),
     [
-        ("tethers = -1.0", "simulation.tethers (line 2): must be at least 0, got -1.0"),
-        ("tethers = 0.5", "simulation.tethers (line 2): must be 0 (no tethers) or at least 1"),
-        ("partitions = -2", "simulation.partitions (line 2): must be at least 0, got -2"),
-        ("strain_iterations = -1", "simulation.strain_iterations (line 2): must be at least 0, got -1"),
-        ("strain_limit = 0.9", "simulation.strain_limit (line 2): must be at least 1, got 0.9"),
-        ("anchor_stiffness = -20.0", "simulation.anchor_stiffness (line 2): must be at least 0"),
-        ("anchor_damping = -5", "simulation.anchor_damping (line 2): must be at least 0"),
-        ("uniform_scale = 0", "simulation.uniform_scale (line 2): must be greater than 0"),
-        ('anchor_frame = "wrld"', "simulation.anchor_frame (line 2): must be one of 'auto', 'world' or 'centroid'"),
-        ("anchor_frame = 3", "simulation.anchor_frame (line 2): must be one of"),
-        ('stable_substeps = "no"', "simulation.stable_substeps (line 2): expected true or false"),
-        ("partitions = 2.0", "simulation.partitions (line 2): expected an integer, got float 2.0"),
+        ("xpbd", "tethers = -1.0", "simulation.xpbd.tethers (line 2): must be at least 0, got -1.0"),
+        ("verlet", "tethers = 0.5", "simulation.verlet.tethers (line 2): must be 0 (no tethers) or at least 1"),
+        ("xpbd", "partitions = -2", "simulation.xpbd.partitions (line 2): must be at least 0, got -2"),
+        ("springs", "strain_iterations = -1", "simulation.springs.strain_iterations (line 2): must be at least 0"),
+        ("springs", "strain_limit = 0.9", "simulation.springs.strain_limit (line 2): must be at least 1, got 0.9"),
+        ("anchor", "anchor_stiffness = -20.0", "simulation.anchor.anchor_stiffness (line 2): must be at least 0"),
+        ("anchor", "anchor_damping = -5", "simulation.anchor.anchor_damping (line 2): must be at least 0"),
+        ("anchor", "uniform_scale = 0", "simulation.anchor.uniform_scale (line 2): must be greater than 0"),
+        ("anchor", 'anchor_frame = "wrld"', "simulation.anchor.anchor_frame (line 2): must be one of 'auto', 'world'"),
+        ("anchor", "anchor_frame = 3", "simulation.anchor.anchor_frame (line 2): must be one of"),
+        ("springs", 'stable_substeps = "no"', "simulation.springs.stable_substeps (line 2): expected true or false"),
+        ("xpbd", "partitions = 2.0", "simulation.xpbd.partitions (line 2): expected an integer, got float 2.0"),
+        ("xpbd", "tethers = true", "simulation.xpbd.tethers (line 2): expected a number, got boolean true"),
+        ("anchor", "anchor_stiffness = 1e13", "simulation.anchor.anchor_stiffness (line 2): 1e+13 is beyond the limit"),
+        ("anchor", "anchor_damping = nan", "simulation.anchor.anchor_damping (line 2): must be a finite number"),
     ],
 )
-def test_solver_options_are_range_checked(line: str, expected: str) -> None:
-    assert expected in error_of(f"[simulation]\n{line}\n")
+def test_solver_options_are_range_checked(table: str, line: str, expected: str) -> None:
+    assert expected in error_of(f"[simulation.{table}]\n{line}\n")
+
+
+def test_every_option_of_every_solver_is_read_from_its_table_with_strict_types() -> None:
+    """Each field of each registered solver's options class (beyond the shared ones) is a key of
+    that solver's table: its default is accepted and reaches the options object, a boolean is no
+    number, a number no boolean and a string neither."""
+    import typing
+
+    from meshdeform.solvers import SOLVERS
+    from pipeline.recipe.solver_options import SHARED_OPTIONS, options_class
+
+    checked = 0
+    for solver in SOLVERS:
+        cls = options_class(solver)
+        hints = typing.get_type_hints(cls)
+        for field in dataclasses.fields(cls):
+            if field.name in SHARED_OPTIONS:
+                continue
+            text = f'[simulation]\nsolver = "{solver}"\n[simulation.{solver}]\n{field.name} = {{}}\n'
+            if field.default is not None:
+                options = parse_recipe(text.format(_toml(field.default))).simulation.solver_options()
+                assert options == cls(), (solver, field.name)
+            wrong = "1" if hints[field.name] is bool else "true"
+            assert f"{solver}.{field.name} (line 4): " in error_of(text.format(wrong)), (solver, field.name)
+            if hints[field.name] is not str:
+                assert f"{solver}.{field.name} (line 4): " in error_of(text.format('"1"')), (solver, field.name)
+            checked += 1
+    assert checked >= 10
+
+
+def test_every_option_of_every_solver_is_in_the_docs_table() -> None:
+    from meshdeform.solvers import SOLVERS
+    from pipeline.recipe.solver_options import own_options
+
+    section = DOCS.read_text(encoding="utf-8").split("### [simulation.<solver>]", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| `")]
+    for solver in SOLVERS:
+        for option in own_options(solver):
+            row = next((r for r in rows if r.split("|")[2].strip() == f"`{option}`"), None)
+            assert row is not None and f"`{solver}`" in row.split("|")[1], (solver, option)
 
 
 def test_solver_options_within_range_reach_the_solver() -> None:
-    options = parse_recipe(
-        '[simulation]\ntethers = 0\npartitions = 1024\nanchor_frame = "centroid"\nstrain_iterations = 0\n'
-    ).simulation.solver_options()
-    assert (options.tethers, options.partitions, options.anchor_frame, options.strain_iterations) == (
-        0.0,
-        1024,
-        "centroid",
-        0,
+    text = (
+        "[simulation.xpbd]\ntethers = 0\npartitions = 1024\n"
+        '[simulation.anchor]\nanchor_frame = "centroid"\nstrain_iterations = 0\n'
     )
+    xpbd = parse_recipe(text).simulation.solver_options()
+    assert (xpbd.tethers, xpbd.partitions) == (0.0, 1024)
+    anchor = apply_overrides(parse_recipe(text), solver="anchor").simulation.solver_options()
+    assert (anchor.anchor_frame, anchor.strain_iterations) == ("centroid", 0)
 
 
 def test_formats_as_a_string_is_one_line_naming_the_array_form() -> None:
@@ -422,9 +467,9 @@ def test_the_installed_entry_point_keeps_the_contract(tmp_path: Path) -> None:
 
 BASE: dict[str, Any] = {
     "simulation": {"solver": "verlet", "fps": 24, "frames": 12, "substeps": 4, "iterations": 3, "seed": 1,
-                   "damping": 0.5, "tethers": 1.0, "partitions": 1, "strain_iterations": 10,
-                   "anchor_stiffness": 20.0, "uniform_scale": 1.0, "start_frame": 1, "tear_burst": 4,
-                   "gravity": [0, -9.81, 0]},
+                   "damping": 0.5, "start_frame": 1, "tear_burst": 4, "gravity": [0, -9.81, 0],
+                   "verlet": {"tethers": 1.0, "partitions": 1},
+                   "anchor": {"strain_iterations": 10, "anchor_stiffness": 20.0, "uniform_scale": 1.0}},
     "material": {"density": 0.2, "stretch_modulus": 1000.0, "structural": {"stiffness": 1.0, "damping": 0.1}},
     "pins": [
         {

@@ -36,6 +36,11 @@ iterations = 5
 damping = 0.2
 up = "y"
 seed = 3
+
+[simulation.verlet]
+tethers = 1.05
+
+[simulation.springs]
 strain_limit = 1.1
 
 [material]
@@ -85,8 +90,9 @@ def error_of(text: str, name: str = "bad.toml") -> str:
 def test_full_recipe_parses_into_typed_sections() -> None:
     r = parse_recipe(FULL, "full.toml")
     assert r.simulation.solver == "verlet" and r.simulation.frames == 12 and r.simulation.fps == 30.0
-    assert r.simulation.solver_options().strain_limit == 1.1
+    assert r.simulation.solver_options().tethers == 1.05
     assert r.simulation.solver_options().iterations == 5
+    assert r.simulation.given_options("springs") == {"strain_limit": 1.1}  # validated, not in force
     assert r.material.to_material().structural.compression == 0.5
     assert r.material.to_material().shear.enabled is False
     assert r.pins[0].is_hard and len(r.pins[0].animate) == 2
@@ -102,11 +108,14 @@ def test_full_recipe_parses_into_typed_sections() -> None:
 
 def test_defaults_and_gravity_following_the_up_axis() -> None:
     r = load_recipe(None)
-    assert r.simulation.gravity_vector == (0.0, -9.81, 0.0)
+    assert r.simulation.gravity is None
+    assert build_simulation(r, grid_mesh(3, 3)).scene.gravity == (0.0, -9.81, 0.0)
     assert r.pins == () and r.wind is None and r.output.formats == ("obj",)
     z_up = parse_recipe('[simulation]\nup = "z"\n')
-    assert z_up.simulation.gravity_vector == (0.0, 0.0, -9.81)
+    assert build_simulation(z_up, grid_mesh(3, 3)).scene.gravity == (0.0, 0.0, -9.81)
     assert z_up.up_axis == "z"
+    given = parse_recipe('[simulation]\nup = "z"\ngravity = [0, -1, 0]\n')
+    assert build_simulation(given, grid_mesh(3, 3)).scene.gravity == (0.0, -1.0, 0.0)
 
 
 @pytest.mark.parametrize("path", sorted(SAMPLES.glob("*.toml")), ids=lambda p: p.name)
@@ -174,6 +183,38 @@ def test_bad_recipes_give_one_line_with_file_key_path_and_line(text: str, expect
     assert re.search(expected, error_of(text)), error_of(text)
 
 
+def test_formats_and_solvers_are_the_registries_names() -> None:
+    from meshdeform.export import EXPORTERS
+    from meshdeform.solvers import SOLVERS
+
+    assert parse_recipe(f"[output]\nformats = {list(EXPORTERS)!r}\n".replace("'", '"')).output.formats == tuple(
+        EXPORTERS
+    )
+    assert error_of('[output]\nformats = ["objj"]\n').endswith(
+        f"unknown format 'objj' (did you mean 'obj'?); choose from: {', '.join(EXPORTERS)}"
+    )
+    for name in SOLVERS:
+        assert parse_recipe(f'[simulation]\nsolver = "{name}"\n').simulation.solver == name
+    assert error_of('[simulation]\nsolver = "nope"\n').endswith(f"choose one of: {', '.join(sorted(SOLVERS))}")
+
+
+def test_a_recipe_that_tears_is_refused_the_formats_that_need_a_fixed_vertex_count() -> None:
+    from meshdeform.export import EXPORTERS
+
+    tears = "[[tears]]\nmax_stretch = 1.5\n[output]\nformats = [{}]\n"
+    following = [name for name, cls in EXPORTERS.items() if cls.supports_topology_change]
+    for name, cls in EXPORTERS.items():
+        recipe = parse_recipe(tears.format(f'"{name}"'), "t.toml")
+        if cls.supports_topology_change:
+            recipe.check_fixed_topology_formats()
+            continue
+        with pytest.raises(RecipeError) as info:
+            recipe.check_fixed_topology_formats()
+        message = str(info.value)
+        assert message.startswith(f"t.toml: output.formats[0] (line 4): {name} needs a fixed vertex count"), message
+        assert f"write {', '.join(following[:-1])} or {following[-1]} instead" in message
+
+
 def test_load_recipe_errors_name_the_file(tmp_path: Path) -> None:
     path = tmp_path / "r.toml"
     path.write_text("[material]\ndensity = 'heavy'\n")
@@ -232,7 +273,7 @@ def test_apply_overrides_win_and_add_hard_pins() -> None:
         formats=["usd"],
     )
     assert (o.simulation.solver, o.simulation.frames, o.simulation.fps) == ("xpbd", 7, 12.0)
-    assert o.simulation.gravity_vector == (0.0, 0.0, -9.81)
+    assert o.simulation.gravity == (0.0, 0.0, -9.81)
     assert o.output.formats == ("usd",)
     assert len(o.pins) == 3 and o.pins[1].select.indices == (0, 5) and o.pins[2].select.relative
     assert r.simulation.frames == 12  # the original is unchanged
@@ -307,7 +348,8 @@ def test_build_maps_recipe_onto_model_scene_and_settings() -> None:
     r = parse_recipe(FULL, "full.toml")
     built = build_simulation(r, grid_mesh(6, 6))
     assert built.settings.solver == "verlet" and built.settings.substeps == 4 and built.settings.fps == 30.0
-    assert built.settings.options.iterations == 5 and built.settings.options.strain_limit == 1.1
+    assert built.settings.options.iterations == 5 and built.settings.options.tethers == 1.05
+    assert built.settings.options.strain_limit is None  # springs' table: not the solver in force
     assert built.scene.gravity == (0.0, -9.81, 0.0)
     assert built.model.pinned.sum() == 6
     assert built.scene.pin_motion is not None
@@ -369,7 +411,8 @@ def test_recipes_pickle_for_worker_processes() -> None:
     r = apply_overrides(parse_recipe(FULL, "full.toml"), pins=["indices:30"])
     copy = pickle.loads(pickle.dumps(r))
     assert copy == r and recipe_hash(copy) == recipe_hash(r)
-    assert copy.label == "full.toml" and copy.line_of(("pins", 0, "select")) == 18
+    assert copy.label == "full.toml" and copy.line_of(("pins", 0, "select")) == 23
+    assert copy.simulation.solver_options() == r.simulation.solver_options()
     with pytest.raises(RecipeError, match=r"^command line: --pin 'indices:30': .*out of range"):
         build_simulation(copy, grid_mesh(3, 3))
 
@@ -389,3 +432,148 @@ def test_command_line_pins_refuse_huge_and_non_finite_numbers(pin: str, expected
     """A --pin typo is one RecipeError line, never an OverflowError or a NaN bound."""
     with pytest.raises(RecipeError, match=rf"^command line: --pin '{re.escape(pin)}': {re.escape(expected)}$"):
         apply_overrides(parse_recipe(""), pins=[pin])
+
+
+# ---------------------------------------------------------------------------------------------
+# [simulation.<solver>] tables, and the deprecated flat keys
+# ---------------------------------------------------------------------------------------------
+
+TABLES = """\
+[simulation]
+solver = "xpbd"
+iterations = 3
+
+[simulation.xpbd]
+tethers = 1.05
+partitions = 1
+
+[simulation.anchor]
+anchor_stiffness = 30
+anchor_frame = "centroid"
+"""
+
+
+def test_the_solver_in_force_reads_its_table_and_the_others_are_validated_for_a_switch() -> None:
+    r = parse_recipe(TABLES, "t.toml")
+    options = r.simulation.solver_options()
+    assert type(options).__name__ == "XPBDOptions"
+    assert (options.iterations, options.damping, options.tethers, options.partitions) == (3, 0.9, 1.05, 1)
+    assert r.deprecation is None
+    anchor = apply_overrides(r, solver="anchor").simulation.solver_options()
+    assert (anchor.anchor_stiffness, anchor.anchor_frame, anchor.iterations) == (30.0, "centroid", 3)
+    assert isinstance(anchor.anchor_stiffness, float)
+    springs = apply_overrides(r, solver="springs").simulation.solver_options()
+    assert type(springs).__name__ == "SpringsOptions"
+    bad = TABLES.replace('anchor_frame = "centroid"', 'anchor_frame = "wrld"')
+    assert re.match(r"t\.toml: simulation\.anchor\.anchor_frame \(line 11\): must be one of", error_of(bad, "t.toml"))
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        # a key of another solver's table names that solver
+        (
+            "[simulation.xpbd]\nanchor_stiffness = 30\n",
+            "simulation.xpbd.anchor_stiffness (line 2): anchor_stiffness is an option of anchor, not of xpbd: "
+            "put it in [simulation.anchor]",
+        ),
+        (
+            "[simulation.verlet]\nstrain_limit = 1.1\n",
+            "simulation.verlet.strain_limit (line 2): strain_limit is an option of anchor and springs, not of "
+            "verlet: put it in [simulation.anchor] or [simulation.springs]",
+        ),
+        (
+            "[simulation.xpbd]\niterations = 3\n",
+            "simulation.xpbd.iterations (line 2): iterations is a key of [simulation] (every solver takes it)",
+        ),
+        (
+            "[simulation.xpbd]\ntether = 1.0\n",
+            "simulation.xpbd.tether (line 2): unknown key 'tether' (did you mean 'tethers'?); allowed keys: ",
+        ),
+        ("[simulation.implicit]\ntethers = 1.0\n", "tethers is an option of verlet and xpbd, not of implicit"),
+        ("[simulation]\nxpbd = 1\n", "simulation.xpbd (line 2): expected a table of xpbd's options, got integer 1"),
+        (
+            "[simulation]\nxpdb = { tethers = 1 }\n",
+            "simulation.xpdb (line 2): unknown key 'xpdb' (did you mean 'xpbd'?); allowed keys: solver, fps",
+        ),
+        # flat keys: the solver in force's are read (deprecated), another solver's are an error
+        (
+            '[simulation]\nsolver = "xpbd"\nanchor_stiffness = 30\n',
+            "simulation.anchor_stiffness (line 3): anchor_stiffness is an option of anchor, not of xpbd (the "
+            "solver in force): put it in [simulation.anchor]",
+        ),
+        (
+            "[simulation]\ntethers = 1.0\n[simulation.xpbd]\ntethers = 1.1\n",
+            "simulation.tethers (line 2): tethers is given twice, here and in [simulation.xpbd]",
+        ),
+        ("[simulation]\ntethers = 0.5\n", "simulation.tethers (line 2): must be 0 (no tethers) or at least 1"),
+    ],
+)
+def test_solver_table_mistakes_are_one_line_naming_the_key_and_where_it_belongs(text: str, expected: str) -> None:
+    assert expected in error_of(text, "r.toml")
+
+
+FLAT = '[simulation]\nsolver = "verlet"\niterations = 4\npartitions = 2\ntethers = 1.05\n'
+MOVED = '[simulation]\nsolver = "verlet"\niterations = 4\n\n[simulation.verlet]\npartitions = 2\ntethers = 1.05\n'
+
+
+def test_flat_solver_keys_still_work_with_one_deprecation_line_naming_the_table() -> None:
+    flat, moved = parse_recipe(FLAT, "f.toml"), parse_recipe(MOVED, "m.toml")
+    assert flat.simulation.solver_options() == moved.simulation.solver_options()
+    assert recipe_hash(flat) == recipe_hash(moved)  # results made before the move stay up to date
+    assert moved.deprecation is None
+    assert flat.deprecation == (
+        "f.toml: simulation.partitions (line 4): solver options directly under [simulation] are deprecated and "
+        "will be refused in the next release: move partitions, tethers to [simulation.verlet]"
+    )
+    rule = '\n[[assets]]\nglob = "*.ply"\nsimulation = { solver = "anchor", anchor_stiffness = 30 }\n'
+    layered = parse_recipe(MOVED + rule, "a.toml")
+    assert layered.deprecation is not None and layered.deprecation.startswith(
+        "a.toml: assets[0].simulation.anchor_stiffness (line 11): "
+    )
+    assert layered.deprecation.endswith("move anchor_stiffness to assets[0].simulation.anchor")
+    assert layered.for_asset("ball.ply").simulation.solver_options().anchor_stiffness == 30.0
+    tables = rule.replace("anchor_stiffness = 30", "anchor = { anchor_stiffness = 30 }")
+    assert recipe_hash(parse_recipe(MOVED + tables)) == recipe_hash(parse_recipe(MOVED + rule))
+
+
+def test_switching_solver_on_the_command_line_names_the_option_for_a_foreign_flat_key() -> None:
+    flat = parse_recipe(FLAT, "f.toml")
+    assert apply_overrides(flat, solver="xpbd").simulation.solver_options().tethers == 1.05  # xpbd has tethers
+    with pytest.raises(RecipeError) as info:
+        apply_overrides(flat, solver="springs")
+    assert str(info.value) == (
+        "command line: --solver: partitions is an option of verlet and xpbd, not of springs (the solver in "
+        "force): put it in [simulation.verlet] or [simulation.xpbd]"
+    )
+    assert apply_overrides(parse_recipe(MOVED), solver="springs").simulation.solver == "springs"
+
+
+def test_tearing_runs_without_the_solvers_tethers_unless_the_table_asks_for_them() -> None:
+    tears = "[[tears]]\nmax_stretch = 1.5\n"
+    default = build_simulation(parse_recipe(tears), grid_mesh(4, 4)).settings.options
+    asked = build_simulation(parse_recipe("[simulation.xpbd]\ntethers = 1.2\n" + tears), grid_mesh(4, 4))
+    assert default.tethers is None and asked.settings.options.tethers == 1.2
+    assert build_simulation(parse_recipe(""), grid_mesh(4, 4)).settings.options.tethers == 1.0
+
+
+def test_the_deprecation_line_goes_to_stderr_once_and_into_the_batch_log(tmp_path: Path) -> None:
+    from pipeline.batch import run_batch
+    from pipeline.cli import app
+
+    assets = tmp_path / "assets"
+    assets.mkdir()
+    write_obj(assets / "a.obj", grid_mesh(3, 3))
+    write_obj(assets / "b.obj", grid_mesh(3, 3))
+    recipe = tmp_path / "flat.toml"
+    recipe.write_text(FLAT + "frames = 2\n[[assets]]\nglob = 'a.obj'\nmaterial = { density = 0.3 }\n")
+    expected = parse_recipe(recipe.read_text(), str(recipe)).deprecation
+    assert expected is not None
+    simulate = ["simulate", str(assets / "a.obj"), "-r", str(recipe), "-o", str(tmp_path / "one"), "-q"]
+    for args in (["check", str(recipe)], simulate):
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 0, result.output
+        assert result.stderr == f"warning: {expected}\n", args
+    run_batch(assets, recipe, tmp_path / "batch", jobs=0)
+    log = (tmp_path / "batch" / "batch.log").read_text()
+    assert log.count(expected) == 1

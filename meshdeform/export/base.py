@@ -81,6 +81,8 @@ class Exporter(Protocol):
     """A streaming writer of one output format."""
 
     name: ClassVar[str]
+    #: what the format writes, in one line (the command line's help lists it)
+    summary: ClassVar[str]
     supports_topology_change: ClassVar[bool]
 
     def open(self, ctx: ExportContext) -> None: ...
@@ -118,6 +120,7 @@ class BaseExporter:
     """
 
     name: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
     supports_topology_change: ClassVar[bool] = False
     #: the reason given when a frame changes the topology and the format cannot follow
     topology_message: ClassVar[str] = "this format needs a fixed topology"

@@ -30,6 +30,7 @@ class MddExporter(BaseExporter):
     """Streams frames into a spool file and writes `cache.mdd` at close."""
 
     name: ClassVar[str] = "mdd"
+    summary: ClassVar[str] = "MDD point cache (LightWave, Blender)"
     supports_topology_change: ClassVar[bool] = False
     topology_message: ClassVar[str] = "point caches need a fixed vertex count"
 

@@ -58,6 +58,7 @@ class NpzExporter(BaseExporter):
     """Streams positions and point data into spools; writes `positions.npz` at close."""
 
     name: ClassVar[str] = "npz"
+    summary: ClassVar[str] = "NumPy arrays of every frame"
     supports_topology_change: ClassVar[bool] = False
     topology_message: ClassVar[str] = "the npz positions array needs a fixed vertex count"
 

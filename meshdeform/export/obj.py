@@ -18,6 +18,7 @@ class ObjExporter(FrameSequenceExporter):
     """Per-frame OBJ files."""
 
     name: ClassVar[str] = "obj"
+    summary: ClassVar[str] = "an OBJ file per frame"
     suffix: ClassVar[str] = ".obj"
 
     def _make_writer(self, mesh: Mesh) -> Any:

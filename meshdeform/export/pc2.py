@@ -38,6 +38,7 @@ class Pc2Exporter(BaseExporter):
     """Streams frames into `cache.pc2`; frames must be consecutive (one sample per frame)."""
 
     name: ClassVar[str] = "pc2"
+    summary: ClassVar[str] = "PC2 point cache (Blender, Maya, 3ds Max)"
     supports_topology_change: ClassVar[bool] = False
     topology_message: ClassVar[str] = "point caches need a fixed vertex count"
 

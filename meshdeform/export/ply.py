@@ -16,6 +16,7 @@ class PlyExporter(FrameSequenceExporter):
     """Per-frame PLY files."""
 
     name: ClassVar[str] = "ply"
+    summary: ClassVar[str] = "a PLY file per frame"
     suffix: ClassVar[str] = ".ply"
 
     def _make_writer(self, mesh: Mesh) -> Any:

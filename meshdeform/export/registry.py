@@ -1,4 +1,11 @@
-"""The exporter registry: format name -> exporter class, and the streaming session over several."""
+"""The exporter registry: format name -> exporter class, and the streaming session over several.
+
+`EXPORTERS` is the one list of output formats: the recipe's `output.formats` accepts its names,
+`meshdeform simulate --help` lists them with each class's one-line `summary`, and a recipe that
+tears or cuts is refused the formats whose class has `supports_topology_change = False`. Adding a
+format is one exporter module (a `BaseExporter` subclass with `name`, `summary` and
+`supports_topology_change`) plus its class in the tuple below.
+"""
 
 from __future__ import annotations
 

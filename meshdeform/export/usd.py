@@ -63,6 +63,7 @@ class UsdExporter(BaseExporter):
     """Authors time samples as frames come and saves the stage at close."""
 
     name: ClassVar[str] = "usd"
+    summary: ClassVar[str] = "USD stage with time samples"
     supports_topology_change: ClassVar[bool] = True
 
     def __init__(self, *, ascii: bool = False, normals: bool = True, **options: Any) -> None:

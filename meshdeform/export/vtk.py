@@ -100,6 +100,7 @@ class VtkExporter(BaseExporter):
     """Writes one `.vtp` per frame as it comes and the `.pvd` collection at close."""
 
     name: ClassVar[str] = "vtk"
+    summary: ClassVar[str] = "a VTK file per frame and a ParaView collection"
     supports_topology_change: ClassVar[bool] = True
 
     def __init__(self, *, compress: bool = True, **options: Any) -> None:

@@ -74,6 +74,7 @@ class XdmfExporter(BaseExporter):
     """Builds the meshio time series frame by frame and writes `scene.xdmf` at close."""
 
     name: ClassVar[str] = "xdmf"
+    summary: ClassVar[str] = "XDMF time series (ParaView, VisIt)"
     supports_topology_change: ClassVar[bool] = False
     topology_message: ClassVar[str] = "the XDMF time series has one fixed mesh"
 

@@ -54,6 +54,8 @@ def register(app: typer.Typer) -> None:
 
         with cli_errors():
             loaded = load_recipe(recipe)
+            if loaded.deprecation is not None:
+                typer.echo(f"warning: {loaded.deprecation}", err=True)
             lines = [f"OK {recipe}: {_summary(loaded)}"]
             if mesh is None:
                 lines.append(estimate_run(loaded).summary())

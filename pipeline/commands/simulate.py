@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from typer._click import Context, HelpFormatter  # Typer's own Click
+from typer.core import TyperCommand
 
 from pipeline.commands.errors import cli_errors, fail
 
@@ -21,8 +23,36 @@ def parse_vector(text: str, option: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
+def registry_help() -> dict[str, str]:
+    """The help of the options that list a registry, by parameter name: the solvers
+    (`meshdeform.solvers.SOLVERS`) and the output formats with their one-line summaries
+    (`meshdeform.export.EXPORTERS`)."""
+    from meshdeform.export import EXPORTERS
+    from meshdeform.solvers import SOLVERS
+
+    formats = "; ".join(f"{name}: {cls.summary}" for name, cls in EXPORTERS.items())
+    fixed = ", ".join(name for name, cls in EXPORTERS.items() if not cls.supports_topology_change)
+    return {
+        "solver": f"Solver: {' | '.join(sorted(SOLVERS))} (default: the recipe's, see docs/recipes.md).",
+        "output_format": f"Output format, repeatable; replaces the recipe's output.formats: {formats}."
+        f" A recipe that tears or cuts cannot write {fixed} (they need a fixed vertex count).",
+    }
+
+
+class SimulateCommand(TyperCommand):
+    """`simulate`, whose registry-listing option help (`registry_help`) is filled in when the help is
+    shown: listing the solvers imports them (about a second), which other commands need not pay."""
+
+    def format_help(self, ctx: Context, formatter: HelpFormatter) -> None:
+        texts = registry_help()
+        for param in self.params:
+            if param.name in texts:
+                param.help = texts[param.name]
+        super().format_help(ctx, formatter)
+
+
 def register(app: typer.Typer) -> None:
-    @app.command()
+    @app.command(cls=SimulateCommand)
     def simulate(
         mesh: Path = typer.Argument(..., help="An OBJ or PLY file."),
         out: Path = typer.Option(
@@ -34,7 +64,7 @@ def register(app: typer.Typer) -> None:
             " folder of the mesh or the recipe (or one containing it) and an existing file are refused (exit 2).",
         ),
         recipe: Path | None = typer.Option(None, "--recipe", "-r", help="A recipe TOML; options below override it."),
-        solver: str | None = typer.Option(None, help="anchor | verlet | xpbd | springs | implicit."),
+        solver: str | None = typer.Option(None, help="Solver (listed by registry_help)."),
         frames: int | None = typer.Option(None, help="Number of frames to bake."),
         fps: float | None = typer.Option(None, help="Frames per second."),
         substeps: int | None = typer.Option(None, help="Solver steps per frame."),
@@ -45,7 +75,7 @@ def register(app: typer.Typer) -> None:
             [], "--pin", help="Hard pin: 'indices:0,5,9' or 'box:x0,y0,z0,x1,y1,z1' (box relative 0..1 to bounds)."
         ),
         output_format: list[str] = typer.Option(
-            [], "--format", "-f", help="Output format, repeatable: obj, ply, pc2, mdd, usd, vtk, xdmf, npz."
+            [], "--format", "-f", help="Output format, repeatable (listed by registry_help)."
         ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar, no summary."),
         overwrite: bool = typer.Option(
@@ -65,7 +95,10 @@ def register(app: typer.Typer) -> None:
         with cli_errors():
             # before anything is read or created (run_job checks again once the lock is held)
             check_output_folder(out, overwrite=overwrite, protect={"input": mesh, "recipe": recipe}, refuse_cwd=True)
-            loaded = load_recipe(recipe).for_asset(mesh.name)  # [[assets]] rules match the file name
+            base = load_recipe(recipe)
+            if base.deprecation is not None:
+                typer.echo(f"warning: {base.deprecation}", err=True)
+            loaded = base.for_asset(mesh.name)  # [[assets]] rules match the file name
             loaded = apply_overrides(
                 loaded,
                 solver=solver,

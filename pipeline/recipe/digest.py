@@ -1,0 +1,36 @@
+"""`recipe_hash`: the identity of a recipe for deciding whether a previous result is up to date."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+from pipeline.recipe.document import Recipe, resolve_path
+from pipeline.recipe.solver_options import all_options, flat_options
+
+
+def recipe_hash(recipe: Recipe) -> str:
+    """sha256 of the normalised recipe (defaults filled in, key order irrelevant) plus the contents
+    of files it references (mesh colliders), so a changed collider file changes the hash.
+
+    In the normal form the options of the solver in force are keys of `simulation`, one for every
+    option of any registered solver (None when not given), and the other solvers' tables are left
+    out, in [[assets]] rules too: the shape recipes had before `[simulation.<solver>]`, so a recipe
+    whose options moved into tables keeps its hash (and a batch its finished assets).
+    """
+    content = recipe.model_dump(mode="json", by_alias=True, exclude={"source"})
+    given = recipe.simulation.given_options()
+    content["simulation"].update({option: given.get(option) for option in all_options()})
+    for rule in content["assets"]:
+        if rule["simulation"] is not None:
+            solver = rule["simulation"].get("solver", recipe.simulation.solver)
+            rule["simulation"] = flat_options(rule["simulation"], solver)
+    digest = hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode("utf-8"))
+    for collider in recipe.colliders:
+        if collider.mesh is not None:
+            path = resolve_path(recipe, collider.mesh.path)
+            try:
+                digest.update(hashlib.sha256(path.read_bytes()).digest())
+            except OSError:
+                digest.update(b"missing:" + collider.mesh.path.encode("utf-8"))
+    return digest.hexdigest()
