@@ -32,6 +32,7 @@ from typing import Any, Protocol
 from meshdeform.errors import MeshdeformError, RecipeError
 from pipeline import __version__
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
+from pipeline.hashing import file_sha256
 from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
 
@@ -284,8 +285,6 @@ def read_report(out_dir: Path) -> dict[str, Any] | None:
 def up_to_date(report: dict[str, Any] | None, out_dir: Path, mesh: Path, recipe_sha: str) -> bool:
     """Is a previous result reusable: same tool version, merged-recipe hash and input hash, and every
     output it lists still there? (The input is hashed only when the cheaper checks pass.)"""
-    from pipeline.job import file_sha256
-
     if not report or report.get("version") != __version__ or report.get("recipe_sha256") != recipe_sha:
         return False
     outputs = report.get("outputs")
@@ -657,7 +656,6 @@ def _plan(
 ) -> list[AssetTask]:
     """Resolve each asset's recipe, record skips, recipe failures and asset folders that may not be
     written (holding files meshdeform did not write, unless `overwrite`), and return the tasks to run."""
-    from pipeline.job import file_sha256
     from pipeline.recipe import recipe_hash
 
     tasks: list[AssetTask] = []

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from pipeline.diagnostics import collecting_warnings, quiet_worker
+from pipeline.hashing import file_sha256
 from pipeline.interrupts import watch_parent, worker_job
 from pipeline.memory import MALLOC_ENVIRONMENT, tune_malloc
 
@@ -190,17 +191,11 @@ def remove_stale_stages(out_dir: Path) -> None:
 
 
 def _input_hash(path: str) -> str | None:
-    """sha256 of the input (as pipeline.job.file_sha256), or None when it cannot be read."""
-    import hashlib
-
-    digest = hashlib.sha256()
+    """sha256 of the input (`pipeline.hashing.file_sha256`), or None when it cannot be read."""
     try:
-        with open(path, "rb") as handle:
-            for chunk in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(chunk)
+        return file_sha256(path)
     except OSError:
         return None
-    return digest.hexdigest()
 
 
 def _default_job() -> JobFunction:
