@@ -35,7 +35,7 @@ from typing import Any, Protocol
 
 from pipeline.diagnostics import collecting_warnings, quiet_worker
 from pipeline.hashing import file_sha256
-from pipeline.interrupts import watch_parent, worker_job
+from pipeline.interrupts import noting_unwritten, watch_parent, worker_job
 from pipeline.memory import MALLOC_ENVIRONMENT, tune_malloc
 
 #: a job: (mesh path, recipe, output folder, on_frame=callback) -> an object with a `report` dict
@@ -224,7 +224,8 @@ def execute_task(task: AssetTask, emit: Callable[[Event], None] | None = None) -
 
     out_dir = Path(task.out_dir)
     try:
-        with collecting_warnings() as warned:
+        # (a job's error ends in its outcome: the folder it kept from being written is not noted for the CLI)
+        with collecting_warnings() as warned, noting_unwritten():
             remove_stale_stages(out_dir)
             job = task.job or _default_job()
             recipe = task.recipe.load() if hasattr(task.recipe, "load") else task.recipe
