@@ -664,12 +664,8 @@ def _plan(
         try:
             recipe, layers = resolve_recipe(base, asset)
         except Exception as exc:  # a bad sidecar or rule fails this asset only
-            error, kind = one_line(exc)
             entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, note=asset.note))
-            entry.update(status="failed", error=error, error_type=kind, seconds=0.0)
-            with contextlib.suppress(OSError):
-                entry["input_sha256"] = file_sha256(asset.path)
-            log.error("failed %s: %s", asset.key, error)
+            _fail_before_running(entry, asset, exc, log)
             continue
         entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, overrides=layers, note=asset.note))
         sha = recipe_hash(recipe)
@@ -689,11 +685,7 @@ def _plan(
         try:
             check_output_folder(out_dir, overwrite=overwrite)
         except OutputFolderError as exc:  # that folder holds someone's files: this asset fails alone
-            error, kind = one_line(exc)
-            entry.update(status="failed", error=error, error_type=kind, seconds=0.0)
-            with contextlib.suppress(OSError):
-                entry["input_sha256"] = file_sha256(asset.path)
-            log.error("failed %s: %s", asset.key, error)
+            _fail_before_running(entry, asset, exc, log)
             continue
         tasks.append(
             AssetTask(
@@ -706,3 +698,13 @@ def _plan(
             )
         )
     return tasks
+
+
+def _fail_before_running(entry: dict[str, Any], asset: Asset, exc: Exception, log: logging.Logger) -> None:
+    """Record in its manifest `entry` and the log that `asset` failed before it ran (`exc` in one
+    line), with its input's hash when the file can be read."""
+    error, kind = one_line(exc)
+    entry.update(status="failed", error=error, error_type=kind, seconds=0.0)
+    with contextlib.suppress(OSError):
+        entry["input_sha256"] = file_sha256(asset.path)
+    log.error("failed %s: %s", asset.key, error)

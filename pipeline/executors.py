@@ -272,6 +272,12 @@ def died_outcome(description: str) -> AssetOutcome:
     )
 
 
+def lost_outcome(exc: Exception) -> AssetOutcome:
+    """The outcome of an asset whose task could not be sent or whose result never came back (`exc`)."""
+    error, kind = one_line(exc)
+    return AssetOutcome(status="failed", seconds=0.0, error=error, error_type=kind)
+
+
 def _describe_exit(code: int | None) -> str:
     """`killed by SIGSEGV` / `exit code 3` / `unknown exit status` for a dead process."""
     if code is None:
@@ -441,8 +447,7 @@ class ProcessPoolJobExecutor:
                     broken = True
                     continue
                 except Exception as exc:  # the task could not be sent or its result not received
-                    error, kind = one_line(exc)
-                    outcome = AssetOutcome(status="failed", seconds=0.0, error=error, error_type=kind)
+                    outcome = lost_outcome(exc)
                 done.add(task.index)
                 reporter.finished(task, outcome)
         self._drain(running, done, started, reporter)
@@ -590,10 +595,7 @@ class DaskExecutor:
                     outcome = future.result()
                 except Exception as exc:  # KilledWorker, a worker lost, a result that cannot travel
                     error, kind = one_line(exc)
-                    if kind == "KilledWorker":
-                        outcome = died_outcome(f"Dask: {error}")
-                    else:
-                        outcome = AssetOutcome(status="failed", seconds=0.0, error=error, error_type=kind)
+                    outcome = died_outcome(f"Dask: {error}") if kind == "KilledWorker" else lost_outcome(exc)
                 inbox.put(("done", task.index, outcome))
 
         collector = threading.Thread(target=collect, name="meshdeform-dask-results", daemon=True)
