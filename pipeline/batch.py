@@ -33,6 +33,7 @@ from meshdeform.errors import MeshdeformError, RecipeError
 from meshdeform.io import MESH_SUFFIXES  # the suffixes a batch picks up (case-insensitive)
 from pipeline import __version__
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
+from pipeline.hashing import file_sha256
 from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
 
@@ -281,8 +282,6 @@ def read_report(out_dir: Path) -> dict[str, Any] | None:
 def up_to_date(report: dict[str, Any] | None, out_dir: Path, mesh: Path, recipe_sha: str) -> bool:
     """Is a previous result reusable: same tool version, merged-recipe hash and input hash, and every
     output it lists still there? (The input is hashed only when the cheaper checks pass.)"""
-    from pipeline.job import file_sha256
-
     if not report or report.get("version") != __version__ or report.get("recipe_sha256") != recipe_sha:
         return False
     outputs = report.get("outputs")
@@ -656,7 +655,6 @@ def _plan(
 ) -> list[AssetTask]:
     """Resolve each asset's recipe, record skips, recipe failures and asset folders that may not be
     written (holding files meshdeform did not write, unless `overwrite`), and return the tasks to run."""
-    from pipeline.job import file_sha256
     from pipeline.recipe import recipe_hash
 
     tasks: list[AssetTask] = []
@@ -665,12 +663,8 @@ def _plan(
         try:
             recipe, layers = resolve_recipe(base, asset)
         except Exception as exc:  # a bad sidecar or rule fails this asset only
-            error, kind = one_line(exc)
             entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, note=asset.note))
-            entry.update(status="failed", error=error, error_type=kind, seconds=0.0)
-            with contextlib.suppress(OSError):
-                entry["input_sha256"] = file_sha256(asset.path)
-            log.error("failed %s: %s", asset.key, error)
+            _fail_before_running(entry, asset, exc, log)
             continue
         entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, overrides=layers, note=asset.note))
         sha = recipe_hash(recipe)
@@ -690,11 +684,7 @@ def _plan(
         try:
             check_output_folder(out_dir, overwrite=overwrite)
         except OutputFolderError as exc:  # that folder holds someone's files: this asset fails alone
-            error, kind = one_line(exc)
-            entry.update(status="failed", error=error, error_type=kind, seconds=0.0)
-            with contextlib.suppress(OSError):
-                entry["input_sha256"] = file_sha256(asset.path)
-            log.error("failed %s: %s", asset.key, error)
+            _fail_before_running(entry, asset, exc, log)
             continue
         tasks.append(
             AssetTask(
@@ -707,3 +697,13 @@ def _plan(
             )
         )
     return tasks
+
+
+def _fail_before_running(entry: dict[str, Any], asset: Asset, exc: Exception, log: logging.Logger) -> None:
+    """Record in its manifest `entry` and the log that `asset` failed before it ran (`exc` in one
+    line), with its input's hash when the file can be read."""
+    error, kind = one_line(exc)
+    entry.update(status="failed", error=error, error_type=kind, seconds=0.0)
+    with contextlib.suppress(OSError):
+        entry["input_sha256"] = file_sha256(asset.path)
+    log.error("failed %s: %s", asset.key, error)

@@ -10,7 +10,15 @@ worker (`quiet_worker`):
   do-nothing root handler, so nothing reaches stderr by default; `--verbose` adds a stderr
   handler for them.
 - VTK's global warning display and its stderr log are turned off when VTK is first imported
-  (importing VTK takes a third of a second: it is not imported for this).
+  (`_SilenceVtkOnImport`, a `sys.meta_path` finder; removed when the block ends).
+
+Why an import hook, not a call where VTK is used: the tool reaches VTK only through the engine,
+which imports it lazily in several places (the vtk exporter, the preview renderer and its result
+readers, pyvista) and must neither import `pipeline` nor know whether `--verbose` asked for VTK's
+log. Silencing VTK here by importing it costs 0.3-0.4 s on every command and in every pool worker,
+most of which never touch VTK; and VTK (9.3 and later) reads no environment variable for its
+warning display or its stderr log. The finder is the one place that sees VTK arrive, whoever
+imports it. (Without it, a VTK writer failing on a full disk prints a dozen lines of its log.)
 
 A job's warnings are not lost: `collecting_warnings` gathers them (each distinct one once) so
 that the batch can write them into its log.
@@ -19,6 +27,7 @@ that the batch can write them into its log.
 from __future__ import annotations
 
 import contextlib
+import importlib
 import importlib.abc
 import importlib.machinery
 import logging
@@ -27,7 +36,7 @@ from collections.abc import Iterator
 from types import ModuleType
 from typing import Any
 
-#: the module whose import switches VTK's output off, and its package
+#: VTK's package, whose import the hook watches, and its core module, which holds the switches
 VTK_CORE = "vtkmodules.vtkCommonCore"
 VTK_PACKAGE = "vtkmodules"
 #: at most this many distinct warnings are kept for one job
@@ -43,45 +52,40 @@ def silence_vtk(core: Any) -> None:
 
 
 class _SilenceVtkOnImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """A meta-path finder that lets VTK's core module load as usual, then silences it.
-
-    The `vtkmodules` package puts its own finder first in `sys.meta_path` when it is imported;
-    this one then moves back in front of it, to see the core module's import.
-    """
+    """A meta-path finder that lets the `vtkmodules` package load as its own finder says, then loads
+    its core module (every VTK module needs it) and silences it, and leaves `sys.meta_path`."""
 
     def __init__(self) -> None:
-        self._loaders: dict[str, Any] = {}
+        self._loader: Any = None
 
     def find_spec(self, name: str, path: Any = None, target: Any = None) -> importlib.machinery.ModuleSpec | None:
-        if name not in (VTK_PACKAGE, VTK_CORE):
+        if name != VTK_PACKAGE:
             return None
         for finder in sys.meta_path:
             if finder is self or not hasattr(finder, "find_spec"):
                 continue
             spec = finder.find_spec(name, path, target)
             if spec is not None and spec.loader is not None:
-                self._loaders[name] = spec.loader
-                spec.loader = self
+                self._loader, spec.loader = spec.loader, self
                 return spec
         return None
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType | None:
-        return self._loaders[spec.name].create_module(spec)
+        return self._loader.create_module(spec)
 
     def exec_module(self, module: ModuleType) -> None:
-        self._loaders[module.__name__].exec_module(module)
-        if module.__name__ == VTK_CORE:
-            silence_vtk(module)
-        elif self in sys.meta_path:  # the package inserted its finder before this one
+        self._loader.exec_module(module)
+        if self in sys.meta_path:
             sys.meta_path.remove(self)
-            sys.meta_path.insert(0, self)
+        with contextlib.suppress(Exception):  # (a VTK that cannot load fails where it is used, as before)
+            silence_vtk(importlib.import_module(VTK_CORE))
 
 
 def _silence_vtk_when_imported() -> Any:
     """Silence VTK now if it is loaded, else when it is; returns what to remove from sys.meta_path."""
-    core = sys.modules.get(VTK_CORE)
-    if core is not None:
-        silence_vtk(core)
+    if VTK_PACKAGE in sys.modules:  # (its core module is, too, but for a bare `import vtkmodules`)
+        with contextlib.suppress(Exception):
+            silence_vtk(importlib.import_module(VTK_CORE))
         return None
     hook = _SilenceVtkOnImport()
     sys.meta_path.insert(0, hook)

@@ -34,7 +34,8 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from pipeline.diagnostics import collecting_warnings, quiet_worker
-from pipeline.interrupts import watch_parent, worker_job
+from pipeline.hashing import file_sha256
+from pipeline.interrupts import noting_unwritten, watch_parent, worker_job
 from pipeline.memory import MALLOC_ENVIRONMENT, tune_malloc
 
 #: a job: (mesh path, recipe, output folder, on_frame=callback) -> an object with a `report` dict
@@ -190,17 +191,11 @@ def remove_stale_stages(out_dir: Path) -> None:
 
 
 def _input_hash(path: str) -> str | None:
-    """sha256 of the input (as pipeline.job.file_sha256), or None when it cannot be read."""
-    import hashlib
-
-    digest = hashlib.sha256()
+    """sha256 of the input (`pipeline.hashing.file_sha256`), or None when it cannot be read."""
     try:
-        with open(path, "rb") as handle:
-            for chunk in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(chunk)
+        return file_sha256(path)
     except OSError:
         return None
-    return digest.hexdigest()
 
 
 def _default_job() -> JobFunction:
@@ -229,7 +224,8 @@ def execute_task(task: AssetTask, emit: Callable[[Event], None] | None = None) -
 
     out_dir = Path(task.out_dir)
     try:
-        with collecting_warnings() as warned:
+        # (a job's error ends in its outcome: the folder it kept from being written is not noted for the CLI)
+        with collecting_warnings() as warned, noting_unwritten():
             remove_stale_stages(out_dir)
             job = task.job or _default_job()
             recipe = task.recipe.load() if hasattr(task.recipe, "load") else task.recipe
@@ -274,6 +270,12 @@ def died_outcome(description: str) -> AssetOutcome:
         error=f"worker process died while running this asset ({description})",
         error_type=WORKER_DIED,
     )
+
+
+def lost_outcome(exc: Exception) -> AssetOutcome:
+    """The outcome of an asset whose task could not be sent or whose result never came back (`exc`)."""
+    error, kind = one_line(exc)
+    return AssetOutcome(status="failed", seconds=0.0, error=error, error_type=kind)
 
 
 def _describe_exit(code: int | None) -> str:
@@ -445,8 +447,7 @@ class ProcessPoolJobExecutor:
                     broken = True
                     continue
                 except Exception as exc:  # the task could not be sent or its result not received
-                    error, kind = one_line(exc)
-                    outcome = AssetOutcome(status="failed", seconds=0.0, error=error, error_type=kind)
+                    outcome = lost_outcome(exc)
                 done.add(task.index)
                 reporter.finished(task, outcome)
         self._drain(running, done, started, reporter)
@@ -594,10 +595,7 @@ class DaskExecutor:
                     outcome = future.result()
                 except Exception as exc:  # KilledWorker, a worker lost, a result that cannot travel
                     error, kind = one_line(exc)
-                    if kind == "KilledWorker":
-                        outcome = died_outcome(f"Dask: {error}")
-                    else:
-                        outcome = AssetOutcome(status="failed", seconds=0.0, error=error, error_type=kind)
+                    outcome = died_outcome(f"Dask: {error}") if kind == "KilledWorker" else lost_outcome(exc)
                 inbox.put(("done", task.index, outcome))
 
         collector = threading.Thread(target=collect, name="meshdeform-dask-results", daemon=True)

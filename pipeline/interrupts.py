@@ -17,6 +17,11 @@ putting a folder into place (`publishing` refuses and removes the staging folder
 SIGHUP kill a worker at once (the batch removes its staging folder), except inside `publishing`;
 SIGINT (Ctrl-C reaches the whole process group) stops the running job, which removes its staging
 folder, and then the worker.
+
+Which output folder an error or interrupt kept from being written (the CLI's line names it) is noted
+by the job's staging folder as it removes itself (`note_unwritten`) in a registry keyed by the
+exception, and read at the CLI edge (`unwritten_target`) inside the `noting_unwritten` block that
+`cli_errors` opens; nothing is set on the exception itself.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from contextvars import ContextVar
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -53,14 +59,11 @@ _PR_SET_PDEATHSIG = 1
 class Interrupted(KeyboardInterrupt):
     """A run was stopped by a signal. A KeyboardInterrupt, so every `except KeyboardInterrupt`
     cleanup (staging folders, the batch manifest, the worker pool) runs for `kill` as for Ctrl-C.
-
-    `unwritten`: the output folder that was not written because of it, when known.
     """
 
     def __init__(self, signum: int) -> None:
         super().__init__(int(signum))  # the args pickle: the exception can travel between processes
         self.signum = int(signum)
-        self.unwritten: Path | None = None
 
     def __str__(self) -> str:
         return f"interrupted by {self.name}"
@@ -215,11 +218,41 @@ def _catch_deadly_signals() -> dict[int, Any]:
     return caught
 
 
+# -- what an error kept from being written --------------------------------------------------------
+
+#: the output folders that errors and interrupts kept from being written, while a `noting_unwritten`
+#: block listens: id of the exception -> (the exception, the folder). Holding the exception keeps its
+#: id its own. Per thread (a ContextVar): jobs in threads of a Dask worker do not see each other's.
+_unwritten: ContextVar[dict[int, tuple[BaseException, Path]] | None] = ContextVar("unwritten", default=None)
+
+
+@contextlib.contextmanager
+def noting_unwritten() -> Iterator[None]:
+    """For the block, remember which output folder each error or interrupt raised in it kept from
+    being written (`note_unwritten`), for `unwritten_target`; forgotten when the block ends. An inner
+    block keeps its own notes: the CLI's line (`pipeline.commands.errors.cli_errors`) does not see
+    those of a job whose error ends in its batch outcome (`pipeline.executors.execute_task`)."""
+    token = _unwritten.set({})
+    try:
+        yield
+    finally:
+        _unwritten.reset(token)
+
+
 def note_unwritten(exc: BaseException, target: Path) -> None:
-    """Record on an error or interrupt that `target` was not written (the CLI's one line names it)."""
-    if getattr(exc, "unwritten", None) is None:
-        with contextlib.suppress(AttributeError, TypeError):  # (an exception type with __slots__)
-            exc.unwritten = Path(target)  # type: ignore[attr-defined]
+    """Record that `exc` kept `target` from being written (the job's staging folder, removing itself,
+    says so), when a `noting_unwritten` block listens. The first folder noted for an exception stays."""
+    noted = _unwritten.get()
+    if noted is not None:
+        noted.setdefault(id(exc), (exc, Path(target)))
+
+
+def unwritten_target(exc: BaseException) -> Path | None:
+    """The output folder `exc` kept from being written, as noted in the current `noting_unwritten`
+    block; None if none was."""
+    noted = _unwritten.get()
+    entry = noted.get(id(exc)) if noted is not None else None
+    return entry[1] if entry is not None and entry[0] is exc else None
 
 
 # -- pool workers ------------------------------------------------------------------------------------

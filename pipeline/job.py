@@ -13,7 +13,6 @@ meshdeform wrote), and a folder holding anything else is never replaced (`check_
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import re
@@ -32,6 +31,7 @@ from meshdeform.atomic import write_text_atomic
 from meshdeform.errors import MeshdeformError
 from meshdeform.mesh import Mesh
 from pipeline import __version__
+from pipeline.hashing import file_sha256
 from pipeline.interrupts import note_unwritten, publishing
 from pipeline.recipe import Recipe, recipe_hash
 
@@ -69,15 +69,6 @@ class JobResult:
     out_dir: Path
     report: dict[str, Any]
     outputs: list[Path]
-
-
-def file_sha256(path: Path) -> str:
-    """Hex sha256 of a file's bytes, read in chunks."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 # -- output folders ------------------------------------------------------------------------------

@@ -27,7 +27,8 @@ from pipeline.batch import (
     run_batch,
     select,
 )
-from pipeline.job import file_sha256, stage_path, staged_directory
+from pipeline.hashing import file_sha256
+from pipeline.job import stage_path, staged_directory
 from pipeline.manifest import MANIFEST_TIMING_KEYS, drop_keys
 from pipeline.recipe import recipe_hash
 

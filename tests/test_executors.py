@@ -112,6 +112,16 @@ def make_tasks(tmp_path: Path, names: list[str], job: Any = fake_job, frames: in
     return tasks
 
 
+def run_closing(executor: ProcessPoolJobExecutor, tasks: list[AssetTask]) -> Recorder:
+    """Run `tasks` with `executor`, closed afterwards (even when a test fails); what it reported."""
+    recorder = Recorder()
+    try:
+        executor.run(tasks, recorder)
+    finally:
+        executor.close()
+    return recorder
+
+
 def test_threads_per_job_never_below_one() -> None:
     assert threads_per_job(1, 8) == 8
     assert threads_per_job(3, 8) == 2
@@ -158,14 +168,10 @@ def test_serial_executor_reports_in_order(tmp_path: Path) -> None:
 
 def test_process_pool_reuses_workers_and_sizes_threads(tmp_path: Path) -> None:
     tasks = make_tasks(tmp_path, [f"m{i}.obj" for i in range(6)] + ["bug.obj", "broken.obj"])
-    recorder = Recorder()
     names = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
     before = {k: os.environ.get(k) for k in names}
     executor = ProcessPoolJobExecutor(jobs=2, preload=())
-    try:
-        executor.run(tasks, recorder)
-    finally:
-        executor.close()
+    recorder = run_closing(executor, tasks)
     assert executor.pools_created == 1
     statuses = {k: o.status for k, o in recorder.outcomes.items()}
     assert statuses == {**{f"m{i}.obj": "ok" for i in range(6)}, "bug.obj": "failed", "broken.obj": "failed"}
@@ -183,12 +189,7 @@ def test_pool_workers_return_the_warnings_of_a_job_for_the_log(tmp_path: Path) -
     """Library warnings raised in a worker come back once each with the outcome (for the batch
     log), not on the worker's stderr."""
     (task,) = make_tasks(tmp_path, ["w.obj"], job=warning_job)
-    recorder = Recorder()
-    executor = ProcessPoolJobExecutor(jobs=1, preload=())
-    try:
-        executor.run([task], recorder)
-    finally:
-        executor.close()
+    recorder = run_closing(ProcessPoolJobExecutor(jobs=1, preload=()), [task])
     warned = recorder.outcomes["w.obj"].warnings
     assert recorder.outcomes["w.obj"].status == "ok"
     assert len(warned) == 2
@@ -199,12 +200,7 @@ def test_pool_workers_return_the_warnings_of_a_job_for_the_log(tmp_path: Path) -
 def test_process_pool_survives_a_worker_that_dies(tmp_path: Path) -> None:
     names = ["a.obj", "b.obj", "crash.obj", "d.obj", "e.obj", "f.obj"]
     tasks = make_tasks(tmp_path, names)
-    recorder = Recorder()
-    executor = ProcessPoolJobExecutor(jobs=2, preload=())
-    try:
-        executor.run(tasks, recorder)
-    finally:
-        executor.close()
+    recorder = run_closing(ProcessPoolJobExecutor(jobs=2, preload=()), tasks)
     assert set(recorder.outcomes) == set(names)
     died = recorder.outcomes["crash.obj"]
     assert died.status == "failed" and died.error_type == WORKER_DIED and "SIGKILL" in died.error
@@ -217,12 +213,7 @@ def test_process_pool_survives_a_worker_that_dies(tmp_path: Path) -> None:
 def test_process_pool_blames_the_right_assets_when_two_die_together(tmp_path: Path) -> None:
     names = ["crash1.obj", "crash2.obj", "ok1.obj", "ok2.obj", "ok3.obj"]
     tasks = make_tasks(tmp_path, names, job=slow_job)
-    recorder = Recorder()
-    executor = ProcessPoolJobExecutor(jobs=2, preload=())
-    try:
-        executor.run(tasks, recorder)
-    finally:
-        executor.close()
+    recorder = run_closing(ProcessPoolJobExecutor(jobs=2, preload=()), tasks)
     assert {k: o.status for k, o in recorder.outcomes.items()} == {
         "crash1.obj": "failed",
         "crash2.obj": "failed",

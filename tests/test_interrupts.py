@@ -17,7 +17,14 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.interrupts import Interrupted, handling_signals, publishing
+from pipeline.interrupts import (
+    Interrupted,
+    handling_signals,
+    note_unwritten,
+    noting_unwritten,
+    publishing,
+    unwritten_target,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 SHEET = REPO / "samples" / "meshes" / "sheet.obj"
@@ -235,3 +242,17 @@ def test_interrupted_travels_between_processes() -> None:
 
     copy = pickle.loads(pickle.dumps(Interrupted(signal.SIGHUP)))
     assert isinstance(copy, KeyboardInterrupt) and copy.exit_code == 129
+
+
+def test_the_unwritten_folder_is_noted_only_where_someone_listens(tmp_path: Path) -> None:
+    error, other = OSError("disk full"), OSError("disk full")
+    note_unwritten(error, tmp_path / "ignored")  # no `noting_unwritten` block: nobody listens
+    with noting_unwritten():
+        assert unwritten_target(error) is None
+        note_unwritten(error, tmp_path / "out")
+        note_unwritten(error, tmp_path / "later")  # the first folder noted stays
+        with noting_unwritten():  # an inner block (a batch job) keeps its own notes
+            note_unwritten(other, tmp_path / "job")
+            assert unwritten_target(other) == tmp_path / "job" and unwritten_target(error) is None
+        assert unwritten_target(error) == tmp_path / "out" and unwritten_target(other) is None
+    assert unwritten_target(error) is None

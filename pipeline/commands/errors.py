@@ -6,12 +6,11 @@ import contextlib
 import errno
 import os
 from collections.abc import Iterator
-from pathlib import Path
 
 import typer
 
 from meshdeform.errors import MeshdeformError, SimulationDiverged
-from pipeline.interrupts import Interrupted, exit_code_of
+from pipeline.interrupts import Interrupted, exit_code_of, noting_unwritten, unwritten_target
 
 #: exit codes: 0 ok, 1 a run failed (simulation diverged, some assets failed), 2 bad input or usage,
 #: or the output cannot be written (no space left, quota, file too large); 128 + N stopped by signal N
@@ -26,13 +25,6 @@ def fail(message: str, code: int = EXIT_USAGE) -> typer.Exit:
     """Print `error: message` on stderr and return the Exit to raise."""
     typer.echo(f"error: {message}", err=True)
     return typer.Exit(code)
-
-
-def unwritten_target(exc: BaseException) -> Path | None:
-    """The output folder an error kept from being written, as the job's staging folder noted it on
-    the exception when removing itself (`pipeline.interrupts.note_unwritten`); None if not noted."""
-    noted = getattr(exc, "unwritten", None)
-    return Path(noted) if noted is not None else None
 
 
 def interrupted_message(exc: BaseException, consequence: str | None = None) -> str:
@@ -67,7 +59,7 @@ def no_room_message(exc: BaseException, code: int) -> str:
     reason in plain words."""
     reason = os.strerror(code)
     reason = reason[:1].lower() + reason[1:]
-    target = unwritten_target(exc) or getattr(exc, "filename", None)
+    target = unwritten_target(exc) or (exc.filename if isinstance(exc, OSError) else None)
     return f"{target}: {reason}" if target else reason
 
 
@@ -83,23 +75,24 @@ def cli_errors(on_interrupt: str | None = None) -> Iterator[None]:
 
     `on_interrupt`: what an interrupt leaves behind, for its line (default: nothing written to --out).
     """
-    try:
-        yield
-    except KeyboardInterrupt as exc:  # Interrupted (SIGINT, SIGTERM, SIGHUP) or a bare Ctrl-C
-        raise fail(interrupted_message(exc, on_interrupt), exit_code_of(exc)) from None
-    except SimulationDiverged as exc:
-        raise fail(str(exc), EXIT_FAILED) from None
-    except (MeshdeformError, OSError) as exc:
-        code = no_room(exc)
-        if code is not None:
-            raise fail(no_room_message(exc, code), EXIT_USAGE) from None
-        if isinstance(exc, MeshdeformError):
-            raise fail(str(exc), EXIT_USAGE) from None
-        raise fail(f"{exc.filename or ''}: {exc.strerror or exc}", EXIT_USAGE) from None
-    except (typer.Exit, typer.Abort, typer.TyperException):
-        raise
-    except Exception as exc:  # a library error that is not ours; a full disk is still the user's to fix
-        code = no_room(exc)
-        if code is None:
+    with noting_unwritten():  # the output folder an error kept from being written, for its line
+        try:
+            yield
+        except KeyboardInterrupt as exc:  # Interrupted (SIGINT, SIGTERM, SIGHUP) or a bare Ctrl-C
+            raise fail(interrupted_message(exc, on_interrupt), exit_code_of(exc)) from None
+        except SimulationDiverged as exc:
+            raise fail(str(exc), EXIT_FAILED) from None
+        except (MeshdeformError, OSError) as exc:
+            code = no_room(exc)
+            if code is not None:
+                raise fail(no_room_message(exc, code), EXIT_USAGE) from None
+            if isinstance(exc, MeshdeformError):
+                raise fail(str(exc), EXIT_USAGE) from None
+            raise fail(f"{exc.filename or ''}: {exc.strerror or exc}", EXIT_USAGE) from None
+        except (typer.Exit, typer.Abort, typer.TyperException):
             raise
-        raise fail(no_room_message(exc, code), EXIT_USAGE) from None
+        except Exception as exc:  # a library error that is not ours; a full disk is still the user's to fix
+            code = no_room(exc)
+            if code is None:
+                raise
+            raise fail(no_room_message(exc, code), EXIT_USAGE) from None
