@@ -8,6 +8,7 @@ The header's size depends on the frame count, so positions are streamed into an 
 temporary file and the cache is composed (header + times + blocks) at close.
 
 Point caches need a fixed vertex count: a frame with a changed topology (tearing) is refused.
+`read_mdd_result` reads it back on the input mesh (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 
 from meshdeform.atomic import atomic_open
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.export.results import ResultFrames, point_cache_frames, require_input_mesh
 from meshdeform.mesh import Mesh
 
 FILE_NAME = "cache.mdd"
@@ -76,3 +78,21 @@ def read_mdd(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if times.size != frames or data.size != frames * points * 3:
         raise MeshLoadError(f"{path}: size does not match the header ({frames} frames of {points} points)")
     return data.reshape(frames, points, 3).astype(np.float32), times.astype(np.float64)
+
+
+def mdd_fps(times: np.ndarray) -> float | None:
+    """The frame rate of an MDD's times (seconds, as read): None for fewer than two or non-increasing times."""
+    if times.size >= 2 and times[1] > times[0]:
+        return float(1.0 / (times[1] - times[0]))
+    return None
+
+
+def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
+    """The frames of a result folder's `cache.mdd` on the input mesh (`point_cache_frames`, fps from its
+    times), or None when there is none; MeshLoadError when there is one but no input mesh."""
+    path = root / FILE_NAME
+    if not path.is_file():
+        return None
+    mesh = require_input_mesh(root, input_mesh)
+    positions, times = read_mdd(path)
+    return point_cache_frames(path, positions, mesh, up_axis, fps=mdd_fps(times))

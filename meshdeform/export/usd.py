@@ -10,6 +10,7 @@ converted as for Blender's world). When the topology changes (tearing) the face 
 indices become time-sampled too, from that frame on.
 
 Samples are authored as the frames come; the layer lives in memory until it is saved at close.
+`read_usd_result` reads the frames back (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from meshdeform.atomic import atomic_path
-from meshdeform.errors import ExportError
+from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.export.results import ResultFrames, prefer_input, restore_up_axis
 from meshdeform.mesh import Mesh
 
 ROOT = "/Root"
@@ -200,3 +202,44 @@ class UsdExporter(BaseExporter):
         self._release()
         err = RuntimeError("export aborted")
         self._atomic.__exit__(type(err), err, None)
+
+
+def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
+    """A stage's first `UsdGeom.Mesh`: (mesh at its default topology and first sample, positions (F, V, 3)
+    in the input's Y-up coordinates, frame numbers from 1, time codes per second). MeshLoadError when it
+    cannot be opened, has no mesh or its vertex count changes over time."""
+    start_usd()
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    if stage is None:
+        raise MeshLoadError(f"{path}: cannot open the USD stage")
+    prim = next((p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)), None)
+    if prim is None:
+        raise MeshLoadError(f"{path}: no UsdGeom.Mesh in the stage")
+    geom = UsdGeom.Mesh(prim)
+    counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
+    indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
+    points_attr = geom.GetPointsAttr()
+    codes = points_attr.GetTimeSamples() or [Usd.TimeCode.Default()]
+    z_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    positions = []
+    for code in codes:
+        p = np.asarray(points_attr.Get(code), dtype=np.float64)
+        positions.append(restore_up_axis(p, "z" if z_up else "y"))
+    if len({p.shape for p in positions}) != 1:
+        raise MeshLoadError(f"{path}: the topology changes over time; preview the frames/ files instead")
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    start = stage.GetStartTimeCode() if stage.HasAuthoredTimeCodeRange() else (codes[0] if codes else 1)
+    numbers = [round(float(c) - float(start)) + 1 for c in codes] if points_attr.GetTimeSamples() else [1]
+    mesh = Mesh(positions=positions[0], face_indices=indices, face_offsets=offsets, source=path)
+    return mesh, np.stack(positions), numbers, float(stage.GetTimeCodesPerSecond() or 24.0)
+
+
+def read_usd_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
+    """The frames of a result folder's `scene.usdc` (or `.usda`, `.usd`), or None when there is none."""
+    usd = next((root / n for n in ("scene.usdc", "scene.usda", "scene.usd") if (root / n).is_file()), None)
+    if usd is None:
+        return None
+    base, stacked, numbers, fps = read_usd_frames(usd)
+    return ResultFrames(prefer_input(base, input_mesh), list(stacked), numbers, usd.name, fps=fps)
