@@ -518,7 +518,7 @@ def run_job(
     meshdeform did not write unless `overwrite`); nothing is left in `out_dir` when it does. Two runs
     on one folder at once are the caller's to prevent (`output_lock`, as `meshdeform simulate` does).
     """
-    from meshdeform.export import ExportContext, FrameData, make_exporter
+    from meshdeform.export import ExportContext, ExportSession, FrameData
     from meshdeform.io import load
     from meshdeform.simulate import simulate
     from meshdeform.strain import VertexStrain
@@ -534,7 +534,7 @@ def run_job(
     model, settings = built.model, built.settings
     require_disk_space(estimate_run(recipe, mesh, model).total_bytes, Path(out_dir))  # before any frame is run
     formats = list(dict.fromkeys(recipe.output.formats or ["obj"]))
-    exporters = [make_exporter(name) for name in formats]
+    session = ExportSession(formats)  # made now: opened on the staging folder once it exists
     strain = VertexStrain(model)
     setup_seconds = time.perf_counter() - started
 
@@ -558,11 +558,7 @@ def run_job(
             up_axis=recipe.output.up_axis,
             frame_count=settings.frames,
         )
-        opened = []
-        try:
-            for exporter in exporters:
-                exporter.open(context)
-                opened.append(exporter)
+        with session.open(context):  # an exception in the block aborts every exporter
             tick = time.perf_counter()
             for frame in simulate(model, built.scene, settings):
                 sim_seconds += time.perf_counter() - tick
@@ -587,22 +583,15 @@ def run_job(
                     mesh=frame.mesh,
                     point_data=_point_data(frame_model, strain, frame),
                 )
-                for exporter in opened:
-                    exporter.write(data)
+                session.write(data)
                 export_seconds += time.perf_counter() - tick
                 if on_frame is not None:
                     on_frame(frame.index, settings.frames)
                 tick = time.perf_counter()
             tick = time.perf_counter()
-            outputs: list[Path] = []
-            for exporter in opened:
-                outputs += exporter.close()
+            session.close()
             export_seconds += time.perf_counter() - tick
-        except BaseException:
-            for exporter in opened:
-                with contextlib.suppress(Exception):
-                    exporter.abort()
-            raise
+        outputs: list[Path] = session.files
         preview_seconds = 0.0
         if recipe.output.preview:
             tick = time.perf_counter()

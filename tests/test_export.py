@@ -399,6 +399,45 @@ def test_an_exception_mid_run_aborts_every_exporter(mesh: Mesh, tmp_path: Path) 
     assert visible_files(tmp_path) == []
 
 
+def test_a_session_made_before_its_folder_opens_on_it_and_closes_inside_its_block(mesh: Mesh, tmp_path: Path) -> None:
+    """As run_job uses it: formats checked first, opened on a staging folder made later, closed inside the
+    block (timed, files used); an exception after that still removes the finished files."""
+    with pytest.raises(ExportError, match="unknown export format"):
+        ExportSession(["obj", "blend"])
+    session = ExportSession(["obj", "pc2"])
+    with pytest.raises(ExportError, match="no export context"):
+        session.open()
+    out = tmp_path / "stage"
+    with session.open(ExportContext(mesh=mesh, out_dir=out, fps=FPS, frame_count=2)):
+        for frame in frames_of(mesh, 2):
+            session.write(frame)
+        session.close()
+        assert sorted(p.relative_to(out).as_posix() for p in session.files) == [
+            "cache.pc2",
+            "frames/frame_0001.obj",
+            "frames/frame_0002.obj",
+        ]
+    assert all(p.is_file() for p in session.files)  # the block ended normally: kept, not closed twice
+    again = ExportSession(["obj", "pc2"])
+    with pytest.raises(KeyboardInterrupt), again.open(ExportContext(mesh=mesh, out_dir=tmp_path / "b", fps=FPS)):
+        again.write(frames_of(mesh, 1)[0])
+        again.close()
+        raise KeyboardInterrupt
+    assert visible_files(tmp_path / "b") == [] and again.files == []
+
+
+def test_abort_reaches_every_exporter_when_one_fails(mesh: Mesh, tmp_path: Path, monkeypatch) -> None:
+    session = ExportSession(["obj", "pc2"], ExportContext(mesh=mesh, out_dir=tmp_path, fps=FPS)).open()
+    session.write(frames_of(mesh, 1)[0])
+
+    def broken() -> None:
+        raise RuntimeError("abort failed")
+
+    monkeypatch.setattr(session.exporters["obj"], "abort", broken)
+    session.abort()
+    assert [p.name for p in tmp_path.iterdir()] == ["frames"]  # pc2 aborted all the same: no cache, no temporary
+
+
 @pytest.mark.parametrize("name", ALL)
 def test_close_without_frames_is_an_error(mesh: Mesh, tmp_path: Path, name: str) -> None:
     exporter = make_exporter(name)
