@@ -24,7 +24,7 @@ import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,6 +34,9 @@ from meshdeform.mesh import Mesh
 from pipeline import __version__
 from pipeline.interrupts import note_unwritten, publishing
 from pipeline.recipe import Recipe, recipe_hash
+
+if TYPE_CHECKING:
+    from meshdeform.preview.live import RunPreview
 
 #: report keys that hold wall-clock timings (the only ones allowed to differ between identical runs)
 TIMING_KEYS = ("seconds", "setup_seconds", "export_seconds", "preview_seconds", "total_seconds", "frames_per_second")
@@ -520,6 +523,7 @@ def run_job(
     """
     from meshdeform.export import ExportContext, ExportSession, FrameData
     from meshdeform.io import load
+    from meshdeform.preview.live import RunPreview
     from meshdeform.simulate import simulate
     from meshdeform.strain import VertexStrain
     from pipeline.build import build_simulation
@@ -549,6 +553,7 @@ def run_job(
     strain_model = model
     sim_seconds = 0.0
     export_seconds = 0.0
+    preview_seconds = 0.0
     with staged_directory(out_dir, overwrite=overwrite) as stage:
         context = ExportContext(
             mesh=mesh,
@@ -558,6 +563,7 @@ def run_job(
             up_axis=recipe.output.up_axis,
             frame_count=settings.frames,
         )
+        preview = RunPreview(recipe.output.preview, context, formats, model) if recipe.output.preview else None
         with session.open(context):  # an exception in the block aborts every exporter
             tick = time.perf_counter()
             for frame in simulate(model, built.scene, settings):
@@ -585,6 +591,10 @@ def run_job(
                 )
                 session.write(data)
                 export_seconds += time.perf_counter() - tick
+                if preview is not None:  # measured now, rendered once the files are complete
+                    tick = time.perf_counter()
+                    preview.add(data)
+                    preview_seconds += time.perf_counter() - tick
                 if on_frame is not None:
                     on_frame(frame.index, settings.frames)
                 tick = time.perf_counter()
@@ -592,11 +602,10 @@ def run_job(
             session.close()
             export_seconds += time.perf_counter() - tick
         outputs: list[Path] = session.files
-        preview_seconds = 0.0
-        if recipe.output.preview:
+        if preview is not None:
             tick = time.perf_counter()
-            outputs += render_job_previews(mesh, model, stage, recipe)
-            preview_seconds = time.perf_counter() - tick
+            outputs += render_job_previews(preview, stage)
+            preview_seconds += time.perf_counter() - tick
         relative = sorted({str(Path(p).resolve().relative_to(stage.resolve())) for p in outputs})
         report = {
             "tool": "meshdeform",
@@ -647,12 +656,11 @@ def run_job(
     return JobResult(out_dir=Path(out_dir), report=report, outputs=[Path(out_dir) / r for r in report["outputs"]])
 
 
-def render_job_previews(mesh: Mesh, model: Any, stage: Path, recipe: Recipe) -> list[Path]:
-    """Render the recipe's previews from the frames just written into the staging folder."""
-    from meshdeform.preview import render_result_previews
-
+def render_job_previews(preview: RunPreview, stage: Path) -> list[Path]:
+    """Render the recipe's previews into the staging folder from the frames the run measured and kept
+    (the same files as rendering the folder's frames read back: `meshdeform.preview.live`)."""
     try:
-        return list(render_result_previews(stage, recipe.output.preview, mesh=mesh, model=model))
+        return list(preview.render(stage).files)
     except MeshdeformError:
         raise
     except Exception as exc:  # a rendering backend failure is an export error, not a crash

@@ -22,10 +22,15 @@ import numpy as np
 
 from meshdeform.atomic import atomic_open
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
-from meshdeform.export.results import ResultFrames, point_cache_frames, require_input_mesh
+from meshdeform.export.results import PointCacheReadBack, ResultFrames, point_cache_frames, require_input_mesh
 from meshdeform.mesh import Mesh
 
 FILE_NAME = "cache.mdd"
+
+
+def mdd_time(ctx: ExportContext, index: int) -> float:
+    """The scene time in seconds of frame `index` (from 1) in the MDD times: `(start_frame + index - 1) / fps`."""
+    return (ctx.start_frame + index - 1) / ctx.fps
 
 
 class MddExporter(BaseExporter):
@@ -42,7 +47,7 @@ class MddExporter(BaseExporter):
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
         data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=">f4")
         self._spool.write(data.tobytes())
-        self._times.append((ctx.start_frame + frame.index - 1) / ctx.fps)
+        self._times.append(mdd_time(ctx, frame.index))
 
     def _close(self, ctx: ExportContext) -> list[Path]:
         target = ctx.out_dir / FILE_NAME
@@ -96,3 +101,18 @@ def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) ->
     mesh = require_input_mesh(root, input_mesh)
     positions, times = read_mdd(path)
     return point_cache_frames(path, positions, mesh, up_axis, fps=mdd_fps(times))
+
+
+class MddReadBack(PointCacheReadBack):
+    """`read_mdd_result` for a run's frames in memory: the fps from the first two frames' float32 times."""
+
+    source = FILE_NAME
+
+    def __init__(self, ctx: ExportContext) -> None:
+        super().__init__(ctx)
+        self._times: list[float] = []
+
+    def add(self, frame: FrameData, mesh: Mesh) -> None:
+        if len(self._times) < 2:
+            self._times.append(mdd_time(self.ctx, frame.index))
+            self.fps = mdd_fps(np.asarray(self._times, dtype=">f4").astype(np.float64))

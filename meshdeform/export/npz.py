@@ -25,7 +25,7 @@ import numpy as np
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData
-from meshdeform.export.results import ResultFrames, prefer_input
+from meshdeform.export.results import ReadBack, ResultFrames, prefer_input
 from meshdeform.mesh import Mesh
 
 FILE_NAME = "positions.npz"
@@ -145,3 +145,29 @@ def read_npz_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
         if "point_strain" in data:
             found.strain = list(np.asarray(data["point_strain"], dtype=np.float64))
     return found
+
+
+def _as_spooled(value: np.ndarray) -> np.ndarray:
+    """A point-data array as `positions.npz` holds it (floats as float32, bools as uint8)."""
+    value = np.asarray(value)
+    return value.astype(_spool_dtype(value))
+
+
+class NpzReadBack(ReadBack):
+    """`read_npz_result` for a run's frames in memory: float32 positions and point data, the run's fps,
+    the first frame's pinned flags; the npz's own rest mesh has the input's vertex count, so the input
+    is the base."""
+
+    source = FILE_NAME
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        self.base = self.ctx.mesh
+        self.fps = float(self.ctx.fps)  # the npz's `fps`
+        if "pinned" in frame.point_data:
+            self.pinned = _as_spooled(frame.point_data["pinned"]).astype(bool)
+        return self.base
+
+    def strain(self, frame: FrameData) -> np.ndarray | None:
+        if "strain" not in frame.point_data:
+            return None
+        return np.asarray(_as_spooled(frame.point_data["strain"]), dtype=np.float64)

@@ -23,7 +23,7 @@ import numpy as np
 
 from meshdeform.errors import ExportError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, StreamedFile, convert_up_axis
-from meshdeform.export.results import ResultFrames, point_cache_frames, require_input_mesh
+from meshdeform.export.results import PointCacheReadBack, ResultFrames, point_cache_frames, require_input_mesh
 from meshdeform.mesh import Mesh
 
 PC2_MAGIC = b"POINTCACHE2\0"
@@ -95,3 +95,9 @@ def read_pc2_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) ->
     mesh = require_input_mesh(root, input_mesh)
     positions, _, _ = read_pc2(path)
     return point_cache_frames(path, positions, mesh, up_axis, fps=None)
+
+
+class Pc2ReadBack(PointCacheReadBack):
+    """`read_pc2_result` for a run's frames in memory (no fps: PC2 has a sample rate, not one)."""
+
+    source = FILE_NAME

@@ -4,7 +4,8 @@ Each format module that can be read back has its reader beside its writer (`sequ
 for `frames/*.obj|ply`, `npz.read_npz_result`, `usd.read_usd_result`, `vtk.read_vtk_result`,
 `pc2.read_pc2_result`, `mdd.read_mdd_result`): given the folder and the input mesh (or None), it
 returns the frames it found as `ResultFrames`, or None when the folder holds none of its files.
-Which reader wins for a folder is `meshdeform.preview.results`'s choice.
+Which reader wins for a folder is `meshdeform.preview.results`'s choice. Beside each reader, a
+`ReadBack` gives what it would read for a run's frames still in memory (previews of a run).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from meshdeform.errors import MeshLoadError
+from meshdeform.export.base import ExportContext, FrameData, convert_up_axis
 from meshdeform.mesh import Mesh
 
 #: a frame read back: positions (V, 3) in the base mesh's layout, or a Mesh when its topology differs
@@ -101,3 +103,64 @@ def require_input_mesh(root: Path, input_mesh: Mesh | None) -> Mesh:
             f"{root}: point caches hold no topology, and the input mesh (report.json 'input') is missing"
         )
     return input_mesh
+
+
+class ReadBack:
+    """What a format's reader returns for a run's frames, computed from the frames the run writes instead
+    of from its files: a run previews its own result without reading it back.
+
+    Fed the frames in order (`keep` each one's positions, `add` the frame, `start` on the first), it gives
+    exactly what the format's reader gives for the folder the run writes (before its report.json exists):
+    the positions at the precision the files hold them, the same base mesh, frame items, fps and per-frame
+    data, and the same errors (`check`). Subclasses sit beside their reader.
+    """
+
+    #: `ResultFrames.source` of the reader
+    source: str = ""
+
+    def __init__(self, ctx: ExportContext) -> None:
+        self.ctx = ctx
+        self.base: Mesh | None = None
+        #: the fps the files carry (None: the reader finds none)
+        self.fps: float | None = None
+        #: the pinned mask the files carry (the reader's `ResultFrames.pinned`)
+        self.pinned: np.ndarray | None = None
+
+    def keep(self, positions: np.ndarray) -> np.ndarray:
+        """A frame's (V, 3) positions as the files hold them, compact enough to keep in memory."""
+        return np.array(positions, dtype=np.float32)
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        """Set and return the base mesh from the first frame (`mesh`: its mesh in force)."""
+        self.base = prefer_input(mesh, self.ctx.mesh)
+        return self.base
+
+    def add(self, frame: FrameData, mesh: Mesh) -> None:
+        """Take note of a frame (after `start` for the first one)."""
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        """A frame as the reader returns it: float64 positions in the base's layout, or a new Mesh."""
+        return kept.astype(np.float64)
+
+    def strain(self, frame: FrameData) -> np.ndarray | None:
+        """The frame's strain as the reader returns it (`ResultFrames.strain`), None when it has none."""
+        return None
+
+    def check(self) -> None:
+        """Raise what reading the files back would raise (MeshLoadError), if anything."""
+
+
+class PointCacheReadBack(ReadBack):
+    """A point cache read back (`point_cache_frames`): float32 in the written convention, the convention
+    detected from the first frame as the reader does (the report naming it does not exist yet)."""
+
+    def keep(self, positions: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(convert_up_axis(positions, self.ctx.up_axis), dtype=np.float32)
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        self.base = self.ctx.mesh
+        self.up_axis = detect_up_axis(kept, self.base.positions)
+        return self.base
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        return restore_up_axis(kept.astype(np.float64), self.up_axis)

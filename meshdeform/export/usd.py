@@ -25,7 +25,7 @@ import numpy as np
 from meshdeform.atomic import atomic_path
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
-from meshdeform.export.results import ResultFrames, prefer_input, restore_up_axis
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, prefer_input, restore_up_axis
 from meshdeform.mesh import Mesh
 
 ROOT = "/Root"
@@ -243,3 +243,44 @@ def read_usd_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
         return None
     base, stacked, numbers, fps = read_usd_frames(usd)
     return ResultFrames(prefer_input(base, input_mesh), list(stacked), numbers, usd.name, fps=fps)
+
+
+class UsdReadBack(ReadBack):
+    """`read_usd_result` for a run's frames in memory: float32 points in the stage's up axis and back, the
+    first frame's topology, the run's fps, and the errors reading the stage gives (no polygons, so no
+    `UsdGeom.Mesh`; a vertex count that changes over time)."""
+
+    source = "scene.usdc"
+
+    def __init__(self, ctx: ExportContext) -> None:
+        super().__init__(ctx)
+        self._path = ctx.out_dir / self.source
+        self._error: MeshLoadError | None = None
+
+    def keep(self, positions: np.ndarray) -> np.ndarray:
+        points = convert_up_axis(np.asarray(positions, dtype=np.float64), self.ctx.up_axis)
+        return np.ascontiguousarray(points, dtype=np.float32)
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        return restore_up_axis(kept.astype(np.float64), self.ctx.up_axis)
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        self.fps = float(self.ctx.fps)  # the stage's timeCodesPerSecond
+        self._vertex_count = mesh.vertex_count
+        if self.ctx.mesh.face_count == 0:
+            self._error = MeshLoadError(f"{self._path}: no UsdGeom.Mesh in the stage")
+        offsets = np.concatenate([[0], np.cumsum(np.asarray(mesh.face_sizes, dtype=np.int64))])
+        face_indices = np.asarray(mesh.face_indices, dtype=np.int64)
+        stage_mesh = Mesh(positions=self.item(mesh, kept), face_indices=face_indices, face_offsets=offsets)
+        self.base = prefer_input(stage_mesh, self.ctx.mesh)
+        return self.base
+
+    def add(self, frame: FrameData, mesh: Mesh) -> None:
+        if self._error is None and mesh.vertex_count != self._vertex_count:
+            self._error = MeshLoadError(
+                f"{self._path}: the topology changes over time; preview the frames/ files instead"
+            )
+
+    def check(self) -> None:
+        if self._error is not None:
+            raise self._error

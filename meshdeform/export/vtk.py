@@ -20,7 +20,7 @@ import numpy as np
 from meshdeform.atomic import atomic_path, write_text_atomic
 from meshdeform.errors import MeshLoadError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, frame_file_name
-from meshdeform.export.results import FrameItem, ResultFrames, numbered_files
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, numbered_files
 from meshdeform.mesh import Mesh
 
 FOLDER = "vtk"
@@ -229,4 +229,46 @@ def vtp_pinned(root: Path, n: int) -> np.ndarray | None:
     if array is None:
         return None
     mask = vtk_to_numpy(array).astype(bool)
+    return mask if mask.shape == (n,) else None
+
+
+class VtkReadBack(ReadBack):
+    """`read_vtk_result` for a run's frames in memory: float32 points; a frame whose polygons are not the
+    base's is a Mesh as its `.vtp` holds it, new on every access as a read file is."""
+
+    source = f"{FOLDER}/*.vtp"
+
+    def __init__(self, ctx: ExportContext) -> None:
+        super().__init__(ctx)
+        self._same: tuple[Mesh | None, bool] = (None, False)
+
+    def _as_read(self, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        """The frame's `.vtp` read (`read_vtp`)."""
+        return Mesh(
+            positions=kept.astype(np.float64),
+            face_indices=np.asarray(mesh.face_indices, dtype=np.int64),
+            face_offsets=np.asarray(mesh.face_offsets, dtype=np.int64),
+            line_indices=np.asarray(mesh.line_indices, dtype=np.int64),
+            line_offsets=np.asarray(mesh.line_offsets, dtype=np.int64),
+        )
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        same = np.array_equal(self.ctx.mesh.face_indices, mesh.face_indices)
+        self.base = self.ctx.mesh if same else self._as_read(mesh, kept)
+        return self.base
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        base = self.base
+        assert base is not None
+        if self._same[0] is not mesh:  # as VtpFrames compares a read frame with the base
+            same = mesh.vertex_count == base.vertex_count and np.array_equal(mesh.face_indices, base.face_indices)
+            self._same = (mesh, same)
+        return kept.astype(np.float64) if self._same[1] else self._as_read(mesh, kept)
+
+
+def first_frame_pinned(frame: FrameData, n: int) -> np.ndarray | None:
+    """`vtp_pinned` for a run's first frame in memory: its `pinned` point data as an (n,) mask, or None."""
+    if "pinned" not in frame.point_data:
+        return None
+    mask = np.asarray(frame.point_data["pinned"]).astype(bool)
     return mask if mask.shape == (n,) else None

@@ -115,12 +115,15 @@ class PreviewOptions:
                 values[key] = tuple(values[key])
         return cls(**values)
 
+    def is_png_frame(self, number: int) -> bool:
+        """Is frame `number` saved as PNG (and put on the contact sheet)?"""
+        if self.frames is not None:
+            return number in self.frames
+        return (number - 1) % self.every == 0
+
     def png_frames(self, numbers: Sequence[int]) -> list[int]:
         """Which of the available frame numbers are saved as PNG (and go on the contact sheet)."""
-        if self.frames is not None:
-            wanted = set(self.frames)
-            return [n for n in numbers if n in wanted]
-        return [n for n in numbers if (n - 1) % self.every == 0]
+        return [n for n in numbers if self.is_png_frame(n)]
 
 
 @dataclass

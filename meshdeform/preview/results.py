@@ -16,17 +16,52 @@ from typing import Any
 import numpy as np
 
 from meshdeform.errors import MeshLoadError
-from meshdeform.export.mdd import read_mdd_result
-from meshdeform.export.npz import read_npz_result
-from meshdeform.export.pc2 import read_pc2_result
-from meshdeform.export.results import FrameItem
-from meshdeform.export.sequence import read_frame_files
-from meshdeform.export.usd import read_usd_result
-from meshdeform.export.vtk import read_vtk_result, vtp_pinned
+from meshdeform.export.base import ExportContext
+from meshdeform.export.mdd import MddReadBack, read_mdd_result
+from meshdeform.export.npz import NpzReadBack, read_npz_result
+from meshdeform.export.pc2 import Pc2ReadBack, read_pc2_result
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames
+from meshdeform.export.sequence import FrameFilesReadBack, read_frame_files
+from meshdeform.export.usd import UsdReadBack, read_usd_result
+from meshdeform.export.vtk import VtkReadBack, read_vtk_result, vtp_pinned
 from meshdeform.mesh import Mesh
 from meshdeform.preview.options import PreviewOptions, PreviewResult
 from meshdeform.preview.render import as_pinned_mask
 from meshdeform.preview.sequence import render_previews
+
+
+@dataclass(frozen=True)
+class Source:
+    """A kind of files a preview reads frames from: the formats that write them, the reader of a folder
+    (folder, input mesh or None, point-cache up axis or None) and the `ReadBack` of a run's frames in
+    memory (export context, the run's formats)."""
+
+    formats: tuple[str, ...]
+    read: Callable[[Path, Mesh | None, str | None], ResultFrames | None]
+    read_back: Callable[[ExportContext, Sequence[str]], ReadBack]
+
+
+#: what a preview reads, in the order a result folder is searched: the first whose files are there wins
+#: (frames: the suffix of the lowest-numbered file, `.obj` when a run wrote both)
+SOURCES: tuple[Source, ...] = (
+    Source(
+        ("obj", "ply"),
+        lambda root, mesh, up: read_frame_files(root, mesh),
+        lambda ctx, formats: FrameFilesReadBack(ctx, ".obj" if "obj" in formats else ".ply"),
+    ),
+    Source(("npz",), lambda root, mesh, up: read_npz_result(root, mesh), lambda ctx, _: NpzReadBack(ctx)),
+    Source(("usd",), lambda root, mesh, up: read_usd_result(root, mesh), lambda ctx, _: UsdReadBack(ctx)),
+    Source(("vtk",), lambda root, mesh, up: read_vtk_result(root, mesh), lambda ctx, _: VtkReadBack(ctx)),
+    Source(("pc2",), read_pc2_result, lambda ctx, _: Pc2ReadBack(ctx)),
+    Source(("mdd",), read_mdd_result, lambda ctx, _: MddReadBack(ctx)),
+)
+
+
+def read_back_for(formats: Sequence[str], ctx: ExportContext) -> ReadBack | None:
+    """The `ReadBack` of what `open_result` reads from a folder a run writes in `formats` (on `ctx`), or
+    None when it reads none of them (xdmf alone)."""
+    source = next((s for s in SOURCES if set(s.formats) & set(formats)), None)
+    return None if source is None else source.read_back(ctx, formats)
 
 
 @dataclass
@@ -105,14 +140,8 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
                 input_mesh = load(candidate)
     if up_axis is None and report.get("up_axis") in ("y", "z"):
         up_axis = str(report["up_axis"])
-    found = (  # the first reader that finds its files wins (the order of the docstring)
-        read_frame_files(root, input_mesh)
-        or read_npz_result(root, input_mesh)
-        or read_usd_result(root, input_mesh)
-        or read_vtk_result(root, input_mesh)
-        or read_pc2_result(root, input_mesh, up_axis)
-        or read_mdd_result(root, input_mesh, up_axis)
-    )
+    # the first reader that finds its files wins
+    found = next((f for f in (source.read(root, input_mesh, up_axis) for source in SOURCES) if f is not None), None)
     if found is None:
         raise no_frames_found(root)
     base = found.base
@@ -159,7 +188,7 @@ def render_result(
             with contextlib.suppress(AttributeError):
                 pinned = np.asarray(model.pinned)[vertex_map]
             if strain is None:
-                strain = _welded_strain(model, vertex_map)
+                strain = welded_strain(model, vertex_map)
     result = render_previews(
         seq.mesh,
         seq.frames,
@@ -188,7 +217,7 @@ def render_result_previews(
     return result.files
 
 
-def _welded_strain(model: Any, vertex_map: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+def welded_strain(model: Any, vertex_map: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """Input-layout strain from the model's structural springs (positions gathered to welded)."""
     from meshdeform.strain import VertexStrain
 

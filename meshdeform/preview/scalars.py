@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -55,14 +55,16 @@ class EdgeStrain(SegmentStretch):
 
 
 class FrameScalars:
-    """The colouring values of a frame, for the current topology."""
+    """The colouring values of a frame, for the current topology: None (flat), the displacement from rest,
+    or the strain: the frame's own (`strain_frames[k]`, when it fits), the model's (`strain_fn`, on the
+    rest vertex count) or the mesh edges' (`EdgeStrain`)."""
 
     def __init__(
         self,
         color: str,
         rest: np.ndarray,
         strain_fn: Callable[[np.ndarray], np.ndarray] | None,
-        strain_frames: Sequence[np.ndarray] | None,
+        strain_frames: Sequence[np.ndarray] | Mapping[int, np.ndarray] | None,
     ) -> None:
         self.color = color
         self.rest = rest
