@@ -1,9 +1,10 @@
 """One job: one mesh through one recipe into one output folder.
 
-load -> build (model, scene, settings) -> simulate -> exporters (streamed, frame by frame)
--> previews -> report.json. Everything is written into a staging folder beside the target and
-renamed into place only when the whole job succeeded, so a failed or interrupted job never
-leaves an output folder that looks complete.
+load -> build (model, scene, settings) -> simulate -> exporters (one `ExportSession`, streamed frame by
+frame; previews measured from the same frames and rendered once the files are complete, as they would be
+read back from them: `meshdeform.preview.live`) -> report.json. Everything is written into a staging
+folder beside the target and renamed into place only when the whole job succeeded, so a failed or
+interrupted job never leaves an output folder that looks complete.
 
 The folder logic lives here too: every output folder carries `.meshdeform.json` (the files
 meshdeform wrote), and a folder holding anything else is never replaced (`check_output_folder`,

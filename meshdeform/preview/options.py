@@ -29,7 +29,7 @@ class PreviewOptions:
     contact_sheet: a grid of the saved frames labelled with their numbers.
     pngs: write the per-frame PNG files (off: only the contact sheet and video).
     fps: video frame rate (default: the sequence's). label: frame number in each image.
-    anti_aliasing: 4x MSAA (off renders about 3 to 4 times faster with software OpenGL).
+    anti_aliasing: 4x MSAA (most of the render cost with software OpenGL: docs/performance.md).
     sheet_columns: contact sheet columns (default about square); sheet_tile_width: tile width in px.
     clim: fixed colour range (default: from the whole sequence).
     """
