@@ -570,3 +570,29 @@ def test_two_threads_opening_their_first_usd_stages_do_not_deadlock() -> None:
         done = subprocess.run([sys.executable, "-c", USD_RACE], capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, done.stderr
         assert done.stdout.strip() == "['scene0.usda', 'scene1.usda']"
+
+
+def test_each_reader_reads_back_its_own_files_only(mesh: Mesh, tmp_path: Path) -> None:
+    from meshdeform.export.mdd import read_mdd_result
+    from meshdeform.export.npz import read_npz_result
+    from meshdeform.export.pc2 import read_pc2_result
+    from meshdeform.export.sequence import read_frame_files
+    from meshdeform.export.usd import read_usd_result
+    from meshdeform.export.vtk import read_vtk_result
+
+    readers = {
+        "frames/*.obj": lambda root: read_frame_files(root, mesh),
+        "positions.npz": lambda root: read_npz_result(root, mesh),
+        "scene.usdc": lambda root: read_usd_result(root, mesh),
+        "vtk/*.vtp": lambda root: read_vtk_result(root, mesh),
+        "cache.pc2": lambda root: read_pc2_result(root, mesh, "y"),
+        "cache.mdd": lambda root: read_mdd_result(root, mesh, "y"),
+    }
+    export(ALL, mesh, tmp_path / "all")
+    (tmp_path / "none").mkdir()
+    for source, read in readers.items():
+        assert read(tmp_path / "none") is None
+        found = read(tmp_path / "all")
+        assert found is not None and found.source == source and found.numbers == list(range(1, FRAMES + 1))
+        assert found.base is mesh  # the input mesh: same vertex count (and polygons for vtk)
+        np.testing.assert_allclose(np.asarray(found.frames[FRAMES - 1]), wave(mesh, FRAMES), atol=1e-6)
