@@ -1,9 +1,10 @@
 """One job: one mesh through one recipe into one output folder.
 
-load -> build (model, scene, settings) -> simulate -> exporters (streamed, frame by frame)
--> previews -> report.json. Everything is written into a staging folder beside the target and
-renamed into place only when the whole job succeeded, so a failed or interrupted job never
-leaves an output folder that looks complete.
+load -> build (model, scene, settings) -> simulate -> exporters (one `ExportSession`, streamed frame by
+frame; previews measured from the same frames and rendered once the files are complete, as they would be
+read back from them: `meshdeform.preview.live`) -> report.json. Everything is written into a staging
+folder beside the target and renamed into place only when the whole job succeeded, so a failed or
+interrupted job never leaves an output folder that looks complete.
 
 The folder logic lives here too: every output folder carries `.meshdeform.json` (the files
 meshdeform wrote), and a folder holding anything else is never replaced (`check_output_folder`,
@@ -23,7 +24,7 @@ import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from pipeline import __version__
 from pipeline.hashing import file_sha256
 from pipeline.interrupts import note_unwritten, publishing
 from pipeline.recipe import Recipe, recipe_hash
+
+if TYPE_CHECKING:
+    from meshdeform.preview.live import RunPreview
 
 #: report keys that hold wall-clock timings (the only ones allowed to differ between identical runs)
 TIMING_KEYS = ("seconds", "setup_seconds", "export_seconds", "preview_seconds", "total_seconds", "frames_per_second")
@@ -509,8 +513,9 @@ def run_job(
     meshdeform did not write unless `overwrite`); nothing is left in `out_dir` when it does. Two runs
     on one folder at once are the caller's to prevent (`output_lock`, as `meshdeform simulate` does).
     """
-    from meshdeform.export import ExportContext, FrameData, make_exporter
+    from meshdeform.export import ExportContext, ExportSession, FrameData
     from meshdeform.io import load
+    from meshdeform.preview.live import RunPreview
     from meshdeform.simulate import simulate
     from meshdeform.strain import VertexStrain
     from pipeline.build import build_simulation
@@ -525,7 +530,7 @@ def run_job(
     model, settings = built.model, built.settings
     require_disk_space(estimate_run(recipe, mesh, model).total_bytes, Path(out_dir))  # before any frame is run
     formats = list(dict.fromkeys(recipe.output.formats or ["obj"]))
-    exporters = [make_exporter(name) for name in formats]
+    session = ExportSession(formats)  # made now: opened on the staging folder once it exists
     strain = VertexStrain(model)
     setup_seconds = time.perf_counter() - started
 
@@ -540,6 +545,7 @@ def run_job(
     strain_model = model
     sim_seconds = 0.0
     export_seconds = 0.0
+    preview_seconds = 0.0
     with staged_directory(out_dir, overwrite=overwrite) as stage:
         context = ExportContext(
             mesh=mesh,
@@ -549,11 +555,8 @@ def run_job(
             up_axis=recipe.output.up_axis,
             frame_count=settings.frames,
         )
-        opened = []
-        try:
-            for exporter in exporters:
-                exporter.open(context)
-                opened.append(exporter)
+        preview = RunPreview(recipe.output.preview, context, formats, model) if recipe.output.preview else None
+        with session.open(context):  # an exception in the block aborts every exporter
             tick = time.perf_counter()
             for frame in simulate(model, built.scene, settings):
                 sim_seconds += time.perf_counter() - tick
@@ -578,27 +581,23 @@ def run_job(
                     mesh=frame.mesh,
                     point_data=_point_data(frame_model, strain, frame),
                 )
-                for exporter in opened:
-                    exporter.write(data)
+                session.write(data)
                 export_seconds += time.perf_counter() - tick
+                if preview is not None:  # measured now, rendered once the files are complete
+                    tick = time.perf_counter()
+                    preview.add(data)
+                    preview_seconds += time.perf_counter() - tick
                 if on_frame is not None:
                     on_frame(frame.index, settings.frames)
                 tick = time.perf_counter()
             tick = time.perf_counter()
-            outputs: list[Path] = []
-            for exporter in opened:
-                outputs += exporter.close()
+            session.close()
             export_seconds += time.perf_counter() - tick
-        except BaseException:
-            for exporter in opened:
-                with contextlib.suppress(Exception):
-                    exporter.abort()
-            raise
-        preview_seconds = 0.0
-        if recipe.output.preview:
+        outputs: list[Path] = session.files
+        if preview is not None:
             tick = time.perf_counter()
-            outputs += render_job_previews(mesh, model, stage, recipe)
-            preview_seconds = time.perf_counter() - tick
+            outputs += render_job_previews(preview, stage)
+            preview_seconds += time.perf_counter() - tick
         relative = sorted({str(Path(p).resolve().relative_to(stage.resolve())) for p in outputs})
         report = {
             "tool": "meshdeform",
@@ -649,12 +648,11 @@ def run_job(
     return JobResult(out_dir=Path(out_dir), report=report, outputs=[Path(out_dir) / r for r in report["outputs"]])
 
 
-def render_job_previews(mesh: Mesh, model: Any, stage: Path, recipe: Recipe) -> list[Path]:
-    """Render the recipe's previews from the frames just written into the staging folder."""
-    from meshdeform.preview import render_result_previews
-
+def render_job_previews(preview: RunPreview, stage: Path) -> list[Path]:
+    """Render the recipe's previews into the staging folder from the frames the run measured and kept
+    (the same files as rendering the folder's frames read back: `meshdeform.preview.live`)."""
     try:
-        return list(render_result_previews(stage, recipe.output.preview, mesh=mesh, model=model))
+        return list(preview.render(stage).files)
     except MeshdeformError:
         raise
     except Exception as exc:  # a rendering backend failure is an export error, not a crash

@@ -399,6 +399,45 @@ def test_an_exception_mid_run_aborts_every_exporter(mesh: Mesh, tmp_path: Path) 
     assert visible_files(tmp_path) == []
 
 
+def test_a_session_made_before_its_folder_opens_on_it_and_closes_inside_its_block(mesh: Mesh, tmp_path: Path) -> None:
+    """As run_job uses it: formats checked first, opened on a staging folder made later, closed inside the
+    block (timed, files used); an exception after that still removes the finished files."""
+    with pytest.raises(ExportError, match="unknown export format"):
+        ExportSession(["obj", "blend"])
+    session = ExportSession(["obj", "pc2"])
+    with pytest.raises(ExportError, match="no export context"):
+        session.open()
+    out = tmp_path / "stage"
+    with session.open(ExportContext(mesh=mesh, out_dir=out, fps=FPS, frame_count=2)):
+        for frame in frames_of(mesh, 2):
+            session.write(frame)
+        session.close()
+        assert sorted(p.relative_to(out).as_posix() for p in session.files) == [
+            "cache.pc2",
+            "frames/frame_0001.obj",
+            "frames/frame_0002.obj",
+        ]
+    assert all(p.is_file() for p in session.files)  # the block ended normally: kept, not closed twice
+    again = ExportSession(["obj", "pc2"])
+    with pytest.raises(KeyboardInterrupt), again.open(ExportContext(mesh=mesh, out_dir=tmp_path / "b", fps=FPS)):
+        again.write(frames_of(mesh, 1)[0])
+        again.close()
+        raise KeyboardInterrupt
+    assert visible_files(tmp_path / "b") == [] and again.files == []
+
+
+def test_abort_reaches_every_exporter_when_one_fails(mesh: Mesh, tmp_path: Path, monkeypatch) -> None:
+    session = ExportSession(["obj", "pc2"], ExportContext(mesh=mesh, out_dir=tmp_path, fps=FPS)).open()
+    session.write(frames_of(mesh, 1)[0])
+
+    def broken() -> None:
+        raise RuntimeError("abort failed")
+
+    monkeypatch.setattr(session.exporters["obj"], "abort", broken)
+    session.abort()
+    assert [p.name for p in tmp_path.iterdir()] == ["frames"]  # pc2 aborted all the same: no cache, no temporary
+
+
 @pytest.mark.parametrize("name", ALL)
 def test_close_without_frames_is_an_error(mesh: Mesh, tmp_path: Path, name: str) -> None:
     exporter = make_exporter(name)
@@ -531,3 +570,29 @@ def test_two_threads_opening_their_first_usd_stages_do_not_deadlock() -> None:
         done = subprocess.run([sys.executable, "-c", USD_RACE], capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, done.stderr
         assert done.stdout.strip() == "['scene0.usda', 'scene1.usda']"
+
+
+def test_each_reader_reads_back_its_own_files_only(mesh: Mesh, tmp_path: Path) -> None:
+    from meshdeform.export.mdd import read_mdd_result
+    from meshdeform.export.npz import read_npz_result
+    from meshdeform.export.pc2 import read_pc2_result
+    from meshdeform.export.sequence import read_frame_files
+    from meshdeform.export.usd import read_usd_result
+    from meshdeform.export.vtk import read_vtk_result
+
+    readers = {
+        "frames/*.obj": lambda root: read_frame_files(root, mesh),
+        "positions.npz": lambda root: read_npz_result(root, mesh),
+        "scene.usdc": lambda root: read_usd_result(root, mesh),
+        "vtk/*.vtp": lambda root: read_vtk_result(root, mesh),
+        "cache.pc2": lambda root: read_pc2_result(root, mesh, "y"),
+        "cache.mdd": lambda root: read_mdd_result(root, mesh, "y"),
+    }
+    export(ALL, mesh, tmp_path / "all")
+    (tmp_path / "none").mkdir()
+    for source, read in readers.items():
+        assert read(tmp_path / "none") is None
+        found = read(tmp_path / "all")
+        assert found is not None and found.source == source and found.numbers == list(range(1, FRAMES + 1))
+        assert found.base is mesh  # the input mesh: same vertex count (and polygons for vtk)
+        np.testing.assert_allclose(np.asarray(found.frames[FRAMES - 1]), wave(mesh, FRAMES), atol=1e-6)

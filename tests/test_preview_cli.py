@@ -149,3 +149,101 @@ def test_preview_never_replaces_a_preview_file_meshdeform_did_not_write(app: typ
         assert run.exit_code == 0, run.output
     listed = json.loads((fresh / ".meshdeform.json").read_text())["files"]
     assert listed and listed == sorted(p.relative_to(fresh).as_posix() for p in (fresh / "preview").iterdir())
+
+
+# ---------------------------------------------------------------------------------------------
+# a run's previews from its frames in memory: the same bytes as from its files read back
+
+
+def torn_copy(mesh: Mesh) -> tuple[Mesh, np.ndarray]:
+    """The 10 x 10 grid cut between columns 4 and 5 over its lowest three rows of quads: the right side
+    of the cut gets copies of four vertices (appended). Returns the torn mesh and the copied vertices."""
+    copies = np.arange(4) * 10 + 5
+    new_index = {int(v): 100 + k for k, v in enumerate(copies)}
+    faces = mesh.face_indices.reshape(-1, 4).copy()
+    quad_col, quad_row = np.tile(np.arange(9), 9), np.repeat(np.arange(9), 9)
+    for f in np.flatnonzero((quad_col >= 5) & (quad_row < 3)):
+        faces[f] = [new_index.get(int(v), int(v)) for v in faces[f]]
+    positions = np.vstack([mesh.positions, mesh.positions[copies]])
+    return Mesh(positions=positions, face_indices=faces.ravel(), face_offsets=mesh.face_offsets), copies
+
+
+def run_frames(mesh: Mesh, tear_at: int | None) -> list[FrameData]:
+    """Frames as a run hands them to its exporters; from `tear_at` on the cloth is torn (the copies
+    drift apart), the torn mesh given with that frame only."""
+    torn, copies = torn_copy(mesh)
+    out = []
+    for i in range(1, FRAMES + 1):
+        pos = motion(mesh, i)
+        topology = None
+        if tear_at is not None and i >= tear_at:
+            pos = np.vstack([pos, pos[copies] + [0.01 * (i - tear_at + 1), 0.0, 0.0]])
+            topology = torn if i == tear_at else None
+        n = pos.shape[0]
+        point_data = {
+            "strain": 1.0 + 0.05 * np.sin(np.arange(n) + i),
+            "pinned": (np.arange(n) >= 90).astype(np.uint8) * (np.arange(n) < 100),
+        }
+        out.append(FrameData(i, i / 12.0, pos, mesh=topology, point_data=point_data))
+    return out
+
+
+LIVE_OPTIONS = {"every": 3, "size": [96, 72], "video": "gif", "contact_sheet": True, "highlight_tears": True}
+
+
+@pytest.mark.parametrize(
+    ("formats", "up_axis", "tear_at", "options"),
+    [
+        (["obj"], "y", None, LIVE_OPTIONS),
+        (["ply"], "y", None, {**LIVE_OPTIONS, "color": "displacement"}),
+        (["npz"], "y", None, LIVE_OPTIONS),
+        (["usd"], "z", None, LIVE_OPTIONS),
+        (["vtk"], "y", None, {**LIVE_OPTIONS, "video": "mp4"}),
+        (["pc2"], "z", None, LIVE_OPTIONS),
+        (["mdd"], "y", None, LIVE_OPTIONS),
+        (["ply", "obj", "vtk", "npz"], "y", None, {"frames": [2, 8], "size": [96, 72]}),
+        (["obj"], "y", 4, LIVE_OPTIONS),
+        (["ply", "vtk"], "y", 1, LIVE_OPTIONS),  # torn from the first frame: the base is the file's mesh
+        (["vtk"], "y", 1, LIVE_OPTIONS),
+        (["vtk"], "y", 4, LIVE_OPTIONS),
+        (["usd"], "y", 1, LIVE_OPTIONS),
+        (["usd", "vtk"], "y", 4, LIVE_OPTIONS),  # the stage's vertex count changes: an error
+        (["xdmf", "pc2"], "y", None, LIVE_OPTIONS),
+        (["xdmf"], "y", None, LIVE_OPTIONS),  # nothing a preview reads: an error
+    ],
+)
+def test_a_runs_previews_from_memory_are_those_read_back_from_its_files(
+    tmp_path: Path, formats: list[str], up_axis: str, tear_at: int | None, options: dict
+) -> None:
+    """`RunPreview` (what run_job renders) gives the same files, byte for byte, and the same errors as
+    rendering the folder the run wrote, read back, before its report.json exists (what run_job did)."""
+    from meshdeform.model import SpringModel
+    from meshdeform.preview.live import RunPreview
+
+    mesh = grid_mesh(10, 10)
+    model = SpringModel.from_mesh(mesh, pinned_input=mesh.positions[:, 1] > 0.99)
+    ctx = ExportContext(mesh=mesh, out_dir=tmp_path / "run", fps=12.0, frame_count=FRAMES, up_axis=up_axis)
+    live = RunPreview(options, ctx, formats, model)
+    with ExportSession(formats, ctx) as session:
+        for frame in run_frames(mesh, tear_at):
+            session.write(frame)
+            live.add(frame)
+
+    def outcome(render) -> dict[str, bytes] | str:
+        try:
+            files = render()
+        except Exception as exc:
+            return f"{type(exc).__name__}: {exc}"
+        root = files[0].parents[1] if files[0].parent.name == "preview" else files[0].parent
+        return {p.relative_to(root).as_posix(): p.read_bytes() for p in files}
+
+    read_back = outcome(
+        lambda: render_result_previews(ctx.out_dir, options, mesh=mesh, model=model, out_dir=tmp_path / "read")
+    )
+    in_memory = outcome(lambda: live.render(tmp_path / "live").files)
+    if isinstance(read_back, dict):
+        assert sorted(read_back) == sorted(in_memory)
+        assert [n for n in read_back if read_back[n] != in_memory[n]] == []
+    else:
+        assert in_memory == read_back
+        assert ("topology changes" in read_back) == (formats == ["usd", "vtk"])

@@ -8,6 +8,7 @@ The header's size depends on the frame count, so positions are streamed into an 
 temporary file and the cache is composed (header + times + blocks) at close.
 
 Point caches need a fixed vertex count: a frame with a changed topology (tearing) is refused.
+`read_mdd_result` reads it back on the input mesh (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
@@ -21,9 +22,15 @@ import numpy as np
 
 from meshdeform.atomic import atomic_open
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.export.results import PointCacheReadBack, ResultFrames, point_cache_frames, require_input_mesh
 from meshdeform.mesh import Mesh
 
 FILE_NAME = "cache.mdd"
+
+
+def mdd_time(ctx: ExportContext, index: int) -> float:
+    """The scene time in seconds of frame `index` (from 1) in the MDD times: `(start_frame + index - 1) / fps`."""
+    return (ctx.start_frame + index - 1) / ctx.fps
 
 
 class MddExporter(BaseExporter):
@@ -41,7 +48,7 @@ class MddExporter(BaseExporter):
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
         data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=">f4")
         self._spool.write(data.tobytes())
-        self._times.append((ctx.start_frame + frame.index - 1) / ctx.fps)
+        self._times.append(mdd_time(ctx, frame.index))
 
     def _close(self, ctx: ExportContext) -> list[Path]:
         target = ctx.out_dir / FILE_NAME
@@ -77,3 +84,36 @@ def read_mdd(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if times.size != frames or data.size != frames * points * 3:
         raise MeshLoadError(f"{path}: size does not match the header ({frames} frames of {points} points)")
     return data.reshape(frames, points, 3).astype(np.float32), times.astype(np.float64)
+
+
+def mdd_fps(times: np.ndarray) -> float | None:
+    """The frame rate of an MDD's times (seconds, as read): None for fewer than two or non-increasing times."""
+    if times.size >= 2 and times[1] > times[0]:
+        return float(1.0 / (times[1] - times[0]))
+    return None
+
+
+def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
+    """The frames of a result folder's `cache.mdd` on the input mesh (`point_cache_frames`, fps from its
+    times), or None when there is none; MeshLoadError when there is one but no input mesh."""
+    path = root / FILE_NAME
+    if not path.is_file():
+        return None
+    mesh = require_input_mesh(root, input_mesh)
+    positions, times = read_mdd(path)
+    return point_cache_frames(path, positions, mesh, up_axis, fps=mdd_fps(times))
+
+
+class MddReadBack(PointCacheReadBack):
+    """`read_mdd_result` for a run's frames in memory: the fps from the first two frames' float32 times."""
+
+    source = FILE_NAME
+
+    def __init__(self, ctx: ExportContext) -> None:
+        super().__init__(ctx)
+        self._times: list[float] = []
+
+    def add(self, frame: FrameData, mesh: Mesh) -> None:
+        if len(self._times) < 2:
+            self._times.append(mdd_time(self.ctx, frame.index))
+            self.fps = mdd_fps(np.asarray(self._times, dtype=">f4").astype(np.float64))

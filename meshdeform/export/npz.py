@@ -10,11 +10,13 @@ copies a memory-mapped array in chunks), so memory stays flat however long the b
     data = np.load("positions.npz"); data["positions"][frame - 1]
 
 The array needs a fixed vertex count: a frame with a changed topology (tearing) is refused.
+`read_npz_result` reads it back (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
 
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import IO, ClassVar
 
@@ -23,6 +25,7 @@ import numpy as np
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData
+from meshdeform.export.results import ReadBack, ResultFrames, prefer_input
 from meshdeform.mesh import Mesh
 
 FILE_NAME = "positions.npz"
@@ -121,3 +124,51 @@ class NpzExporter(BaseExporter):
 
     def _abort(self) -> None:
         self._close_spools()
+
+
+def read_npz_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
+    """The frames of a result folder's `positions.npz` (with its fps, `point_pinned` of the first frame and
+    `point_strain` when it has them), or None when there is none."""
+    path = root / FILE_NAME
+    if not path.is_file():
+        return None
+    with np.load(path) as data:
+        positions = np.asarray(data["positions"], dtype=np.float64)
+        numbers = [int(n) for n in data["frames"]] if "frames" in data else list(range(1, len(positions) + 1))
+        rest = np.asarray(data["rest_positions"]) if "rest_positions" in data else positions[0]
+        base = Mesh(positions=rest, face_indices=data["face_indices"], face_offsets=data["face_offsets"])
+        if "line_indices" in data:
+            base = replace(base, line_indices=data["line_indices"], line_offsets=data["line_offsets"])
+        found = ResultFrames(prefer_input(base, input_mesh), list(positions), numbers, path.name)
+        found.fps = float(data["fps"]) if "fps" in data else None
+        if "point_pinned" in data:
+            found.pinned = np.asarray(data["point_pinned"][0]).astype(bool)
+        if "point_strain" in data:
+            found.strain = list(np.asarray(data["point_strain"], dtype=np.float64))
+    return found
+
+
+def _as_spooled(value: np.ndarray) -> np.ndarray:
+    """A point-data array as `positions.npz` holds it (floats as float32, bools as uint8)."""
+    value = np.asarray(value)
+    return value.astype(_spool_dtype(value))
+
+
+class NpzReadBack(ReadBack):
+    """`read_npz_result` for a run's frames in memory: float32 positions and point data, the run's fps,
+    the first frame's pinned flags; the npz's own rest mesh has the input's vertex count, so the input
+    is the base."""
+
+    source = FILE_NAME
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        self.base = self.ctx.mesh
+        self.fps = float(self.ctx.fps)  # the npz's `fps`
+        if "pinned" in frame.point_data:
+            self.pinned = _as_spooled(frame.point_data["pinned"]).astype(bool)
+        return self.base
+
+    def strain(self, frame: FrameData) -> np.ndarray | None:
+        if "strain" not in frame.point_data:
+            return None
+        return np.asarray(_as_spooled(frame.point_data["strain"]), dtype=np.float64)

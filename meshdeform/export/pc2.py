@@ -10,6 +10,7 @@ ignores the header's start frame: set the modifier's Frame Start to the start fr
 Blender 5.0.1, benchmarks/blender_check.py).
 
 Point caches need a fixed vertex count: a frame with a changed topology (tearing) is refused.
+`read_pc2_result` reads it back on the input mesh (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 
 from meshdeform.errors import ExportError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, StreamedFile, convert_up_axis
+from meshdeform.export.results import PointCacheReadBack, ResultFrames, point_cache_frames, require_input_mesh
 from meshdeform.mesh import Mesh
 
 PC2_MAGIC = b"POINTCACHE2\0"
@@ -83,3 +85,20 @@ def read_pc2(path: str | Path) -> tuple[np.ndarray, float, float]:
     if data.size != points * samples * 3:
         raise MeshLoadError(f"{path}: {data.size} floats, the header promises {points * samples * 3}")
     return data.reshape(samples, points, 3), float(start), float(rate)
+
+
+def read_pc2_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
+    """The frames of a result folder's `cache.pc2` on the input mesh (`point_cache_frames`), or None when
+    there is none; MeshLoadError when there is one but no input mesh."""
+    path = root / FILE_NAME
+    if not path.is_file():
+        return None
+    mesh = require_input_mesh(root, input_mesh)
+    positions, _, _ = read_pc2(path)
+    return point_cache_frames(path, positions, mesh, up_axis, fps=None)
+
+
+class Pc2ReadBack(PointCacheReadBack):
+    """`read_pc2_result` for a run's frames in memory (no fps: PC2 has a sample rate, not one)."""
+
+    source = FILE_NAME

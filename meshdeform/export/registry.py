@@ -56,12 +56,17 @@ class ExportSession:
             for frame in frames:
                 session.write(frame)
         session.outputs   # {"obj": [...], "pc2": [...]}
+
+    The context may instead be given to `open` (`with session.open(ctx):`), so the exporters are
+    made, and unknown formats or options refused, before the output folder exists (a staging
+    folder made later). Closing inside the block is allowed (to time it, or to use the files
+    before the block ends); an exception later in the block still removes what was finished.
     """
 
     def __init__(
         self,
         formats: Iterable[str],
-        ctx: ExportContext,
+        ctx: ExportContext | None = None,
         options: Mapping[str, Mapping[str, Any]] | None = None,
     ) -> None:
         names = list(dict.fromkeys(str(f).strip().lower() for f in formats))
@@ -75,7 +80,13 @@ class ExportSession:
         """Names of the chosen formats that refuse a changed topology (to warn before a tearing run)."""
         return [n for n, e in self.exporters.items() if not e.supports_topology_change]
 
-    def open(self) -> ExportSession:
+    def open(self, ctx: ExportContext | None = None) -> ExportSession:
+        """Open every exporter on `ctx` (default: the context given to the constructor); if one fails,
+        those already opened are aborted."""
+        if ctx is not None:
+            self.ctx = ctx
+        if self.ctx is None:
+            raise ExportError("export session: no export context to open on")
         opened: list[BaseExporter] = []
         try:
             for exporter in self.exporters.values():
@@ -83,7 +94,8 @@ class ExportSession:
                 opened.append(exporter)
         except BaseException:
             for exporter in opened:
-                exporter.abort()
+                with contextlib.suppress(Exception):
+                    exporter.abort()
             raise
         self._open = True
         return self
@@ -102,10 +114,17 @@ class ExportSession:
         self._open = False
         return self.outputs
 
+    @property
+    def files(self) -> list[Path]:
+        """Every file the closed session finished, format after format."""
+        return [path for paths in self.outputs.values() for path in paths]
+
     def abort(self) -> None:
-        """Abort every exporter and delete what the session has finished so far."""
+        """Abort every exporter (each one even when another fails) and delete what the session has
+        finished so far."""
         for exporter in self.exporters.values():
-            exporter.abort()
+            with contextlib.suppress(Exception):
+                exporter.abort()
         for paths in self.outputs.values():
             for path in paths:
                 with contextlib.suppress(OSError):
@@ -114,10 +133,11 @@ class ExportSession:
         self._open = False
 
     def __enter__(self) -> ExportSession:
-        return self.open()
+        return self if self._open else self.open()
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
         if exc_type is None:
-            self.close()
+            if self._open:
+                self.close()
         else:
             self.abort()

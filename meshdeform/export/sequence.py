@@ -4,12 +4,15 @@ Each frame is written by the mesh writers of `meshdeform.io` (input vertex order
 groups and properties kept; normals recomputed per frame when the input had them), atomically.
 The file number is the frame number (from 1), zero padded to 4 digits, or more when the run has
 more than 9999 frames and `frame_count` says so. A changed topology (tearing) simply switches
-the writer to the new mesh from that frame on.
+the writer to the new mesh from that frame on. `read_frame_files` reads the frames back
+(`meshdeform.export.results`).
 """
 
 from __future__ import annotations
 
 import shutil
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -17,6 +20,7 @@ import numpy as np
 
 from meshdeform.atomic import atomic_path
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, frame_file_name
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, numbered_files, prefer_input
 from meshdeform.io.obj import material_libraries
 from meshdeform.mesh import Mesh
 
@@ -66,3 +70,76 @@ def copy_material_libraries(mesh: Mesh, folder: Path) -> list[Path]:
             shutil.copyfile(library.path, tmp, follow_symlinks=False)
         copied.append(target)
     return copied
+
+
+class FileFrames(Sequence[FrameItem]):
+    """Lazily loaded per-frame OBJ/PLY files: positions when the topology is the base's, else a Mesh."""
+
+    def __init__(self, paths: list[Path], base: Mesh) -> None:
+        self.paths = paths
+        self.base = base
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, k: int) -> FrameItem:  # type: ignore[override]
+        from meshdeform.io import load
+
+        frame = load(self.paths[k])
+        same = (
+            frame.vertex_count == self.base.vertex_count
+            and np.array_equal(frame.face_offsets, self.base.face_offsets)
+            and np.array_equal(frame.face_indices, self.base.face_indices)
+        )
+        return frame.positions if same else frame
+
+
+def read_frame_files(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
+    """The `frames/*.obj` or `frames/*.ply` files of a result folder (the suffix of the lowest-numbered
+    file; the input mesh is the base when the first frame has its vertex count), or None."""
+    from meshdeform.io import load
+
+    files = numbered_files(root / FOLDER, (".obj", ".ply"))
+    if not files:
+        return None
+    suffix = files[0][1].suffix.lower()
+    files = [(n, p) for n, p in files if p.suffix.lower() == suffix]
+    base = prefer_input(load(files[0][1]), input_mesh)
+    return ResultFrames(base, FileFrames([p for _, p in files], base), [n for n, _ in files], f"{FOLDER}/*{suffix}")
+
+
+class FrameFilesReadBack(ReadBack):
+    """`read_frame_files` for a run's frames in memory: OBJ positions exact (shortest round-trip text),
+    PLY float32 and without polylines (PLY has none); a frame whose topology is not the base's is a Mesh
+    as the file holds it, new on every access as a loaded file is."""
+
+    def __init__(self, ctx: ExportContext, suffix: str) -> None:
+        super().__init__(ctx)
+        self.source = f"{FOLDER}/*{suffix}"
+        self._obj = suffix == ".obj"
+        self._same: tuple[Mesh | None, bool] = (None, False)
+
+    def keep(self, positions: np.ndarray) -> np.ndarray:
+        return np.array(positions, dtype=np.float64 if self._obj else np.float32)
+
+    def _as_read(self, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        """The frame's file loaded: its positions, polygons and (OBJ) polylines."""
+        read = Mesh(positions=kept.astype(np.float64), face_indices=mesh.face_indices, face_offsets=mesh.face_offsets)
+        return replace(read, line_indices=mesh.line_indices, line_offsets=mesh.line_offsets) if self._obj else read
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        same_count = mesh.vertex_count == self.ctx.mesh.vertex_count
+        self.base = self.ctx.mesh if same_count else self._as_read(mesh, kept)
+        return self.base
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        base = self.base
+        assert base is not None
+        if self._same[0] is not mesh:  # as FileFrames compares a loaded frame with the base
+            same = (
+                mesh.vertex_count == base.vertex_count
+                and np.array_equal(mesh.face_offsets, base.face_offsets)
+                and np.array_equal(mesh.face_indices, base.face_indices)
+            )
+            self._same = (mesh, same)
+        return kept.astype(np.float64) if self._same[1] else self._as_read(mesh, kept)

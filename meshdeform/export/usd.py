@@ -10,6 +10,7 @@ converted as for Blender's world). When the topology changes (tearing) the face 
 indices become time-sampled too, from that frame on.
 
 Samples are authored as the frames come; the layer lives in memory until it is saved at close.
+`read_usd_result` reads the frames back (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from meshdeform.atomic import atomic_path
-from meshdeform.errors import ExportError
+from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, prefer_input, restore_up_axis
 from meshdeform.geometry import vertex_normals
 from meshdeform.mesh import Mesh
 
@@ -195,3 +197,85 @@ class UsdExporter(BaseExporter):
         self._release()
         err = RuntimeError("export aborted")
         self._atomic.__exit__(type(err), err, None)
+
+
+def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
+    """A stage's first `UsdGeom.Mesh`: (mesh at its default topology and first sample, positions (F, V, 3)
+    in the input's Y-up coordinates, frame numbers from 1, time codes per second). MeshLoadError when it
+    cannot be opened, has no mesh or its vertex count changes over time."""
+    start_usd()
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    if stage is None:
+        raise MeshLoadError(f"{path}: cannot open the USD stage")
+    prim = next((p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)), None)
+    if prim is None:
+        raise MeshLoadError(f"{path}: no UsdGeom.Mesh in the stage")
+    geom = UsdGeom.Mesh(prim)
+    counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
+    indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
+    points_attr = geom.GetPointsAttr()
+    codes = points_attr.GetTimeSamples() or [Usd.TimeCode.Default()]
+    z_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    positions = []
+    for code in codes:
+        p = np.asarray(points_attr.Get(code), dtype=np.float64)
+        positions.append(restore_up_axis(p, "z" if z_up else "y"))
+    if len({p.shape for p in positions}) != 1:
+        raise MeshLoadError(f"{path}: the topology changes over time; preview the frames/ files instead")
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    start = stage.GetStartTimeCode() if stage.HasAuthoredTimeCodeRange() else (codes[0] if codes else 1)
+    numbers = [round(float(c) - float(start)) + 1 for c in codes] if points_attr.GetTimeSamples() else [1]
+    mesh = Mesh(positions=positions[0], face_indices=indices, face_offsets=offsets, source=path)
+    return mesh, np.stack(positions), numbers, float(stage.GetTimeCodesPerSecond() or 24.0)
+
+
+def read_usd_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
+    """The frames of a result folder's `scene.usdc` (or `.usda`, `.usd`), or None when there is none."""
+    usd = next((root / n for n in ("scene.usdc", "scene.usda", "scene.usd") if (root / n).is_file()), None)
+    if usd is None:
+        return None
+    base, stacked, numbers, fps = read_usd_frames(usd)
+    return ResultFrames(prefer_input(base, input_mesh), list(stacked), numbers, usd.name, fps=fps)
+
+
+class UsdReadBack(ReadBack):
+    """`read_usd_result` for a run's frames in memory: float32 points in the stage's up axis and back, the
+    first frame's topology, the run's fps, and the errors reading the stage gives (no polygons, so no
+    `UsdGeom.Mesh`; a vertex count that changes over time)."""
+
+    source = "scene.usdc"
+
+    def __init__(self, ctx: ExportContext) -> None:
+        super().__init__(ctx)
+        self._path = ctx.out_dir / self.source
+        self._error: MeshLoadError | None = None
+
+    def keep(self, positions: np.ndarray) -> np.ndarray:
+        points = convert_up_axis(np.asarray(positions, dtype=np.float64), self.ctx.up_axis)
+        return np.ascontiguousarray(points, dtype=np.float32)
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        return restore_up_axis(kept.astype(np.float64), self.ctx.up_axis)
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        self.fps = float(self.ctx.fps)  # the stage's timeCodesPerSecond
+        self._vertex_count = mesh.vertex_count
+        if self.ctx.mesh.face_count == 0:
+            self._error = MeshLoadError(f"{self._path}: no UsdGeom.Mesh in the stage")
+        offsets = np.concatenate([[0], np.cumsum(np.asarray(mesh.face_sizes, dtype=np.int64))])
+        face_indices = np.asarray(mesh.face_indices, dtype=np.int64)
+        stage_mesh = Mesh(positions=self.item(mesh, kept), face_indices=face_indices, face_offsets=offsets)
+        self.base = prefer_input(stage_mesh, self.ctx.mesh)
+        return self.base
+
+    def add(self, frame: FrameData, mesh: Mesh) -> None:
+        if self._error is None and mesh.vertex_count != self._vertex_count:
+            self._error = MeshLoadError(
+                f"{self._path}: the topology changes over time; preview the frames/ files instead"
+            )
+
+    def check(self) -> None:
+        if self._error is not None:
+            raise self._error

@@ -5,11 +5,12 @@ and point data: every array the frame carried (`strain`, `velocity`, `pinned`, .
 `displacement` (V, 3) from the rest pose while the topology is the input's (it replaces a frame
 array of that name), and `TCoords` when the UVs are per vertex (no seams). Open `scene.pvd` in
 ParaView to get the time series. The topology may change between frames (tearing): every file
-carries its own.
+carries its own. `read_vtk_result` reads the frames back (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 from xml.sax.saxutils import quoteattr
@@ -17,7 +18,9 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from meshdeform.atomic import atomic_path, write_text_atomic
+from meshdeform.errors import MeshLoadError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, frame_file_name
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, numbered_files
 from meshdeform.mesh import Mesh
 
 FOLDER = "vtk"
@@ -156,3 +159,117 @@ class VtkExporter(BaseExporter):
         target = ctx.out_dir / COLLECTION_NAME
         write_text_atomic(target, pvd_text(self._entries))
         return [*self._written, target]
+
+
+def read_vtp(path: Path) -> Mesh:
+    """A `.vtp` file's points, polygons and polylines as a Mesh (point data is not read)."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
+
+    reader = vtkXMLPolyDataReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    poly = reader.GetOutput()
+    if poly is None or poly.GetPoints() is None:
+        raise MeshLoadError(f"{path}: cannot read the VTK PolyData file")
+    polys, lines = poly.GetPolys(), poly.GetLines()
+    return Mesh(
+        positions=vtk_to_numpy(poly.GetPoints().GetData()).astype(np.float64),
+        face_indices=vtk_to_numpy(polys.GetConnectivityArray()).astype(np.int64),
+        face_offsets=vtk_to_numpy(polys.GetOffsetsArray()).astype(np.int64),
+        line_indices=vtk_to_numpy(lines.GetConnectivityArray()).astype(np.int64),
+        line_offsets=vtk_to_numpy(lines.GetOffsetsArray()).astype(np.int64),
+        source=path,
+    )
+
+
+class VtpFrames(Sequence[FrameItem]):
+    """Lazily read `vtk/frame_*.vtp` files: positions when the topology is the base's, else a Mesh."""
+
+    def __init__(self, paths: list[Path], base: Mesh) -> None:
+        self.paths = paths
+        self.base = base
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, k: int) -> FrameItem:  # type: ignore[override]
+        frame = read_vtp(self.paths[k])
+        same = frame.vertex_count == self.base.vertex_count and np.array_equal(
+            frame.face_indices, self.base.face_indices
+        )
+        return frame.positions if same else frame
+
+
+def read_vtk_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
+    """The `vtk/*.vtp` frames of a result folder (the input mesh is the base when the first frame has its
+    polygons), or None when there are none."""
+    files = numbered_files(root / FOLDER, (".vtp",))
+    if not files:
+        return None
+    first = read_vtp(files[0][1])
+    base = first
+    if input_mesh is not None and np.array_equal(input_mesh.face_indices, first.face_indices):
+        base = input_mesh
+    return ResultFrames(base, VtpFrames([p for _, p in files], base), [n for n, _ in files], f"{FOLDER}/*.vtp")
+
+
+def vtp_pinned(root: Path, n: int) -> np.ndarray | None:
+    """The `pinned` point array of a result folder's first `.vtp` frame as an (n,) mask (None when there is
+    no such frame or array, or it is not n long)."""
+    files = numbered_files(root / FOLDER, (".vtp",))
+    if not files:
+        return None
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
+
+    reader = vtkXMLPolyDataReader()
+    reader.SetFileName(str(files[0][1]))
+    reader.Update()
+    array = reader.GetOutput().GetPointData().GetArray("pinned")
+    if array is None:
+        return None
+    mask = vtk_to_numpy(array).astype(bool)
+    return mask if mask.shape == (n,) else None
+
+
+class VtkReadBack(ReadBack):
+    """`read_vtk_result` for a run's frames in memory: float32 points; a frame whose polygons are not the
+    base's is a Mesh as its `.vtp` holds it, new on every access as a read file is."""
+
+    source = f"{FOLDER}/*.vtp"
+
+    def __init__(self, ctx: ExportContext) -> None:
+        super().__init__(ctx)
+        self._same: tuple[Mesh | None, bool] = (None, False)
+
+    def _as_read(self, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        """The frame's `.vtp` read (`read_vtp`)."""
+        return Mesh(
+            positions=kept.astype(np.float64),
+            face_indices=np.asarray(mesh.face_indices, dtype=np.int64),
+            face_offsets=np.asarray(mesh.face_offsets, dtype=np.int64),
+            line_indices=np.asarray(mesh.line_indices, dtype=np.int64),
+            line_offsets=np.asarray(mesh.line_offsets, dtype=np.int64),
+        )
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        same = np.array_equal(self.ctx.mesh.face_indices, mesh.face_indices)
+        self.base = self.ctx.mesh if same else self._as_read(mesh, kept)
+        return self.base
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        base = self.base
+        assert base is not None
+        if self._same[0] is not mesh:  # as VtpFrames compares a read frame with the base
+            same = mesh.vertex_count == base.vertex_count and np.array_equal(mesh.face_indices, base.face_indices)
+            self._same = (mesh, same)
+        return kept.astype(np.float64) if self._same[1] else self._as_read(mesh, kept)
+
+
+def first_frame_pinned(frame: FrameData, n: int) -> np.ndarray | None:
+    """`vtp_pinned` for a run's first frame in memory: its `pinned` point data as an (n,) mask, or None."""
+    if "pinned" not in frame.point_data:
+        return None
+    mask = np.asarray(frame.point_data["pinned"]).astype(bool)
+    return mask if mask.shape == (n,) else None

@@ -1,0 +1,166 @@
+"""Reading a result folder's frames back: what every format's reader returns, and their shared helpers.
+
+Each format module that can be read back has its reader beside its writer (`sequence.read_frame_files`
+for `frames/*.obj|ply`, `npz.read_npz_result`, `usd.read_usd_result`, `vtk.read_vtk_result`,
+`pc2.read_pc2_result`, `mdd.read_mdd_result`): given the folder and the input mesh (or None), it
+returns the frames it found as `ResultFrames`, or None when the folder holds none of its files.
+Which reader wins for a folder is `meshdeform.preview.results`'s choice. Beside each reader, a
+`ReadBack` gives what it would read for a run's frames still in memory (previews of a run).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from meshdeform.errors import MeshLoadError
+from meshdeform.export.base import ExportContext, FrameData, convert_up_axis
+from meshdeform.mesh import Mesh
+
+#: a frame read back: positions (V, 3) in the base mesh's layout, or a Mesh when its topology differs
+FrameItem = np.ndarray | Mesh
+
+_NUMBER = re.compile(r"(\d+)$")
+
+
+@dataclass
+class ResultFrames:
+    """The frames one reader found in a result folder.
+
+    base: the mesh the frames are in (topology; its positions are the rest pose).
+    frames: per frame a `FrameItem`, possibly read lazily from disk on each access.
+    numbers: the frames' numbers (from 1). source: what was read, e.g. "frames/*.obj", "cache.pc2".
+    fps / pinned ((V,) bool) / strain (per frame (V,) stretch ratios): when the files carry them.
+    """
+
+    base: Mesh
+    frames: Sequence[FrameItem]
+    numbers: list[int]
+    source: str
+    fps: float | None = None
+    pinned: np.ndarray | None = None
+    strain: Sequence[np.ndarray] | None = None
+
+
+def numbered_files(folder: Path, suffixes: Sequence[str]) -> list[tuple[int, Path]]:
+    """(number, path) of the files in `folder` with one of `suffixes` whose stem ends in a number, sorted;
+    hidden files are skipped (temporary files of a writer)."""
+    found: list[tuple[int, Path]] = []
+    if not folder.is_dir():
+        return found
+    for path in folder.iterdir():
+        if path.name.startswith(".") or path.suffix.lower() not in suffixes:
+            continue
+        match = _NUMBER.search(path.stem)
+        if match:
+            found.append((int(match.group(1)), path))
+    return sorted(found)
+
+
+def prefer_input(base: Mesh, input_mesh: Mesh | None) -> Mesh:
+    """The input mesh (rest pose, UVs, groups) when it matches the frames' vertex count."""
+    return input_mesh if input_mesh is not None and input_mesh.vertex_count == base.vertex_count else base
+
+
+def restore_up_axis(points: np.ndarray, up_axis: str) -> np.ndarray:
+    """Undo `convert_up_axis`: Blender's (x, -z, y) back to the input's (x, y, z); any leading shape."""
+    if up_axis == "y":
+        return points
+    return np.stack([points[..., 0], points[..., 2], -points[..., 1]], axis=-1)
+
+
+def detect_up_axis(first: np.ndarray, rest: np.ndarray) -> str:
+    """The convention a point cache's first frame (V, 3) was written in: the one that puts it closest to
+    the rest pose (the first frame is close to rest)."""
+    error_y = np.abs(first - rest).mean()
+    error_z = np.abs(restore_up_axis(first, "z") - rest).mean()
+    return "z" if error_z < error_y else "y"
+
+
+def point_cache_frames(
+    path: Path, positions: np.ndarray, input_mesh: Mesh, up_axis: str | None, fps: float | None
+) -> ResultFrames:
+    """The frames of a point cache (`positions` (F, V, 3) as stored) on the input mesh's topology.
+
+    `up_axis` is the convention the cache was written in; None: `detect_up_axis`.
+    """
+    if positions.shape[1:] != (input_mesh.vertex_count, 3):
+        raise MeshLoadError(f"{path}: {positions.shape[1]} points, the input mesh has {input_mesh.vertex_count}")
+    if up_axis is None:
+        up_axis = detect_up_axis(positions[0], input_mesh.positions)
+    frames = list(restore_up_axis(positions.astype(np.float64), up_axis))
+    return ResultFrames(input_mesh, frames, list(range(1, len(frames) + 1)), path.name, fps=fps)
+
+
+def require_input_mesh(root: Path, input_mesh: Mesh | None) -> Mesh:
+    """The input mesh a point cache needs for its topology (MeshLoadError naming the folder without one)."""
+    if input_mesh is None:
+        raise MeshLoadError(
+            f"{root}: point caches hold no topology, and the input mesh (report.json 'input') is missing"
+        )
+    return input_mesh
+
+
+class ReadBack:
+    """What a format's reader returns for a run's frames, computed from the frames the run writes instead
+    of from its files: a run previews its own result without reading it back.
+
+    Fed the frames in order (`keep` each one's positions, `add` the frame, `start` on the first), it gives
+    exactly what the format's reader gives for the folder the run writes (before its report.json exists):
+    the positions at the precision the files hold them, the same base mesh, frame items, fps and per-frame
+    data, and the same errors (`check`). Subclasses sit beside their reader.
+    """
+
+    #: `ResultFrames.source` of the reader
+    source: str = ""
+
+    def __init__(self, ctx: ExportContext) -> None:
+        self.ctx = ctx
+        self.base: Mesh | None = None
+        #: the fps the files carry (None: the reader finds none)
+        self.fps: float | None = None
+        #: the pinned mask the files carry (the reader's `ResultFrames.pinned`)
+        self.pinned: np.ndarray | None = None
+
+    def keep(self, positions: np.ndarray) -> np.ndarray:
+        """A frame's (V, 3) positions as the files hold them, compact enough to keep in memory."""
+        return np.array(positions, dtype=np.float32)
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        """Set and return the base mesh from the first frame (`mesh`: its mesh in force)."""
+        self.base = prefer_input(mesh, self.ctx.mesh)
+        return self.base
+
+    def add(self, frame: FrameData, mesh: Mesh) -> None:
+        """Take note of a frame (after `start` for the first one)."""
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        """A frame as the reader returns it: float64 positions in the base's layout, or a new Mesh."""
+        return kept.astype(np.float64)
+
+    def strain(self, frame: FrameData) -> np.ndarray | None:
+        """The frame's strain as the reader returns it (`ResultFrames.strain`), None when it has none."""
+        return None
+
+    def check(self) -> None:
+        """Raise what reading the files back would raise (MeshLoadError), if anything."""
+
+
+class PointCacheReadBack(ReadBack):
+    """A point cache read back (`point_cache_frames`): float32 in the written convention, the convention
+    detected from the first frame as the reader does (the report naming it does not exist yet)."""
+
+    def keep(self, positions: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(convert_up_axis(positions, self.ctx.up_axis), dtype=np.float32)
+
+    def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
+        self.base = self.ctx.mesh
+        self.up_axis = detect_up_axis(kept, self.base.positions)
+        return self.base
+
+    def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
+        return restore_up_axis(kept.astype(np.float64), self.up_axis)

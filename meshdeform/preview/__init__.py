@@ -1,0 +1,58 @@
+"""Headless previews of a deformed mesh sequence with PyVista: PNG frames, a contact sheet, GIF, MP4.
+
+One reused off-screen Plotter renders every frame (`render.FrameRenderer`): the mesh's points,
+normals and scalars are updated in place (no new window per frame). The camera is fixed for the
+whole sequence, framed on the union of all frames' bounds from a chosen view (iso, front, side,
+top; `camera`), and the colour range is fixed for the sequence too, so nothing jumps between
+frames. That needs one pass over the frames before rendering: `render_previews` (`sequence`)
+takes the frames as a sequence (a (F, V, 3) array, a list, or any lazy object with
+`__len__`/`__getitem__`, such as `open_result`'s loader, which reads a result folder's files on
+demand through the readers beside their writers in `meshdeform.export`; `results`).
+
+Colouring (`scalars`): a flat material, per-vertex strain (the largest stretch ratio, current /
+rest length, of the edges at a vertex; a diverging heat map centred on 1 with a colour bar: red
+stretched, blue compressed) or the displacement from rest. Pinned vertices and torn edges
+(boundary edges the rest mesh did not have) can be highlighted, with an optional wireframe overlay.
+
+Files (inside `out_dir`; `media`): `preview/0001.png` ... (frame numbers, 4 digits),
+`preview/contact_sheet.png`, `preview.mp4` / `preview.gif`. Every file is written atomically.
+"""
+
+from meshdeform.export.results import FrameItem
+from meshdeform.preview.camera import CameraSetup, frame_camera
+from meshdeform.preview.media import contact_sheet
+from meshdeform.preview.options import (
+    COLORS,
+    CONTACT_SHEET_NAME,
+    PREVIEW_FOLDER,
+    VIDEOS,
+    VIEWS,
+    PreviewOptions,
+    PreviewResult,
+)
+from meshdeform.preview.render import FrameRenderer, boundary_edges
+from meshdeform.preview.results import ResultSequence, open_result, render_result, render_result_previews
+from meshdeform.preview.scalars import EdgeStrain
+from meshdeform.preview.sequence import render_previews
+
+__all__ = [
+    "COLORS",
+    "CONTACT_SHEET_NAME",
+    "PREVIEW_FOLDER",
+    "VIDEOS",
+    "VIEWS",
+    "CameraSetup",
+    "EdgeStrain",
+    "FrameItem",
+    "FrameRenderer",
+    "PreviewOptions",
+    "PreviewResult",
+    "ResultSequence",
+    "boundary_edges",
+    "contact_sheet",
+    "frame_camera",
+    "open_result",
+    "render_previews",
+    "render_result",
+    "render_result_previews",
+]

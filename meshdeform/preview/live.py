@@ -1,0 +1,136 @@
+"""A run's previews rendered from its frames as they are simulated, instead of read back from its files.
+
+`RunPreview` is fed the `FrameData` the run hands its exporters. It renders the same files
+`render_result(out_dir, options, mesh=input, model=model)` renders from the folder the run writes
+(called before the run's report.json exists): the frames as the reader `open_result` would pick reads
+them back (`meshdeform.export.results.ReadBack`: the positions at the precision the files hold them,
+the base mesh, fps, pinned flags, strain and the reading errors), and the run's model for the pinned
+vertices and the strain when the base has the input's vertex count.
+
+Memory: each frame is measured (bounds, colour range) as it comes; only the frames to render are
+kept (every frame with a video), at the files' precision (float32 for all but OBJ). Errors are kept
+until `render`, as they came when the previews were rendered after the run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from meshdeform.export.base import ExportContext, FrameData
+from meshdeform.export.vtk import first_frame_pinned
+from meshdeform.mesh import Mesh
+from meshdeform.preview.options import PreviewOptions, PreviewResult
+from meshdeform.preview.results import no_frames_found, read_back_for, welded_strain
+from meshdeform.preview.sequence import SequencePreview
+
+
+class RunPreview:
+    """Previews of a run written into `ctx.out_dir` in `formats`, from its frames (`add` each, then `render`).
+
+    options: as `render_previews` takes them (a recipe's `[output] preview` table). model: the run's
+    SpringModel (its `vertex_map`, `pinned` and springs for the strain).
+    """
+
+    def __init__(
+        self,
+        options: PreviewOptions | Mapping[str, Any] | Any,
+        ctx: ExportContext,
+        formats: Sequence[str],
+        model: Any,
+    ) -> None:
+        self.ctx = ctx
+        self.formats = list(formats)
+        self.model = model
+        self._options = options
+        self._read_back = read_back_for(self.formats, ctx)
+        self._mesh: Mesh = ctx.mesh  # the mesh in force
+        self._base: Mesh | None = None
+        self._preview: SequencePreview | None = None
+        self._kept: dict[int, tuple[Mesh, np.ndarray]] = {}
+        self._strain: dict[int, np.ndarray] = {}
+        self._read_error: Exception | None = None  # reading the files back would fail
+        self._error: Exception | None = None  # rendering what was read would fail
+
+    def add(self, frame: FrameData) -> None:
+        """Measure one frame (in order, from the first) and keep it if it is rendered."""
+        read_back = self._read_back
+        if read_back is None or self._read_error is not None:
+            return
+        if frame.mesh is not None:
+            self._mesh = frame.mesh
+        mesh = self._mesh
+        try:  # errors wait for `render`, where rendering after the run raised them
+            kept = read_back.keep(frame.positions)
+            if self._base is None:
+                self._base = read_back.start(frame, mesh, kept)
+            read_back.add(frame, mesh)
+            read_back.check()  # the files could not be read back: nothing is rendered
+        except Exception as exc:
+            self._read_error = exc
+            self._drop()
+            return
+        if self._error is not None:
+            return
+        try:
+            if self._preview is None:
+                self._preview = self._start(frame, self._base)
+            strain = read_back.strain(frame)
+            k = len(self._preview.numbers)
+            if strain is not None:
+                self._strain[k] = strain
+            self._preview.measure(frame.index, read_back.item(mesh, kept))
+            if self._preview.wants(frame.index):
+                self._kept[k] = (mesh, kept)
+            else:
+                self._strain.pop(k, None)
+        except Exception as exc:
+            self._error = exc
+            self._drop()
+
+    def _drop(self) -> None:
+        self._kept.clear()
+        self._strain.clear()
+
+    def _start(self, first: FrameData, base: Mesh) -> SequencePreview:
+        """The sequence preview on the base mesh the reader found, with what `render_result` adds."""
+        read_back = self._read_back
+        assert read_back is not None
+        pinned = read_back.pinned
+        if pinned is None and "vtk" in self.formats:  # `open_result` looks in the first .vtp frame
+            pinned = first_frame_pinned(first, base.vertex_count)
+        strain: Any = self._strain if read_back.strain(first) is not None else None
+        vertex_map = np.asarray(self.model.vertex_map)
+        if vertex_map.shape == (base.vertex_count,):
+            with contextlib.suppress(AttributeError):
+                pinned = np.asarray(self.model.pinned)[vertex_map]
+            if strain is None:
+                strain = welded_strain(self.model, vertex_map)
+        return SequencePreview(
+            base,
+            PreviewOptions.from_mapping(self._options),
+            rest_positions=np.asarray(base.positions, dtype=np.float64),
+            pinned=pinned,
+            strain=strain,
+        )
+
+    def render(self, out_dir: str | Path | None = None) -> PreviewResult:
+        """Render the kept frames into `out_dir` (default: `ctx.out_dir`); raises what rendering the
+        written result would have raised."""
+        if self._read_back is None:
+            raise no_frames_found(self.ctx.out_dir)
+        if self._read_error is not None:
+            raise self._read_error
+        if self._base is None:  # no frame: nothing written to read back
+            raise no_frames_found(self.ctx.out_dir)
+        if self._error is not None:
+            raise self._error
+        assert self._preview is not None
+        read_back = self._read_back
+        self._preview.fps = read_back.fps or 24.0  # known once every frame is in (MDD: from two frames)
+        frames = ((k, read_back.item(mesh, kept)) for k, (mesh, kept) in sorted(self._kept.items()))
+        return self._preview.render(self.ctx.out_dir if out_dir is None else out_dir, frames)

@@ -1,0 +1,263 @@
+"""One off-screen PyVista Plotter that renders frame after frame (`FrameRenderer`), and what it highlights."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from meshdeform.arrays import isin_int, run_lengths
+from meshdeform.errors import ExportError
+from meshdeform.mesh import Mesh
+from meshdeform.preview.camera import frame_camera
+from meshdeform.preview.options import PreviewOptions
+
+
+def boundary_edges(mesh: Mesh) -> np.ndarray:
+    """Polygon edges used by exactly one polygon, (E, 2) sorted pairs."""
+    if mesh.face_count == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    n = max(mesh.vertex_count, 1)
+    a = mesh.face_indices.astype(np.int64)
+    b = mesh.face_indices[mesh.corner_next].astype(np.int64)
+    keys = np.sort(np.minimum(a, b) * n + np.maximum(a, b))
+    starts, lengths = run_lengths(keys)
+    single = keys[starts[lengths == 1]]
+    return np.stack([single // n, single % n], axis=1)
+
+
+def as_pinned_mask(pinned: np.ndarray | Sequence[int] | None, n: int) -> np.ndarray | None:
+    """An (n,) bool mask from a mask ((n,) bool or uint8) or vertex indices; ExportError when they do not fit."""
+    if pinned is None:
+        return None
+    arr = np.asarray(pinned)
+    if arr.dtype == bool or (arr.dtype == np.uint8 and arr.shape == (n,)):
+        mask = arr.astype(bool)
+        if mask.shape != (n,):
+            raise ExportError(f"preview: pinned mask has shape {mask.shape}, expected ({n},)")
+        return mask
+    mask = np.zeros(n, dtype=bool)
+    idx = arr.astype(np.int64).ravel()
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise ExportError(f"preview: pinned vertex index out of range 0..{n - 1}")
+    mask[idx] = True
+    return mask
+
+
+def _label_format(clim: tuple[float, float] | None, labels: int) -> str:
+    """A printf format with just enough decimals to tell the colour-bar labels apart."""
+    if clim is None:
+        return "%.3g"
+    step = (clim[1] - clim[0]) / max(labels - 1, 1)
+    if step <= 0:
+        return "%.3g"
+    decimals = max(0, math.ceil(-math.log10(step) - 1e-9))
+    while decimals < 6 and abs(step * 10**decimals - round(step * 10**decimals)) > 1e-6 * 10**decimals * step:
+        decimals += 1
+    return f"%.{decimals}f"
+
+
+def _text_color(background: str) -> str:
+    import pyvista as pv
+
+    rgb = np.asarray(pv.Color(background).float_rgb)
+    return "black" if float(rgb @ np.array([0.299, 0.587, 0.114])) > 0.5 else "white"
+
+
+class FrameRenderer:
+    """One off-screen Plotter reused for every frame; `render` returns an (H, W, 3) uint8 image."""
+
+    def __init__(
+        self,
+        mesh: Mesh,
+        options: PreviewOptions,
+        bounds: np.ndarray,
+        clim: tuple[float, float] | None,
+        pinned: np.ndarray | Sequence[int] | None = None,
+    ) -> None:
+        import pyvista as pv
+        from vtkmodules.vtkCommonCore import vtkObject
+
+        from meshdeform.export.vtk import polydata_from_mesh
+
+        self._warnings = vtkObject.GetGlobalWarningDisplay()
+        vtkObject.GlobalWarningDisplayOff()  # no "bad X server connection" noise when headless
+        self.options = options
+        self.rest_mesh = mesh
+        self._pinned_rest = as_pinned_mask(pinned, mesh.vertex_count)
+        self._pv = pv
+        self._polydata_from_mesh = polydata_from_mesh
+        # a fresh theme (not the user's global one) so images are reproducible; MSAA is the only
+        # anti-aliasing that works with EGL/OSMesa, and it is most of the cost with software GL
+        theme = pv.themes.Theme()
+        theme.multi_samples = 4 if options.anti_aliasing else 0
+        theme.anti_aliasing = "msaa" if options.anti_aliasing else None
+        self.plotter = pv.Plotter(off_screen=True, window_size=list(options.size), lighting="light_kit", theme=theme)
+        p = self.plotter
+        try:
+            p.set_background(options.background)
+            text_color = _text_color(options.background)
+            pv.Color(options.flat_color)
+        except ValueError as exc:
+            p.close()
+            vtkObject.SetGlobalWarningDisplay(self._warnings)
+            raise ExportError(f"preview: unknown colour ({str(exc).splitlines()[0]})") from exc
+        self.poly = pv.wrap(polydata_from_mesh(mesh))
+        self._mesh: Mesh = mesh
+        self._set_arrays(mesh.positions, None)
+        colored = options.color != "flat"
+        lines_only = mesh.face_count == 0
+        kwargs: dict[str, Any] = {
+            "show_edges": options.wireframe,
+            "edge_color": "#303030",
+            "line_width": 1 if not lines_only else max(2, options.size[1] // 150),
+            "render_lines_as_tubes": lines_only,
+            "ambient": 0.4,
+            "diffuse": 0.65,
+            "specular": 0.1,
+            "specular_power": 20,
+            "smooth_shading": False,
+            "interpolation": "gouraud",
+        }
+        if colored:
+            title = "stretch ratio" if options.color == "strain" else "displacement"
+            kwargs.update(
+                scalars="scalars",
+                cmap="coolwarm" if options.color == "strain" else "viridis",
+                clim=list(clim) if clim is not None else None,
+                scalar_bar_args={
+                    "title": title,
+                    "vertical": True,
+                    "position_x": 0.86,
+                    "position_y": 0.12,
+                    "width": 0.07,
+                    "height": 0.74,
+                    "color": text_color,
+                    "fmt": _label_format(clim, 5),
+                    "n_labels": 5,
+                    "title_font_size": max(10, options.size[1] // 40),
+                    "label_font_size": max(9, options.size[1] // 50),
+                },
+            )
+        else:
+            kwargs.update(color=options.flat_color, show_scalar_bar=False)
+        self.actor = p.add_mesh(self.poly, **kwargs)
+        self.pins: Any = None
+        if options.highlight_pins and self._pinned_rest is not None and self._pinned_rest.any():
+            self.pins = pv.PolyData(np.asarray(mesh.positions[self._pinned_rest], dtype=np.float32))
+            p.add_mesh(
+                self.pins,
+                color="#ffd400",
+                point_size=max(6, options.size[1] // 70),
+                render_points_as_spheres=True,
+                show_scalar_bar=False,
+            )
+        self.tears: Any = None
+        if options.highlight_tears:
+            self._rest_boundary = self._keys(boundary_edges(mesh), mesh.vertex_count)
+            self.tears = pv.PolyData()
+            self._tear_actor = p.add_mesh(
+                pv.PolyData(np.zeros((1, 3), dtype=np.float32)),
+                color="#ff00e0",
+                line_width=max(2, options.size[1] // 200),
+                show_scalar_bar=False,
+            )
+            self._tear_actor.mapper.SetInputData(self.tears)
+        self.label: Any = None
+        if options.label:
+            self.label = p.add_text(
+                "", position="upper_left", font_size=max(8, options.size[1] // 60), color=text_color, name="label"
+            )
+        camera = frame_camera(
+            bounds,
+            options.view,
+            options.size,
+            options.up_axis,
+            reserve_right=0.16 if colored else 0.0,
+            reserve_top=0.07 if options.label else 0.0,
+        )
+        cam = p.camera
+        cam.position = camera.position
+        cam.focal_point = camera.focal_point
+        cam.up = camera.up
+        cam.view_angle = camera.view_angle
+        cam.SetWindowCenter(*camera.window_center)
+        cam.clipping_range = camera.clipping
+        p.camera_set = True
+        self.camera = camera
+
+    @staticmethod
+    def _keys(edges: np.ndarray, n: int) -> np.ndarray:
+        return edges[:, 0] * max(n, 1) + edges[:, 1]
+
+    def _set_arrays(self, positions: np.ndarray, scalars: np.ndarray | None) -> None:
+        from meshdeform.geometry import vertex_normals
+
+        poly = self.poly
+        pts = np.asarray(positions, dtype=np.float32)
+        if poly.n_points == pts.shape[0]:
+            poly.points[:] = pts
+            poly.GetPoints().Modified()
+        else:
+            poly.points = pts
+        if self._mesh.face_count:
+            normals = vertex_normals(self._mesh, positions).astype(np.float32)
+            poly.point_data["Normals"] = normals
+            poly.point_data.active_normals_name = "Normals"
+        values = np.ones(pts.shape[0], dtype=np.float32) if scalars is None else scalars.astype(np.float32)
+        poly.point_data["scalars"] = values
+        poly.point_data.active_scalars_name = "scalars"
+        poly.Modified()
+
+    def _set_topology(self, mesh: Mesh, positions: np.ndarray) -> None:
+        new = self._pv.wrap(self._polydata_from_mesh(mesh, positions))
+        self.poly.copy_from(new, deep=False)
+        self._mesh = mesh
+
+    def render(
+        self, positions: np.ndarray, number: int, scalars: np.ndarray | None = None, mesh: Mesh | None = None
+    ) -> np.ndarray:
+        """Update the scene in place to this frame and return the image."""
+        if mesh is not None and mesh is not self._mesh:
+            self._set_topology(mesh, positions)
+        current = self._mesh
+        self._set_arrays(positions, scalars)
+        if self.pins is not None:
+            mask = self._pinned_rest
+            assert mask is not None
+            m = min(mask.shape[0], positions.shape[0])
+            self.pins.points = np.asarray(positions[:m][mask[:m]], dtype=np.float32)
+            self.pins.Modified()
+        if self.tears is not None:
+            # torn: boundary edges now that were not boundary edges of the rest mesh (new vertices
+            # from tearing are appended, so edges between original vertices keep their indices)
+            edges = boundary_edges(current)
+            rest_count = self.rest_mesh.vertex_count
+            old = (edges < rest_count).all(axis=1)
+            same = np.zeros(edges.shape[0], dtype=bool)
+            same[old] = isin_int(self._keys(edges[old], rest_count), self._rest_boundary)
+            torn = edges[~same]
+            lines = np.hstack([np.full((torn.shape[0], 1), 2), torn]).ravel()
+            self.tears.points = np.asarray(positions, dtype=np.float32)
+            self.tears.lines = lines if torn.size else np.zeros(0, dtype=np.int64)
+            self.tears.Modified()
+        if self.label is not None:
+            self.label.set_text("upper_left", f"frame {number}")
+        self.plotter.render()  # pyvista renders by itself only before the first screenshot
+        return np.asarray(self.plotter.screenshot(return_img=True))[..., :3].copy()
+
+    def close(self) -> None:
+        from vtkmodules.vtkCommonCore import vtkObject
+
+        with contextlib.suppress(Exception):
+            self.plotter.close()
+        vtkObject.SetGlobalWarningDisplay(self._warnings)
+
+    def __enter__(self) -> FrameRenderer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,232 @@
+"""Previews of a result folder: which format's reader to use for it, and rendering what it read.
+
+The readers sit beside their writers in `meshdeform.export` (`meshdeform.export.results`); this module
+only picks the first of them that finds frames (`READERS`) and adds what `report.json` knows.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from meshdeform.errors import MeshLoadError
+from meshdeform.export.base import ExportContext
+from meshdeform.export.mdd import MddReadBack, read_mdd_result
+from meshdeform.export.npz import NpzReadBack, read_npz_result
+from meshdeform.export.pc2 import Pc2ReadBack, read_pc2_result
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames
+from meshdeform.export.sequence import FrameFilesReadBack, read_frame_files
+from meshdeform.export.usd import UsdReadBack, read_usd_result
+from meshdeform.export.vtk import VtkReadBack, read_vtk_result, vtp_pinned
+from meshdeform.mesh import Mesh
+from meshdeform.preview.options import PreviewOptions, PreviewResult
+from meshdeform.preview.render import as_pinned_mask
+from meshdeform.preview.sequence import render_previews
+
+
+@dataclass(frozen=True)
+class Source:
+    """A kind of files a preview reads frames from: the formats that write them, the reader of a folder
+    (folder, input mesh or None, point-cache up axis or None) and the `ReadBack` of a run's frames in
+    memory (export context, the run's formats)."""
+
+    formats: tuple[str, ...]
+    read: Callable[[Path, Mesh | None, str | None], ResultFrames | None]
+    read_back: Callable[[ExportContext, Sequence[str]], ReadBack]
+
+
+#: what a preview reads, in the order a result folder is searched: the first whose files are there wins
+#: (frames: the suffix of the lowest-numbered file, `.obj` when a run wrote both)
+SOURCES: tuple[Source, ...] = (
+    Source(
+        ("obj", "ply"),
+        lambda root, mesh, up: read_frame_files(root, mesh),
+        lambda ctx, formats: FrameFilesReadBack(ctx, ".obj" if "obj" in formats else ".ply"),
+    ),
+    Source(("npz",), lambda root, mesh, up: read_npz_result(root, mesh), lambda ctx, _: NpzReadBack(ctx)),
+    Source(("usd",), lambda root, mesh, up: read_usd_result(root, mesh), lambda ctx, _: UsdReadBack(ctx)),
+    Source(("vtk",), lambda root, mesh, up: read_vtk_result(root, mesh), lambda ctx, _: VtkReadBack(ctx)),
+    Source(("pc2",), read_pc2_result, lambda ctx, _: Pc2ReadBack(ctx)),
+    Source(("mdd",), read_mdd_result, lambda ctx, _: MddReadBack(ctx)),
+)
+
+
+def read_back_for(formats: Sequence[str], ctx: ExportContext) -> ReadBack | None:
+    """The `ReadBack` of what `open_result` reads from a folder a run writes in `formats` (on `ctx`), or
+    None when it reads none of them (xdmf alone)."""
+    source = next((s for s in SOURCES if set(s.formats) & set(formats)), None)
+    return None if source is None else source.read_back(ctx, formats)
+
+
+@dataclass
+class ResultSequence:
+    """A result folder's frames, ready for `render_previews`."""
+
+    mesh: Mesh
+    frames: Sequence[FrameItem]
+    frame_numbers: list[int]
+    fps: float
+    rest_positions: np.ndarray
+    pinned: np.ndarray | None
+    strain: Sequence[np.ndarray] | None
+    source: str
+    report: dict[str, Any]
+
+
+def _read_report(result_dir: Path) -> dict[str, Any]:
+    path = result_dir / "report.json"
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise MeshLoadError(f"{path}: cannot read the report: {exc}") from exc
+    return data if isinstance(data, dict) else {}
+
+
+def _report_fps(report: Mapping[str, Any]) -> float | None:
+    for value in (report.get("fps"), (report.get("settings") or {}).get("fps")):
+        if isinstance(value, int | float) and value > 0:
+            return float(value)
+    return None
+
+
+def _report_pinned(report: Mapping[str, Any], n: int) -> np.ndarray | None:
+    for key in ("pinned", "pinned_indices"):
+        value = report.get(key)
+        if isinstance(value, list):
+            return as_pinned_mask(np.asarray(value, dtype=np.int64), n)
+    return None
+
+
+def no_frames_found(root: Path) -> MeshLoadError:
+    """The error for a folder none of the readers finds frames in."""
+    return MeshLoadError(
+        f"{root}: no frames found (looked for frames/*.obj|ply, positions.npz, scene.usdc, vtk/*.vtp, "
+        "cache.pc2, cache.mdd)"
+    )
+
+
+def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str | None = None) -> ResultSequence:
+    """Find a result folder's frames, in this order: `frames/*.obj|ply`, `positions.npz`,
+    `scene.usdc|usda`, `vtk/*.vtp`, `cache.pc2`, `cache.mdd`.
+
+    The rest pose is `mesh` if given, else the input mesh named by `report.json` (key `input`)
+    when it still exists, else the first frame. Point caches need that mesh for the topology;
+    their axis convention is `up_axis`, the report's `up_axis`, or whichever makes the first
+    frame closest to the rest pose. Pinned vertices come from the report (`pinned`: vertex
+    indices), the npz (`point_pinned`) or the first VTK frame (`pinned` array); fps from the
+    report, the npz, the USD stage or the MDD times. Raises MeshLoadError when nothing is found.
+    """
+    from meshdeform.io import load
+
+    root = Path(result_dir)
+    if not root.is_dir():
+        raise MeshLoadError(f"{root}: no such result folder")
+    report = _read_report(root)
+    input_mesh = mesh
+    if input_mesh is None and isinstance(report.get("input"), str):
+        candidate = Path(report["input"])
+        if not candidate.is_absolute() and not candidate.exists():
+            candidate = root / candidate
+        if candidate.is_file():
+            with contextlib.suppress(MeshLoadError):
+                input_mesh = load(candidate)
+    if up_axis is None and report.get("up_axis") in ("y", "z"):
+        up_axis = str(report["up_axis"])
+    # the first reader that finds its files wins
+    found = next((f for f in (source.read(root, input_mesh, up_axis) for source in SOURCES) if f is not None), None)
+    if found is None:
+        raise no_frames_found(root)
+    base = found.base
+    pinned = found.pinned
+    if pinned is None:
+        pinned = _report_pinned(report, base.vertex_count)
+    if pinned is None:
+        pinned = vtp_pinned(root, base.vertex_count)
+    return ResultSequence(
+        mesh=base,
+        frames=found.frames,
+        frame_numbers=found.numbers,
+        fps=_report_fps(report) or found.fps or 24.0,
+        rest_positions=np.asarray(base.positions, dtype=np.float64),
+        pinned=pinned,
+        strain=found.strain,
+        source=found.source,
+        report=report,
+    )
+
+
+def render_result(
+    result_dir: str | Path,
+    options: PreviewOptions | Mapping[str, Any] | None = None,
+    *,
+    mesh: Mesh | None = None,
+    model: Any = None,
+    out_dir: str | Path | None = None,
+    up_axis: str | None = None,
+) -> tuple[ResultSequence, PreviewResult]:
+    """Render previews of a result folder's frames (see `open_result`) into it (or `out_dir`).
+
+    With the SpringModel of the run (`model`), pinned vertices and strain come from it exactly
+    (strain: the largest stretch of each vertex's structural springs, as in the VTK output).
+    `up_axis` is the convention point caches were written in (default: detected).
+    Returns the sequence read and what was rendered.
+    """
+    seq = open_result(result_dir, mesh=mesh, up_axis=up_axis)
+    pinned = seq.pinned
+    strain: Any = seq.strain
+    if model is not None:
+        vertex_map = np.asarray(model.vertex_map)
+        if vertex_map.shape == (seq.mesh.vertex_count,):
+            with contextlib.suppress(AttributeError):
+                pinned = np.asarray(model.pinned)[vertex_map]
+            if strain is None:
+                strain = welded_strain(model, vertex_map)
+    result = render_previews(
+        seq.mesh,
+        seq.frames,
+        out_dir if out_dir is not None else result_dir,
+        options,
+        frame_numbers=seq.frame_numbers,
+        fps=seq.fps,
+        rest_positions=seq.rest_positions,
+        pinned=pinned,
+        strain=strain,
+    )
+    return seq, result
+
+
+def render_result_previews(
+    result_dir: str | Path,
+    options: PreviewOptions | Mapping[str, Any] | None = None,
+    *,
+    mesh: Mesh | None = None,
+    model: Any = None,
+    out_dir: str | Path | None = None,
+    up_axis: str | None = None,
+) -> list[Path]:
+    """`render_result`, returning only the files written."""
+    _, result = render_result(result_dir, options, mesh=mesh, model=model, out_dir=out_dir, up_axis=up_axis)
+    return result.files
+
+
+def welded_strain(model: Any, vertex_map: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Input-layout strain from the model's structural springs (positions gathered to welded)."""
+    from meshdeform.strain import VertexStrain
+
+    vertex_strain = VertexStrain(model)
+    welded_count = int(model.vertex_count)
+
+    def strain(positions: np.ndarray) -> np.ndarray:
+        welded = np.zeros((welded_count, 3))
+        welded[vertex_map] = positions
+        return vertex_strain(welded)[vertex_map]
+
+    return strain
