@@ -9,24 +9,17 @@ from typing import Any
 
 import numpy as np
 
-from meshdeform.arrays import isin_int, run_lengths
+from meshdeform.arrays import isin_int
 from meshdeform.errors import ExportError
 from meshdeform.mesh import Mesh
 from meshdeform.preview.camera import frame_camera
 from meshdeform.preview.options import PreviewOptions
+from meshdeform.topology import boundary_edges as topology_boundary_edges
 
 
 def boundary_edges(mesh: Mesh) -> np.ndarray:
-    """Polygon edges used by exactly one polygon, (E, 2) sorted pairs."""
-    if mesh.face_count == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    n = max(mesh.vertex_count, 1)
-    a = mesh.face_indices.astype(np.int64)
-    b = mesh.face_indices[mesh.corner_next].astype(np.int64)
-    keys = np.sort(np.minimum(a, b) * n + np.maximum(a, b))
-    starts, lengths = run_lengths(keys)
-    single = keys[starts[lengths == 1]]
-    return np.stack([single // n, single % n], axis=1)
+    """Polygon edges used by exactly one polygon, (E, 2) sorted pairs (`topology.boundary_edges`)."""
+    return topology_boundary_edges(mesh.face_indices, mesh.face_indices[mesh.corner_next], mesh.vertex_count)
 
 
 def as_pinned_mask(pinned: np.ndarray | Sequence[int] | None, n: int) -> np.ndarray | None:
