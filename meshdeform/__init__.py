@@ -27,7 +27,7 @@ _EXPORTS = {
     "Frame": "meshdeform.simulate",
     "simulate": "meshdeform.simulate",
     "SolverOptions": "meshdeform.solvers.base",
-    "make_solver": "meshdeform.solvers.base",
+    "make_solver": "meshdeform.solvers.registry",
     "build_springs": "meshdeform.topology",
     "Tearer": "meshdeform.tearing",
     "TearRegion": "meshdeform.tearing",

@@ -56,9 +56,10 @@ import numpy as np
 from meshdeform.errors import SimulationDiverged
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, Solver, SolverOptions, make_solver, solver_class
+from meshdeform.solvers import guard_kernels
+from meshdeform.solvers.base import Control, Solver, SolverOptions
 from meshdeform.solvers.common import structural_mask
+from meshdeform.solvers.registry import make_solver, solver_class
 
 if TYPE_CHECKING:
     from meshdeform.tearing import Tearer
@@ -331,7 +332,7 @@ def simulate(
                     control = Control(accelerations=accelerations)
                     structural = _Structural.of(model)
         positions = state.positions
-        finite, reach, speed = kernels.guard_figures(positions, state.velocities, center)
+        finite, reach, speed = guard_kernels.guard_figures(positions, state.velocities, center)
         diverged = f"simulation diverged at frame {frame} with solver {name!r}"
         if not finite:
             raise SimulationDiverged(
@@ -352,7 +353,7 @@ def simulate(
                 frame=frame,
                 solver=name,
             )
-        stretch = float(kernels.max_ratio(positions, structural.a, structural.b, structural.rest))
+        stretch = float(guard_kernels.max_ratio(positions, structural.a, structural.b, structural.rest))
         if stretch > stretch_limit:
             guarded = structural.guarded_stretch(positions, stretch)
             if guarded > stretch_limit:
@@ -423,4 +424,4 @@ class _Structural:
         unless slivers are measured against their floor (a second pass, only when over the bound)."""
         if self.guard_rest is None:
             return stretch
-        return float(kernels.max_ratio(positions, self.a, self.b, self.guard_rest))
+        return float(guard_kernels.max_ratio(positions, self.a, self.b, self.guard_rest))

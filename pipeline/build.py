@@ -21,7 +21,7 @@ from meshdeform.model import SpringModel, lumped_mass
 from meshdeform.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
 from meshdeform.simulate import Constraint, Force, Scene, Settings
-from meshdeform.solvers.base import SOLVERS
+from meshdeform.solvers import SOLVERS
 from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
 from meshdeform.topology import SpringKind, Springs, Welding, build_springs
 from pipeline.recipe import (

@@ -50,8 +50,8 @@ from meshdeform.errors import MeshdeformError, RecipeError
 from meshdeform.io.files import special_file_kind
 from meshdeform.material import KindMaterial, Material
 from meshdeform.pins import Keyframe
-from meshdeform.solvers.anchor import ANCHOR_FRAMES
-from meshdeform.solvers.base import SOLVERS, SolverOptions, solver_class
+from meshdeform.solvers import SOLVERS, SolverOptions, solver_class
+from meshdeform.solvers.options import ANCHOR_FRAMES
 
 __all__ = [
     "KNOWN_FORMATS",

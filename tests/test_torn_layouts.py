@@ -14,8 +14,9 @@ import pytest
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers import Control, SolverOptions, common, kernels, make_solver
+from meshdeform.solvers import Control, SolverOptions, common, make_solver
 from meshdeform.solvers.layout import SpringLayout, inherited_layout, spring_layout
+from meshdeform.solvers.xpbd import kernels
 from meshdeform.tearing import Tearer, TearRegion, TearSettings
 
 N = 32  # 32 x 32 has more springs than AUTO_PARALLEL_SPRINGS: two slabs and a separator

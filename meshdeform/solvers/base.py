@@ -25,7 +25,6 @@ from typing import ClassVar, Protocol
 
 import numpy as np
 
-from meshdeform.errors import MeshdeformError
 from meshdeform.model import SpringModel, State
 
 
@@ -117,30 +116,6 @@ class SolverOptions:
     def iterations_for(self, solver: type | object) -> int:
         """The iteration count in force for a solver class or instance."""
         return int(self.iterations) if self.iterations is not None else int(solver.default_iterations)
-
-
-SOLVERS: dict[str, type] = {}
-
-
-def register(cls: type) -> type:
-    """Class decorator adding a solver to the registry under its `name`."""
-    SOLVERS[cls.name] = cls
-    return cls
-
-
-def solver_class(name: str) -> type:
-    """The registered solver class; unknown names raise MeshdeformError listing the known ones."""
-    import meshdeform.solvers  # noqa: F401  (registers the built-in solvers)
-
-    try:
-        return SOLVERS[name]
-    except KeyError:
-        raise MeshdeformError(f"unknown solver {name!r}; choose one of: {', '.join(sorted(SOLVERS))}") from None
-
-
-def make_solver(name: str, options: SolverOptions | None = None) -> Solver:
-    """A solver instance by registry name; unknown names raise MeshdeformError listing the known ones."""
-    return solver_class(name)(options or SolverOptions())
 
 
 def velocity_retention(damping: float, dt: float) -> float:

@@ -33,7 +33,10 @@ import numpy as np
 
 from meshdeform.arrays import dense_rank, lexsort_int
 from meshdeform.model import SpringModel
-from meshdeform.solvers.kernels import ENDS, first_touch, inherit_order, sweep_levels
+from meshdeform.solvers.layout_kernels import first_touch, inherit_order, sweep_levels
+
+#: spring ends in kernel vertex numbering
+ENDS = np.dtype([("a", "u4"), ("b", "u4")], align=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,7 +46,7 @@ class SpringLayout:
     a, b: (S,) int64 end vertices in the new order; rest: (S,) rest lengths;
     offsets: (P + 2,) slab p is order[offsets[p]:offsets[p + 1]], the separator is
     order[offsets[P]:offsets[P + 1]]. vertex_order: (W,) kernel vertex k -> model vertex, in
-    the order the sweep first touches them; vertex_rank: its inverse; ends: (S,) `kernels.ENDS`
+    the order the sweep first touches them; vertex_rank: its inverse; ends: (S,) `ENDS`
     records, the springs' ends (a, b) in kernel numbering.
     """
 

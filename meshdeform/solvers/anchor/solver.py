@@ -26,13 +26,11 @@ import numpy as np
 
 from meshdeform.errors import MeshdeformError
 from meshdeform.model import SpringModel
-from meshdeform.solvers.base import SolverOptions, register
-from meshdeform.solvers.springs import ExplicitSolver
+from meshdeform.solvers.base import SolverOptions
+from meshdeform.solvers.options import ANCHOR_FRAMES
+from meshdeform.solvers.springs.solver import ExplicitSolver
 
-ANCHOR_FRAMES = ("auto", "world", "centroid")
 
-
-@register
 class AnchorSolver(ExplicitSolver):
     """Vertices spring back to their rest positions (optionally plus neighbour springs)."""
 

@@ -42,12 +42,11 @@ import numpy as np
 from scipy.sparse import coo_matrix
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
+from meshdeform.solvers.base import Control, SolverOptions, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
+from meshdeform.solvers.implicit import kernels
 
 
-@register
 class ImplicitSolver(ModelCache):
     """Projective dynamics with a prefactored global matrix and BDF2 time integration."""
 

@@ -36,11 +36,12 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
+from meshdeform.solvers.base import Control, SolverOptions, velocity_retention
 from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
 from meshdeform.solvers.layout import kernel_chunks
+from meshdeform.solvers.sweep_kernels import POINT
+from meshdeform.solvers.verlet import kernels
 
 
 def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
@@ -50,7 +51,6 @@ def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
     return np.where(s >= 1.0, s, soft)
 
 
-@register
 class VerletSolver(LayoutCache):
     """Position-based Verlet cloth with per-kind relaxation factors."""
 
@@ -84,7 +84,7 @@ class VerletSolver(LayoutCache):
         p["ac"] = self.kc * share_a
         p["bc"] = self.kc * share_b
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers)
-        self.scratch = self._buffer("scratch", model.vertex_count, kernels.POINT)
+        self.scratch = self._buffer("scratch", model.vertex_count, POINT)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.previous = self._buffer("previous", 3 * model.vertex_count, np.float64).reshape(-1, 3)  # kernel numbering

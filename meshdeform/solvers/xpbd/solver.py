@@ -52,14 +52,12 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
-from meshdeform.solvers.common import (
-    LayoutCache,
-    kernel_tethers,
-)
+from meshdeform.solvers.base import Control, SolverOptions, velocity_retention
+from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
 from meshdeform.solvers.layout import kernel_chunks
+from meshdeform.solvers.sweep_kernels import VERTEX
+from meshdeform.solvers.xpbd import kernels
 from meshdeform.topology import SpringKind
 
 #: tether paths run along these spring kinds, with this slack (see the module docstring)
@@ -67,7 +65,6 @@ TETHER_KINDS = (int(SpringKind.STRUCTURAL), int(SpringKind.SHEAR))
 TETHER_SLACK = 1.03
 
 
-@register
 class XPBDSolver(LayoutCache):
     """Extended position-based dynamics with per-kind compliance and constraint damping."""
 
@@ -86,7 +83,7 @@ class XPBDSolver(LayoutCache):
         lay = self.layout = self._layout_for(model, self.options.partitions)
         self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers, TETHER_KINDS, TETHER_SLACK)
-        self.scratch = self._buffer("scratch", model.vertex_count, kernels.VERTEX)
+        self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.substep.allow_parallel(lay.parts > 1)

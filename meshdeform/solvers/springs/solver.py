@@ -24,10 +24,10 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
+from meshdeform.solvers.base import Control, SolverOptions, velocity_retention
 from meshdeform.solvers.common import ModelCache, damping_coefficients, spring_constants, structural_mask
 from meshdeform.solvers.layout import spring_layout
+from meshdeform.solvers.springs import kernels
 
 
 def stable_step(model: SpringModel, k: np.ndarray, c: np.ndarray, extra_omega2: float = 0.0) -> float:
@@ -123,7 +123,6 @@ def pinned_velocity(x: np.ndarray, prev: np.ndarray, v: np.ndarray, inv_mass: np
     kernels.start_step(x, prev, v, inv_mass, inv_dt)
 
 
-@register
 class SpringsSolver(ExplicitSolver):
     """Mass-spring cloth with Hooke springs, spring damping and an optional Provot strain limit."""
 
