@@ -4,12 +4,14 @@ Per substep: external accelerations (gravity plus every force of the scene; fill
 the scene has no forces) are evaluated, animated hard pins are moved to their targets, the
 solver steps, then the scene's constraints (colliders, soft pins) are projected and hard pins
 are restored exactly (bit-identical to the input, or to their animation targets). When nothing
-happens between substeps (gravity only: no forces, constraints, pin animation or tearing), a
-solver with an `advance(model, state, dt, control, count)` method (verlet, xpbd) runs the
-frame's substeps in one call, which keeps the vertices in its own scratch between them.
+happens between substeps (gravity only: no forces, constraints, pin animation or tearing), the
+frame's substeps are one `Solver.advance(model, state, dt, control, count)` call (verlet and
+xpbd run them in one compiled call that keeps the vertices in their scratch; the default is a
+loop of `step`, the same bytes).
 
 After every frame, before it is yielded, the divergence guard stops the run with
-`SimulationDiverged` naming the frame, the solver, what went wrong and a hint, when
+`SimulationDiverged` naming the frame, the solver, what went wrong and a hint (the solver's
+`Solver.hint`), when
 - positions are non-finite, or a vertex is farther from the mesh centre than a generous bound
   (1000 mesh diagonals plus twice the free-fall distance plus 100 m, `_runaway_limit`);
 - a vertex moves faster than `_speed_limit` (1000 m/s plus 100 mesh diagonals per second plus
@@ -212,33 +214,20 @@ def _stretch_limit(tearing: Tearer | None) -> float:
     return max(STRETCH_LIMIT, TEAR_STRETCH_FACTOR * float(finite.max())) if finite.size else STRETCH_LIMIT
 
 
-_HINTS = {
-    "anchor": "lower anchor_stiffness or spring stiffness, or keep stable_substeps on",
-    "verlet": "keep stiffness within 0..1 or use more substeps",
-    "xpbd": "use more substeps or check the forces for non-finite values",
-    "springs": "keep stable_substeps on, lower stiffness or use more substeps",
-    "implicit": "use more substeps or iterations, or check the forces for non-finite values",
-}
-
-
-def _solver_hint(name: str) -> str:
-    return _HINTS.get(name, "more substeps or lower stiffness")
-
-
-def _stretch_hint(name: str) -> str:
-    """What to try when springs stretched past the bound: the solver's own advice (an unstable
-    step is the usual cause), then the scene's culprits."""
+def _stretch_hint(hint: str) -> str:
+    """What to try when springs stretched past the bound: the solver's own advice (`Solver.hint`:
+    an unstable step is the usual cause), then the scene's culprits."""
     return (
-        f"{_solver_hint(name)}; check that pins do not pull the mesh apart, that impacts and wind "
+        f"{hint}; check that pins do not pull the mesh apart, that impacts and wind "
         "are not too strong and that the material is not far too soft"
     )
 
 
-def _speed_hint(name: str) -> str:
-    """What to try when vertices moved faster than the bound: the solver's own advice, then the
-    scene's fast movers."""
+def _speed_hint(hint: str) -> str:
+    """What to try when vertices moved faster than the bound: the solver's own advice
+    (`Solver.hint`), then the scene's fast movers."""
     return (
-        f"{_solver_hint(name)}; check the strength of impacts and wind and the speed of animated pins "
+        f"{hint}; check the strength of impacts and wind and the speed of animated pins "
         "and colliders (a looping animation jumps back to its start)"
     )
 
@@ -254,7 +243,7 @@ def simulate(
     scene = scene or Scene()
     settings = settings or Settings()
     solver = solver or make_solver(settings.solver, settings.options)
-    name = str(getattr(solver, "name", settings.solver))
+    name, hint = solver.name, solver.hint
     state = state or State.at_rest(model)
     substeps = int(settings.substeps)
     dt = 1.0 / (settings.fps * substeps)
@@ -278,16 +267,14 @@ def simulate(
         tearing.start(model)
         original_pins = np.flatnonzero(tearing.initial_model.pinned)
     step = solver.step
-    follow_tear = getattr(solver, "follow_tear", None)  # solvers that can reuse their work after a tear
     step_count = 0
     resting_since: int | None = None
-    # nothing between the substeps (no forces, constraints, pin motion or tearing): a solver
-    # that can runs a whole frame in one call, with the same result as substep by substep
-    advance = getattr(solver, "advance", None)
-    whole_frames = advance is not None and not forces and not constraints and pin_motion is None and tearing is None
+    # nothing between the substeps (no forces, constraints, pin motion or tearing): the solver
+    # runs a whole frame in one call (`Solver.advance`), with the same result as substep by substep
+    whole_frames = not forces and not constraints and pin_motion is None and tearing is None
     for frame in range(1, settings.frames + 1):
         if whole_frames:
-            advance(model, state, dt, control, substeps)
+            solver.advance(model, state, dt, control, substeps)
             if pinned_idx.size:
                 state.positions[pinned_idx] = pinned_rest
             step_count += substeps
@@ -317,8 +304,7 @@ def simulate(
             if tearing is not None:
                 event = tearing.after_substep(model, state, t1)
                 if event is not None:
-                    if follow_tear is not None:
-                        follow_tear(model, event.model, event.index_map, event.parent)
+                    solver.follow_tear(model, event.model, event.index_map, event.parent)
                     model = event.model
                     for item in (*forces, *constraints):
                         remap = getattr(item, "remap", None)
@@ -336,12 +322,12 @@ def simulate(
         diverged = f"simulation diverged at frame {frame} with solver {name!r}"
         if not finite:
             raise SimulationDiverged(
-                f"{diverged}: positions became non-finite; try: {_solver_hint(name)}", frame=frame, solver=name
+                f"{diverged}: positions became non-finite; try: {hint}", frame=frame, solver=name
             )
         elapsed = state.time - start_time
         if reach > _runaway_limit(diagonal, gravity, elapsed):
             raise SimulationDiverged(
-                f"{diverged}: positions ran away ({reach:.3g} from the mesh centre); try: {_solver_hint(name)}",
+                f"{diverged}: positions ran away ({reach:.3g} from the mesh centre); try: {hint}",
                 frame=frame,
                 solver=name,
             )
@@ -349,7 +335,7 @@ def simulate(
         if speed > speed_limit:
             raise SimulationDiverged(
                 f"{diverged}: vertices moved at {speed:.4g} m/s (limit {speed_limit:.4g} m/s); "
-                f"try: {_speed_hint(name)}",
+                f"try: {_speed_hint(hint)}",
                 frame=frame,
                 solver=name,
             )
@@ -359,7 +345,7 @@ def simulate(
             if guarded > stretch_limit:
                 raise SimulationDiverged(
                     f"{diverged}: springs stretched to {guarded:.3g}x their rest length "
-                    f"(limit {stretch_limit:.3g}x); try: {_stretch_hint(name)}",
+                    f"(limit {stretch_limit:.3g}x); try: {_stretch_hint(hint)}",
                     frame=frame,
                     solver=name,
                 )

@@ -1,4 +1,4 @@
-"""The solver interface: a small object with `step(model, state, dt, control)`.
+"""The solver contract: the `Solver` base class (`step`, `advance`, `follow_tear`) and its `Control`.
 
 Solvers only advance positions under spring forces or constraints and the external
 accelerations in `Control`; pins with inv_mass 0 are never moved by a solver. Gravity,
@@ -20,8 +20,9 @@ Free fall is only exact without air damping (damping = 0).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import ClassVar, Protocol
+from typing import ClassVar
 
 import numpy as np
 
@@ -40,18 +41,54 @@ class Control:
     accelerations: np.ndarray
 
 
-class Solver(Protocol):
+class Solver(ABC):
     """Advances a State by dt in place; keeps `state.previous` and `state.velocities` consistent.
 
-    Class attributes: `name` (registry key), `default_substeps` and `default_iterations`
-    (used when `Settings.substeps` / `SolverOptions.iterations` are None).
+    Subclasses (one folder each, listed in `registry.SOLVERS`) set the class attributes:
+    name: registry key, the recipe's `solver` value.
+    summary: one line of help text (the CLI's `--solver` help, the docs).
+    hint: what to try when a run with this solver diverges (quoted by `simulate`'s guard).
+    default_substeps: substeps per frame when `Settings.substeps` is None.
+    default_iterations: iterations when `options.iterations` is None (0: the solver has none).
+    options_class: the options it takes (`meshdeform.solvers.options`).
+
+    `state.time` is the caller's: `simulate` sets it after every `step` and after `advance`.
     """
 
     name: ClassVar[str]
+    summary: ClassVar[str]
+    hint: ClassVar[str]
     default_substeps: ClassVar[int]
-    default_iterations: ClassVar[int]
+    default_iterations: ClassVar[int] = 0
+    options_class: ClassVar[type[SolverOptions]]
 
-    def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None: ...
+    def __init__(self, options: SolverOptions) -> None:
+        self.options = options
+
+    @abstractmethod
+    def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
+        """One substep of dt under the external accelerations of `control`."""
+
+    def advance(self, model: SpringModel, state: State, dt: float, control: Control, count: int) -> None:
+        """`count` substeps of dt with the same `control` (nothing runs between them), the same
+        bytes as `count` calls of `step`; `simulate` calls it for scenes of gravity alone.
+
+        This default calls `step` `count` times and moves `state.time` on by dt after each, as
+        `simulate` does between substeps (a step may read it: `implicit` checks that the state
+        continues its last step). Solvers override it to run the substeps in one compiled call.
+        """
+        start = state.time
+        for k in range(1, count + 1):
+            self.step(model, state, dt, control)
+            state.time = start + k * dt
+
+    def follow_tear(  # noqa: B027 - a deliberate no-op default, not a forgotten abstract method
+        self, previous: SpringModel, model: SpringModel, index_map: np.ndarray, parent: np.ndarray
+    ) -> None:
+        """`model` replaces `previous` after a tear (index_map: (W',) new vertex -> previous one;
+        parent: (S',) new spring -> previous one), before `model` is first stepped. Solvers that
+        can derive their per-model data from the previous model's override it; by default the
+        next step rebuilds them from `model`."""
 
 
 @dataclass(frozen=True)

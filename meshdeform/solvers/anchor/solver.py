@@ -27,7 +27,7 @@ import numpy as np
 from meshdeform.errors import MeshdeformError
 from meshdeform.model import SpringModel
 from meshdeform.solvers.base import SolverOptions
-from meshdeform.solvers.options import ANCHOR_FRAMES
+from meshdeform.solvers.options import ANCHOR_FRAMES, AnchorOptions
 from meshdeform.solvers.springs.solver import ExplicitSolver
 
 
@@ -35,6 +35,9 @@ class AnchorSolver(ExplicitSolver):
     """Vertices spring back to their rest positions (optionally plus neighbour springs)."""
 
     name: ClassVar[str] = "anchor"
+    summary: ClassVar[str] = "vertices spring back to their rest shape (stress-ball deformer), semi-implicit Euler"
+    hint: ClassVar[str] = "lower anchor_stiffness or spring stiffness, or keep stable_substeps on"
+    options_class: ClassVar[type[AnchorOptions]] = AnchorOptions
     default_substeps: ClassVar[int] = 8
 
     def __init__(self, options: SolverOptions) -> None:

@@ -42,20 +42,24 @@ import numpy as np
 from scipy.sparse import coo_matrix
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, SolverOptions, velocity_retention
+from meshdeform.solvers.base import Control, Solver, SolverOptions, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import kernels
+from meshdeform.solvers.options import ImplicitOptions
 
 
-class ImplicitSolver(ModelCache):
+class ImplicitSolver(ModelCache, Solver):
     """Projective dynamics with a prefactored global matrix and BDF2 time integration."""
 
     name: ClassVar[str] = "implicit"
+    summary: ClassVar[str] = "projective dynamics (Liu et al. 2013) with BDF2, prefactored: stiff springs in few steps"
+    hint: ClassVar[str] = "use more substeps or iterations, or check the forces for non-finite values"
+    options_class: ClassVar[type[ImplicitOptions]] = ImplicitOptions
     default_substeps: ClassVar[int] = 1
     default_iterations: ClassVar[int] = 6
 
     def __init__(self, options: SolverOptions) -> None:
-        self.options = options
+        super().__init__(options)
         self.iterations = max(1, options.iterations_for(self))
         self._dt = -1.0
         self._state_key: tuple[int, float] | None = None

@@ -24,9 +24,10 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, SolverOptions, velocity_retention
+from meshdeform.solvers.base import Control, Solver, SolverOptions, velocity_retention
 from meshdeform.solvers.common import ModelCache, damping_coefficients, spring_constants, structural_mask
 from meshdeform.solvers.layout import spring_layout
+from meshdeform.solvers.options import SpringsOptions
 from meshdeform.solvers.springs import kernels
 
 
@@ -52,16 +53,15 @@ def stable_step(model: SpringModel, k: np.ndarray, c: np.ndarray, extra_omega2: 
     return (-gam + math.sqrt(gam * gam + budget * lam)) / lam
 
 
-class ExplicitSolver(ModelCache):
+class ExplicitSolver(ModelCache, Solver):
     """Semi-implicit Euler over springs and/or anchors; subclasses choose which."""
 
     use_springs: ClassVar[bool] = True
-    default_iterations: ClassVar[int] = 0
     #: decay rate (1/s) of velocities relative to the anchors (`anchor` only)
     anchor_damping: float = 0.0
 
     def __init__(self, options: SolverOptions) -> None:
-        self.options = options
+        super().__init__(options)
         self._dt = -1.0
         self.inner_steps = 1
 
@@ -127,4 +127,7 @@ class SpringsSolver(ExplicitSolver):
     """Mass-spring cloth with Hooke springs, spring damping and an optional Provot strain limit."""
 
     name: ClassVar[str] = "springs"
+    summary: ClassVar[str] = "Hooke springs, semi-implicit Euler, stable substeps, optional Provot strain limit"
+    hint: ClassVar[str] = "keep stable_substeps on, lower stiffness or use more substeps"
+    options_class: ClassVar[type[SpringsOptions]] = SpringsOptions
     default_substeps: ClassVar[int] = 8

@@ -36,10 +36,11 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, SolverOptions, velocity_retention
+from meshdeform.solvers.base import Control, Solver, SolverOptions, velocity_retention
 from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
 from meshdeform.solvers.layout import kernel_chunks
+from meshdeform.solvers.options import VerletOptions
 from meshdeform.solvers.sweep_kernels import POINT
 from meshdeform.solvers.verlet import kernels
 
@@ -51,15 +52,18 @@ def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
     return np.where(s >= 1.0, s, soft)
 
 
-class VerletSolver(LayoutCache):
+class VerletSolver(LayoutCache, Solver):
     """Position-based Verlet cloth with per-kind relaxation factors."""
 
     name: ClassVar[str] = "verlet"
+    summary: ClassVar[str] = "Verlet integration, springs relaxed as distance constraints (Jakobsen 2001)"
+    hint: ClassVar[str] = "keep stiffness within 0..1 or use more substeps"
+    options_class: ClassVar[type[VerletOptions]] = VerletOptions
     default_substeps: ClassVar[int] = 18
     default_iterations: ClassVar[int] = 2
 
     def __init__(self, options: SolverOptions) -> None:
-        self.options = options
+        super().__init__(options)
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
         # one picker for the solver's life: what it measured holds for every model (tearing)

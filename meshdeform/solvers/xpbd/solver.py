@@ -52,10 +52,11 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, SolverOptions, velocity_retention
+from meshdeform.solvers.base import Control, Solver, SolverOptions, velocity_retention
 from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
 from meshdeform.solvers.layout import kernel_chunks
+from meshdeform.solvers.options import XPBDOptions
 from meshdeform.solvers.sweep_kernels import VERTEX
 from meshdeform.solvers.xpbd import kernels
 from meshdeform.topology import SpringKind
@@ -65,15 +66,18 @@ TETHER_KINDS = (int(SpringKind.STRUCTURAL), int(SpringKind.SHEAR))
 TETHER_SLACK = 1.03
 
 
-class XPBDSolver(LayoutCache):
+class XPBDSolver(LayoutCache, Solver):
     """Extended position-based dynamics with per-kind compliance and constraint damping."""
 
     name: ClassVar[str] = "xpbd"
+    summary: ClassVar[str] = "compliant distance constraints in small steps (Macklin et al. 2016/2019), the default"
+    hint: ClassVar[str] = "use more substeps or check the forces for non-finite values"
+    options_class: ClassVar[type[XPBDOptions]] = XPBDOptions
     default_substeps: ClassVar[int] = 22
     default_iterations: ClassVar[int] = 2
 
     def __init__(self, options: SolverOptions) -> None:
-        self.options = options
+        super().__init__(options)
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
         # one picker for the solver's life: what it measured holds for every model (tearing)
