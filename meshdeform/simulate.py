@@ -61,7 +61,7 @@ from meshdeform.model import SpringModel, State
 from meshdeform.solvers import guard_kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions
 from meshdeform.solvers.common import structural_mask
-from meshdeform.solvers.registry import make_solver, solver_class
+from meshdeform.solvers.registry import make_solver, solver_class, solver_options
 
 if TYPE_CHECKING:
     from meshdeform.tearing import Tearer
@@ -106,10 +106,13 @@ class Scene:
 class Settings:
     """Time stepping: frames at fps, each split into substeps, and the solver's options.
 
-    substeps: solver steps per frame; None (the default) takes the solver's own default
-        (anchor 8, verlet 18, xpbd 22, springs 8, implicit 1) and is resolved on construction,
-        so `settings.substeps` is always an int afterwards. Iterations likewise come from
-        `options.iterations` or the solver's default (see `Settings.iterations`).
+    substeps: solver steps per frame; None (the default) takes the solver's `default_substeps`
+        and is resolved on construction, so `settings.substeps` is always an int afterwards.
+        Iterations likewise come from `options.iterations` or the solver's default (see
+        `Settings.iterations`).
+    options: the solver's own options (its `Solver.options_class`); None (the default) takes
+        that class's defaults, resolved on construction like substeps. Options of another
+        solver's class raise MeshdeformError.
     rest_speed: m/s; a frame whose largest vertex speed is below it is at rest.
     """
 
@@ -117,12 +120,14 @@ class Settings:
     fps: float = 24.0
     frames: int = 120
     substeps: int | None = None
-    options: SolverOptions = field(default_factory=SolverOptions)
+    options: SolverOptions | None = None
     rest_speed: float = 1e-4
 
     def __post_init__(self) -> None:
+        cls = solver_class(self.solver)
         if self.substeps is None:
-            object.__setattr__(self, "substeps", int(solver_class(self.solver).default_substeps))
+            object.__setattr__(self, "substeps", int(cls.default_substeps))
+        object.__setattr__(self, "options", solver_options(cls, self.options))
 
     @property
     def dt(self) -> float:

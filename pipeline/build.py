@@ -265,6 +265,8 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
         # pins moving apart they stretch the cloth at the pins without limit and yank torn pieces,
         # so a recipe that tears runs without them unless it asks for them
         options = dataclasses.replace(options, tethers=None)
+    own = SOLVERS[sim.solver].options_class  # the solver's own options from the flat recipe table (transitional)
+    options = own(**{f.name: getattr(options, f.name) for f in dataclasses.fields(own)})
     settings = Settings(solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=options)
     res = _Resolver(recipe, mesh)
     material = recipe.material.to_material()

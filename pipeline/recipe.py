@@ -50,8 +50,15 @@ from meshdeform.errors import MeshdeformError, RecipeError
 from meshdeform.io.files import special_file_kind
 from meshdeform.material import KindMaterial, Material
 from meshdeform.pins import Keyframe
-from meshdeform.solvers import SOLVERS, SolverOptions, solver_class
-from meshdeform.solvers.options import ANCHOR_FRAMES
+from meshdeform.solvers import SOLVERS, solver_class
+from meshdeform.solvers.options import ANCHOR_FRAMES, AnchorOptions, XPBDOptions
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverOptions(XPBDOptions, AnchorOptions):
+    """Transitional: every solver's options in the flat [simulation] table, until the recipe reads
+    per-solver tables; `build_simulation` hands the solver its own `options_class`."""
+
 
 __all__ = [
     "KNOWN_FORMATS",

@@ -10,7 +10,7 @@ import pytest
 
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import Control, SolverOptions, dispatch, make_solver
+from meshdeform.solvers import Control, dispatch, make_solver, solver_class
 from meshdeform.solvers.common import kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker, chunk_bounds
 from meshdeform.solvers.layout import kernel_chunks, spring_layout
@@ -126,7 +126,7 @@ BUILDS = {
 def advance(name: str, build: str, steps: int = 30, per_call: int = 1) -> np.ndarray:
     """Positions after `steps` substeps, `per_call` at a time, forcing the serial or the parallel build."""
     model = cloth(24)
-    solver = make_solver(name, SolverOptions(partitions=2))
+    solver = make_solver(name, solver_class(name).options_class(partitions=2))
     state = State.at_rest(model)
     control = Control(np.tile(np.array([0.0, -9.81, 0.0]), (model.vertex_count, 1)))
     dt = 1.0 / 24 / 20

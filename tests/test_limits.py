@@ -22,12 +22,19 @@ from meshdeform.errors import RecipeError
 from meshdeform.io import load
 from meshdeform.io.obj import write_obj
 from meshdeform.mesh import grid_mesh
-from meshdeform.solvers.base import SolverOptions
 from pipeline import estimate
 from pipeline.cli import app
 from pipeline.estimate import InsufficientDiskSpace, estimate_run, output_bytes, require_disk_space
 from pipeline.job import run_job
-from pipeline.recipe import LIMITS, SOLVER_OPTION_FIELDS, SimulationSpec, apply_overrides, load_recipe, parse_recipe
+from pipeline.recipe import (
+    LIMITS,
+    SOLVER_OPTION_FIELDS,
+    SimulationSpec,
+    SolverOptions,
+    apply_overrides,
+    load_recipe,
+    parse_recipe,
+)
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "recipes.md"
 runner = CliRunner()

@@ -15,7 +15,7 @@ import pytest
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers import Control, Solver, SolverOptions
+from meshdeform.solvers import Control, Solver, solver_class
 from meshdeform.solvers.layout import AUTO_PARALLEL_SPRINGS, resolve_parts, spring_layout
 
 two_threads = pytest.mark.skipif(nb.config.NUMBA_NUM_THREADS < 2, reason="needs 2 Numba threads")
@@ -32,7 +32,8 @@ def run(model: SpringModel, solver: str, threads: int, partitions: int, frames: 
     before = nb.get_num_threads()
     nb.set_num_threads(threads)
     try:
-        settings = Settings(solver=solver, frames=frames, options=SolverOptions(partitions=partitions))
+        options = solver_class(solver).options_class(partitions=partitions)
+        settings = Settings(solver=solver, frames=frames, options=options)
         return np.stack([f.welded_positions for f in simulate(model, Scene(), settings)])
     finally:
         nb.set_num_threads(before)

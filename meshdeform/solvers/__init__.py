@@ -10,6 +10,26 @@
 """
 
 from meshdeform.solvers.base import Control, Solver, SolverOptions
-from meshdeform.solvers.registry import SOLVERS, make_solver, solver_class
+from meshdeform.solvers.options import (
+    AnchorOptions,
+    ImplicitOptions,
+    SpringsOptions,
+    VerletOptions,
+    XPBDOptions,
+)
+from meshdeform.solvers.registry import SOLVERS, make_solver, solver_class, solver_options
 
-__all__ = ["SOLVERS", "Control", "Solver", "SolverOptions", "make_solver", "solver_class"]
+__all__ = [
+    "SOLVERS",
+    "AnchorOptions",
+    "Control",
+    "ImplicitOptions",
+    "Solver",
+    "SolverOptions",
+    "SpringsOptions",
+    "VerletOptions",
+    "XPBDOptions",
+    "make_solver",
+    "solver_class",
+    "solver_options",
+]

@@ -26,7 +26,6 @@ import numpy as np
 
 from meshdeform.errors import MeshdeformError
 from meshdeform.model import SpringModel
-from meshdeform.solvers.base import SolverOptions
 from meshdeform.solvers.options import ANCHOR_FRAMES, AnchorOptions
 from meshdeform.solvers.springs.solver import ExplicitSolver
 
@@ -40,7 +39,7 @@ class AnchorSolver(ExplicitSolver):
     options_class: ClassVar[type[AnchorOptions]] = AnchorOptions
     default_substeps: ClassVar[int] = 8
 
-    def __init__(self, options: SolverOptions) -> None:
+    def __init__(self, options: AnchorOptions) -> None:
         if options.anchor_frame not in ANCHOR_FRAMES:
             raise MeshdeformError(
                 f"unknown anchor_frame {options.anchor_frame!r}; choose one of: {', '.join(ANCHOR_FRAMES)}"

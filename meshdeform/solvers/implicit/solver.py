@@ -42,7 +42,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, Solver, SolverOptions, velocity_retention
+from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import kernels
 from meshdeform.solvers.options import ImplicitOptions
@@ -58,7 +58,7 @@ class ImplicitSolver(ModelCache, Solver):
     default_substeps: ClassVar[int] = 1
     default_iterations: ClassVar[int] = 6
 
-    def __init__(self, options: SolverOptions) -> None:
+    def __init__(self, options: ImplicitOptions) -> None:
         super().__init__(options)
         self.iterations = max(1, options.iterations_for(self))
         self._dt = -1.0

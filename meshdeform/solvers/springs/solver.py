@@ -24,7 +24,7 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, Solver, SolverOptions, velocity_retention
+from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, damping_coefficients, spring_constants, structural_mask
 from meshdeform.solvers.layout import spring_layout
 from meshdeform.solvers.options import SpringsOptions
@@ -60,7 +60,7 @@ class ExplicitSolver(ModelCache, Solver):
     #: decay rate (1/s) of velocities relative to the anchors (`anchor` only)
     anchor_damping: float = 0.0
 
-    def __init__(self, options: SolverOptions) -> None:
+    def __init__(self, options: SpringsOptions) -> None:
         super().__init__(options)
         self._dt = -1.0
         self.inner_steps = 1
@@ -76,7 +76,7 @@ class ExplicitSolver(ModelCache, Solver):
         c = damping_coefficients(model, kt)
         springs_on = self.use_springs and model.spring_count > 0
         if springs_on:
-            lay = spring_layout(model, self.options.partitions)
+            lay = spring_layout(model, 0)  # the auto slab count: the order the force sums run in
             self.a, self.b, self.rest, self.offsets, self.parts = lay.a, lay.b, lay.rest, lay.offsets, lay.parts
             self.kt, self.kc, self.c = lay.take(kt), lay.take(kc), lay.take(c)
             structural = np.flatnonzero(structural_mask(model))

@@ -52,7 +52,7 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, Solver, SolverOptions, velocity_retention
+from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
 from meshdeform.solvers.layout import kernel_chunks
@@ -76,7 +76,7 @@ class XPBDSolver(LayoutCache, Solver):
     default_substeps: ClassVar[int] = 22
     default_iterations: ClassVar[int] = 2
 
-    def __init__(self, options: SolverOptions) -> None:
+    def __init__(self, options: XPBDOptions) -> None:
         super().__init__(options)
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
