@@ -4,10 +4,9 @@ Each substep integrates positions from the previous ones (x' = x + (x - x_prev) 
 a dt^2) and then relaxes every spring toward its rest length in `iterations` Gauss-Seidel
 sweeps (alternating direction, the first forward: from the pins outward, which carries their
 hold across the cloth in one pass), slabs of the mesh in parallel (see `layout`). Default:
-2 sweeps (a symmetric forward + backward step) and 18 substeps per frame: on a 64 x 64 cloth
-hanging from two corners max structural stretch 1.21 over 100 frames (Blender's cloth: 1.245),
-against 1.25 with 16 substeps and 1.16 with 20. A single forward sweep per substep (1 x 24:
-1.21) is not symmetric and can pump energy into the cloth (see `xpbd`).
+2 sweeps (a symmetric forward + backward step; a single forward sweep is not symmetric and can
+pump energy into the cloth, see `xpbd`) and 18 substeps per frame (the measurements behind it:
+docs/performance.md).
 
 Per-kind stiffness: a kind's stiffness s (0..1, compression separately) is the fraction of a
 spring's length error removed per substep; each sweep uses 1 - (1 - s) ** (1 / iterations)
@@ -17,16 +16,15 @@ material. s = 1 makes a spring as stiff as the sweeps can make it. Velocities ar
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
 the sweeps so that a cloth hanging from a few pins does not stretch far near them; their
 distances run along structural springs only (tighter, octile tethers as in `xpbd` fight the
-fully stiff relaxation here and raised the stretch from 1.25 to 1.40 at 2 x 16).
+fully stiff relaxation here and raise the stretch).
 
-Speed: a whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build
-on both cores when that is measured faster: `dispatch.KernelPicker`, same bytes either way),
-and so is a whole frame when nothing happens between its substeps (`advance`: the vertices
-stay in the scratch, previous positions beside it in kernel numbering, same bytes as substep
-by substep);
-per spring the factors k w_a / w and k w_b / w (tension and compression) are precomputed into
-one row, so the scratch vertex needs only its position and inverse mass (`kernels.POINT`, 32
-bytes: twice as many vertices per cache line as xpbd's records).
+A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
+bytes either way: `dispatch.KernelPicker` chooses), and so is a whole frame when nothing happens
+between its substeps (`advance`: the vertices stay in the scratch, previous positions beside it
+in kernel numbering, the same bytes as substep by substep). Per spring the factors k w_a / w and
+k w_b / w (tension and compression) are precomputed into one `kernels.RELAX_SPRING` row, so the
+scratch vertex needs only its position and inverse mass (`sweep_kernels.POINT`, 32 bytes: twice
+as many vertices per cache line as xpbd's records).
 """
 
 from __future__ import annotations
