@@ -26,7 +26,7 @@ _EXPORTS = {
     "Settings": "meshdeform.simulate",
     "Frame": "meshdeform.simulate",
     "simulate": "meshdeform.simulate",
-    "SolverOptions": "meshdeform.solvers.base",
+    "SolverOptions": "meshdeform.solvers.options",
     "make_solver": "meshdeform.solvers.registry",
     "build_springs": "meshdeform.topology",
     "Tearer": "meshdeform.tearing",
