@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers import Control, SolverOptions, make_solver
+from meshdeform.solvers import Control, make_solver
 from pipeline.memory import tune_malloc
 
 ALL = ("xpbd", "verlet", "implicit", "springs", "anchor")
@@ -165,7 +165,7 @@ def kernel_rate(name: str, n: int, frames: int = 0, repeats: int = 5) -> float:
     """The solver alone (no simulate loop): best projections per second over `repeats` runs of
     `frames` frames, each frame one `advance` call (as `simulate` runs a gravity-only scene)."""
     model = scene_model(n)
-    solver = make_solver(name, SolverOptions())
+    solver = make_solver(name)
     settings = Settings(solver=name)
     state = State.at_rest(model)
     control = Control(np.tile(np.array([0.0, -9.81, 0.0]), (model.vertex_count, 1)))

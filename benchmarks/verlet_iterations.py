@@ -14,7 +14,7 @@ import numpy as np
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers.base import SolverOptions
+from meshdeform.solvers import VerletOptions
 
 
 def main() -> None:
@@ -27,7 +27,7 @@ def main() -> None:
     pins = np.zeros(n * n, dtype=bool)
     pins[[n * n - n, n * n - 1]] = True
     model = SpringModel.from_mesh(grid_mesh(n, n, plane="xz"), pinned_input=pins)
-    options = SolverOptions(iterations=args.iterations)
+    options = VerletOptions(iterations=args.iterations)
     list(simulate(model, Scene(), Settings(solver="verlet", frames=1, options=options)))  # compile / load cache
     settings = Settings(solver="verlet", frames=args.frames, options=options)
     best = float("inf")

@@ -4,12 +4,14 @@ Per substep: external accelerations (gravity plus every force of the scene; fill
 the scene has no forces) are evaluated, animated hard pins are moved to their targets, the
 solver steps, then the scene's constraints (colliders, soft pins) are projected and hard pins
 are restored exactly (bit-identical to the input, or to their animation targets). When nothing
-happens between substeps (gravity only: no forces, constraints, pin animation or tearing), a
-solver with an `advance(model, state, dt, control, count)` method (verlet, xpbd) runs the
-frame's substeps in one call, which keeps the vertices in its own scratch between them.
+happens between substeps (gravity only: no forces, constraints, pin animation or tearing), the
+frame's substeps are one `Solver.advance(model, state, dt, control, count)` call (verlet and
+xpbd run them in one compiled call that keeps the vertices in their scratch; the default is a
+loop of `step`, the same bytes).
 
 After every frame, before it is yielded, the divergence guard stops the run with
-`SimulationDiverged` naming the frame, the solver, what went wrong and a hint, when
+`SimulationDiverged` naming the frame, the solver, what went wrong and a hint (the solver's
+`Solver.hint`), when
 - positions are non-finite, or a vertex is farther from the mesh centre than a generous bound
   (1000 mesh diagonals plus twice the free-fall distance plus 100 m, `_runaway_limit`);
 - a vertex moves faster than `_speed_limit` (1000 m/s plus 100 mesh diagonals per second plus
@@ -38,8 +40,9 @@ current run of frames at rest (None while moving), and `rest_frame(frames)` find
 Tearing (`Scene.tearing`, a `meshdeform.tearing.Tearer`): after each substep the tearer tests
 the springs, applies due cuts and, when the mesh opens, returns a new model and an index map
 (new vertex -> old vertex); the loop then continues with that model (the state was resized in
-place), re-derives its per-vertex arrays (pins, accelerations) and calls `remap(model,
-index_map)` on every force and constraint that has one, so per-vertex data follow the split.
+place), re-derives its per-vertex arrays (pins, accelerations), calls the solver's `follow_tear` and
+`remap(model, index_map)` on every `Remappable` force and constraint (`Scene.remappables()`), so
+per-vertex data follow the split.
 Hard-pinned vertices that a cut splits stay pinned to their original's target. Frames then
 carry positions in the grown output layout, the output `mesh` when it changed, the `model` in
 force, and the springs broken, vertices added and connected pieces.
@@ -48,7 +51,7 @@ force, and the springs broken, vertices added and connected pieces.
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -57,9 +60,10 @@ from meshdeform.errors import SimulationDiverged
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, Solver, SolverOptions, make_solver, solver_class
+from meshdeform.solvers import guard_kernels
+from meshdeform.solvers.base import Control, Solver, SolverOptions
 from meshdeform.solvers.common import structural_mask
+from meshdeform.solvers.registry import make_solver, solver_class, solver_options
 
 if TYPE_CHECKING:
     from meshdeform.tearing import Tearer
@@ -69,10 +73,13 @@ if TYPE_CHECKING:
 class Settings:
     """Time stepping: frames at fps, each split into substeps, and the solver's options.
 
-    substeps: solver steps per frame; None (the default) takes the solver's own default
-        (anchor 8, verlet 18, xpbd 22, springs 8, implicit 1) and is resolved on construction,
-        so `settings.substeps` is always an int afterwards. Iterations likewise come from
-        `options.iterations` or the solver's default (see `Settings.iterations`).
+    substeps: solver steps per frame; None (the default) takes the solver's `default_substeps`
+        and is resolved on construction, so `settings.substeps` is always an int afterwards.
+        Iterations likewise come from `options.iterations` or the solver's default (see
+        `Settings.iterations`).
+    options: the solver's own options (its `Solver.options_class`); None (the default) takes
+        that class's defaults, resolved on construction like substeps. Options of another
+        solver's class raise MeshdeformError.
     rest_speed: m/s; a frame whose largest vertex speed is below it is at rest.
     """
 
@@ -80,12 +87,14 @@ class Settings:
     fps: float = 24.0
     frames: int = 120
     substeps: int | None = None
-    options: SolverOptions = field(default_factory=SolverOptions)
+    options: SolverOptions | None = None
     rest_speed: float = 1e-4
 
     def __post_init__(self) -> None:
+        cls = solver_class(self.solver)
         if self.substeps is None:
-            object.__setattr__(self, "substeps", int(solver_class(self.solver).default_substeps))
+            object.__setattr__(self, "substeps", int(cls.default_substeps))
+        object.__setattr__(self, "options", solver_options(cls, self.options))
 
     @property
     def dt(self) -> float:
@@ -177,33 +186,20 @@ def _stretch_limit(tearing: Tearer | None) -> float:
     return max(STRETCH_LIMIT, TEAR_STRETCH_FACTOR * float(finite.max())) if finite.size else STRETCH_LIMIT
 
 
-_HINTS = {
-    "anchor": "lower anchor_stiffness or spring stiffness, or keep stable_substeps on",
-    "verlet": "keep stiffness within 0..1 or use more substeps",
-    "xpbd": "use more substeps or check the forces for non-finite values",
-    "springs": "keep stable_substeps on, lower stiffness or use more substeps",
-    "implicit": "use more substeps or iterations, or check the forces for non-finite values",
-}
-
-
-def _solver_hint(name: str) -> str:
-    return _HINTS.get(name, "more substeps or lower stiffness")
-
-
-def _stretch_hint(name: str) -> str:
-    """What to try when springs stretched past the bound: the solver's own advice (an unstable
-    step is the usual cause), then the scene's culprits."""
+def _stretch_hint(hint: str) -> str:
+    """What to try when springs stretched past the bound: the solver's own advice (`Solver.hint`:
+    an unstable step is the usual cause), then the scene's culprits."""
     return (
-        f"{_solver_hint(name)}; check that pins do not pull the mesh apart, that impacts and wind "
+        f"{hint}; check that pins do not pull the mesh apart, that impacts and wind "
         "are not too strong and that the material is not far too soft"
     )
 
 
-def _speed_hint(name: str) -> str:
-    """What to try when vertices moved faster than the bound: the solver's own advice, then the
-    scene's fast movers."""
+def _speed_hint(hint: str) -> str:
+    """What to try when vertices moved faster than the bound: the solver's own advice
+    (`Solver.hint`), then the scene's fast movers."""
     return (
-        f"{_solver_hint(name)}; check the strength of impacts and wind and the speed of animated pins "
+        f"{hint}; check the strength of impacts and wind and the speed of animated pins "
         "and colliders (a looping animation jumps back to its start)"
     )
 
@@ -219,7 +215,7 @@ def simulate(
     scene = scene or Scene()
     settings = settings or Settings()
     solver = solver or make_solver(settings.solver, settings.options)
-    name = str(getattr(solver, "name", settings.solver))
+    name, hint = solver.name, solver.hint
     state = state or State.at_rest(model)
     substeps = int(settings.substeps)
     dt = 1.0 / (settings.fps * substeps)
@@ -233,6 +229,7 @@ def simulate(
     control = Control(accelerations=accelerations)
     forces = list(scene.forces)
     constraints = list(scene.constraints)
+    remappable = scene.remappables()  # the forces and constraints with per-vertex data (follow tears)
     pin_motion = scene.pin_motion if pinned_idx.size else None
     center = model.rest_positions.mean(axis=0) if model.vertex_count else np.zeros(3)
     structural = _Structural.of(model)
@@ -243,16 +240,14 @@ def simulate(
         tearing.start(model)
         original_pins = np.flatnonzero(tearing.initial_model.pinned)
     step = solver.step
-    follow_tear = getattr(solver, "follow_tear", None)  # solvers that can reuse their work after a tear
     step_count = 0
     resting_since: int | None = None
-    # nothing between the substeps (no forces, constraints, pin motion or tearing): a solver
-    # that can runs a whole frame in one call, with the same result as substep by substep
-    advance = getattr(solver, "advance", None)
-    whole_frames = advance is not None and not forces and not constraints and pin_motion is None and tearing is None
+    # nothing between the substeps (no forces, constraints, pin motion or tearing): the solver
+    # runs a whole frame in one call (`Solver.advance`), with the same result as substep by substep
+    whole_frames = not forces and not constraints and pin_motion is None and tearing is None
     for frame in range(1, settings.frames + 1):
         if whole_frames:
-            advance(model, state, dt, control, substeps)
+            solver.advance(model, state, dt, control, substeps)
             if pinned_idx.size:
                 state.positions[pinned_idx] = pinned_rest
             step_count += substeps
@@ -282,13 +277,10 @@ def simulate(
             if tearing is not None:
                 event = tearing.after_substep(model, state, t1)
                 if event is not None:
-                    if follow_tear is not None:
-                        follow_tear(model, event.model, event.index_map, event.parent)
+                    solver.follow_tear(model, event.model, event.index_map, event.parent)
                     model = event.model
-                    for item in (*forces, *constraints):
-                        remap = getattr(item, "remap", None)
-                        if remap is not None:
-                            remap(model, event.index_map)
+                    for item in remappable:
+                        item.remap(model, event.index_map)
                     pinned_idx = np.flatnonzero(model.pinned)
                     pinned_rest = np.array(model.rest_positions[pinned_idx])
                     pin_slot = np.searchsorted(original_pins, tearing.origin[pinned_idx])
@@ -297,16 +289,16 @@ def simulate(
                     control = Control(accelerations=accelerations)
                     structural = _Structural.of(model)
         positions = state.positions
-        finite, reach, speed = kernels.guard_figures(positions, state.velocities, center)
+        finite, reach, speed = guard_kernels.guard_figures(positions, state.velocities, center)
         diverged = f"simulation diverged at frame {frame} with solver {name!r}"
         if not finite:
             raise SimulationDiverged(
-                f"{diverged}: positions became non-finite; try: {_solver_hint(name)}", frame=frame, solver=name
+                f"{diverged}: positions became non-finite; try: {hint}", frame=frame, solver=name
             )
         elapsed = state.time - start_time
         if reach > _runaway_limit(diagonal, gravity, elapsed):
             raise SimulationDiverged(
-                f"{diverged}: positions ran away ({reach:.3g} from the mesh centre); try: {_solver_hint(name)}",
+                f"{diverged}: positions ran away ({reach:.3g} from the mesh centre); try: {hint}",
                 frame=frame,
                 solver=name,
             )
@@ -314,17 +306,17 @@ def simulate(
         if speed > speed_limit:
             raise SimulationDiverged(
                 f"{diverged}: vertices moved at {speed:.4g} m/s (limit {speed_limit:.4g} m/s); "
-                f"try: {_speed_hint(name)}",
+                f"try: {_speed_hint(hint)}",
                 frame=frame,
                 solver=name,
             )
-        stretch = float(kernels.max_ratio(positions, structural.a, structural.b, structural.rest))
+        stretch = float(guard_kernels.max_ratio(positions, structural.a, structural.b, structural.rest))
         if stretch > stretch_limit:
             guarded = structural.guarded_stretch(positions, stretch)
             if guarded > stretch_limit:
                 raise SimulationDiverged(
                     f"{diverged}: springs stretched to {guarded:.3g}x their rest length "
-                    f"(limit {stretch_limit:.3g}x); try: {_stretch_hint(name)}",
+                    f"(limit {stretch_limit:.3g}x); try: {_stretch_hint(hint)}",
                     frame=frame,
                     solver=name,
                 )
@@ -389,4 +381,4 @@ class _Structural:
         unless slivers are measured against their floor (a second pass, only when over the bound)."""
         if self.guard_rest is None:
             return stretch
-        return float(kernels.max_ratio(positions, self.a, self.b, self.guard_rest))
+        return float(guard_kernels.max_ratio(positions, self.a, self.b, self.guard_rest))

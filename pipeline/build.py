@@ -22,8 +22,7 @@ from meshdeform.scene.forces import Impact, Wind, ray_hit
 from meshdeform.scene.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
 from meshdeform.simulate import Settings
-from meshdeform.solvers.base import SolverOptions as EngineOptions
-from meshdeform.solvers.options import SolverOptions, SweepOptions
+from meshdeform.solvers.options import SweepOptions
 from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
 from meshdeform.topology import SpringKind, Springs, Welding, boundary_edge_count, build_springs
 from pipeline.recipe import (
@@ -251,14 +250,6 @@ def _tearing(
     return Tearer(mesh, model, tear_settings, cuts)
 
 
-def _engine_options(options: SolverOptions) -> EngineOptions:
-    """The solver's options in the form the solvers of this tree take: the shared
-    `meshdeform.solvers.base.SolverOptions`, every field of `options` copied. Temporary: once the
-    solvers take their own options class (`Solver.options_class`), `Settings.options` is `options`
-    itself and this goes."""
-    return EngineOptions(**dataclasses.asdict(options))
-
-
 def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     """Resolve the recipe on a mesh: material, model with hard pins, forces, colliders, effects, settings."""
     sim = recipe.simulation
@@ -268,9 +259,7 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
         # pins moving apart they stretch the cloth at the pins without limit and yank torn pieces,
         # so a recipe that tears runs without them unless it asks for them
         options = dataclasses.replace(options, tethers=None)
-    settings = Settings(
-        solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=_engine_options(options)
-    )
+    settings = Settings(solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=options)
     res = _Resolver(recipe, mesh)
     material = recipe.material.to_material()
     welding, springs = build_springs(mesh)

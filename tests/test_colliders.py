@@ -11,7 +11,7 @@ from meshdeform.model import SpringModel, State
 from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Sphere, TriangleMesh, closest_points_on_triangles
 from meshdeform.scene.pins import Keyframe, Keyframes
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers.base import SolverOptions
+from meshdeform.solvers import VerletOptions
 from pipeline.build import build_simulation
 from pipeline.recipe import parse_recipe
 
@@ -149,7 +149,7 @@ def test_friction_slows_sliding() -> None:
         state.velocities[:] = (1.0, 0.0, 0.0)
         state.previous[:] = state.positions - state.velocities * 0.01
         scene = Scene(gravity=(0, -9.81, 0), constraints=[Collider(Plane((0, 0, 0), (0, 1, 0)), friction, 0.0)])
-        settings = Settings(solver="verlet", fps=25, frames=8, substeps=4, options=SolverOptions(damping=0.0))
+        settings = Settings(solver="verlet", fps=25, frames=8, substeps=4, options=VerletOptions(damping=0.0))
         frames = list(simulate(model, scene, settings, state=state))
         speeds.append((frames[-1].positions[:, 0].mean() - frames[-2].positions[:, 0].mean()) * 25)
     assert speeds[0] == pytest.approx(1.0, rel=0.05)

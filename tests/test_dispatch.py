@@ -10,10 +10,12 @@ import pytest
 
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import Control, SolverOptions, dispatch, kernels, make_solver
+from meshdeform.solvers import Control, dispatch, make_solver, solver_class
 from meshdeform.solvers.common import kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker, chunk_bounds
 from meshdeform.solvers.layout import kernel_chunks, spring_layout
+from meshdeform.solvers.verlet import kernels as verlet_kernels
+from meshdeform.solvers.xpbd import kernels as xpbd_kernels
 
 two_threads = pytest.mark.skipif(nb.config.NUMBA_NUM_THREADS < 2, reason="needs 2 Numba threads")
 
@@ -112,16 +114,25 @@ def cloth(n: int) -> SpringModel:
     return SpringModel.from_mesh(mesh, pinned_input=pinned)
 
 
+#: (solver, build) -> its substep kernel
+BUILDS = {
+    ("xpbd", "serial"): xpbd_kernels.xpbd_substep,
+    ("xpbd", "parallel"): xpbd_kernels.xpbd_substep_parallel,
+    ("verlet", "serial"): verlet_kernels.verlet_substep,
+    ("verlet", "parallel"): verlet_kernels.verlet_substep_parallel,
+}
+
+
 def advance(name: str, build: str, steps: int = 30, per_call: int = 1) -> np.ndarray:
     """Positions after `steps` substeps, `per_call` at a time, forcing the serial or the parallel build."""
     model = cloth(24)
-    solver = make_solver(name, SolverOptions(partitions=2))
+    solver = make_solver(name, solver_class(name).options_class(partitions=2))
     state = State.at_rest(model)
     control = Control(np.tile(np.array([0.0, -9.81, 0.0]), (model.vertex_count, 1)))
     dt = 1.0 / 24 / 20
     solver.step(model, state, dt, control)  # prepares; the picker's first call is serial
     assert solver.layout.parts == 2 and solver.tethers.shape[0] > 0
-    kernel = getattr(kernels, f"{name}_substep" + ("_parallel" if build == "parallel" else ""))
+    kernel = BUILDS[name, build]
     solver.substep = KernelPicker(kernel, kernel, parallel_ok=False)  # always this build
     for _ in range(steps // per_call):
         solver.advance(model, state, dt, control, per_call)

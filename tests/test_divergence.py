@@ -26,7 +26,7 @@ from meshdeform.scene.colliders import Collider, Plane
 from meshdeform.scene.effects import NearestPinTethers
 from meshdeform.scene.forces import Impact
 from meshdeform.simulate import Frame, Scene, Settings, simulate
-from meshdeform.solvers import SolverOptions
+from meshdeform.solvers import SpringsOptions, XPBDOptions
 from meshdeform.tearing import Tearer, TearRegion, TearSettings
 from pipeline.build import build_simulation
 from pipeline.cli import app
@@ -53,7 +53,7 @@ def unstable_tethered_cloth() -> tuple[SpringModel, Scene, Settings]:
     pinned[[n * (n - 1), n * n - 1]] = True
     model = SpringModel.from_mesh(mesh, Material(stretch_modulus=1e5), pinned_input=pinned)
     scene = Scene(constraints=[NearestPinTethers(model, np.flatnonzero(model.pinned), 1.05)])
-    settings = Settings(solver="springs", frames=48, substeps=1, options=SolverOptions(stable_substeps=False))
+    settings = Settings(solver="springs", frames=48, substeps=1, options=SpringsOptions(stable_substeps=False))
     return model, scene, settings
 
 
@@ -108,7 +108,7 @@ def test_a_200_m_free_fall_onto_the_ground_reaches_60_m_per_s_and_runs_through()
     mesh = dataclasses.replace(mesh, positions=mesh.positions + np.array([0.0, 200.0, 0.0]))
     model = SpringModel.from_mesh(mesh)
     ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), thickness=0.01, friction=0.5)
-    settings = Settings(solver="xpbd", frames=170, options=SolverOptions(damping=0.0))
+    settings = Settings(solver="xpbd", frames=170, options=XPBDOptions(damping=0.0))
     frames = list(simulate(model, Scene(constraints=[ground]), settings))
     assert len(frames) == 170
     top_speed = max(f.max_speed for f in frames)
@@ -134,7 +134,7 @@ def strip_pulled_apart(tear_at: float | None) -> tuple[SpringModel, Scene, Setti
     if tear_at is not None:
         tearing = Tearer(mesh, model, TearSettings.from_regions(model, [TearRegion(max_stretch=tear_at)]))
     scene = Scene(gravity=(0.0, 0.0, 0.0), pin_motion=pull, tearing=tearing)
-    return model, scene, Settings(solver="xpbd", frames=36, options=SolverOptions(tethers=None))
+    return model, scene, Settings(solver="xpbd", frames=36, options=XPBDOptions(tethers=None))
 
 
 def test_pins_pulling_a_cloth_to_ten_times_its_length_stop_it_as_stretched() -> None:
@@ -174,7 +174,7 @@ def test_a_sliver_edge_stretched_by_millimetres_is_not_a_blow_up() -> None:
     x, y = mesh.positions[:, 0], mesh.positions[:, 1]
     corners = (y > 1 - 1e-9) & ((x < 1e-9) | (x > 1 - 1e-9))
     model = SpringModel.from_mesh(mesh, Material(stretch_modulus=100.0), pinned_input=corners)
-    frames = list(simulate(model, Scene(), Settings(solver="xpbd", frames=24, options=SolverOptions(tethers=None))))
+    frames = list(simulate(model, Scene(), Settings(solver="xpbd", frames=24, options=XPBDOptions(tethers=None))))
     assert len(frames) == 24
     assert max(f.max_stretch for f in frames) > 10
 

@@ -7,7 +7,7 @@ import pytest
 
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import Control, SolverOptions, make_solver
+from meshdeform.solvers import Control, make_solver
 from meshdeform.solvers.implicit import ImplicitSolver
 
 
@@ -45,7 +45,7 @@ def factor_solve(solver: ImplicitSolver, rhs: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize(("n", "pins"), [(7, [42, 48]), (9, [0, 8, 40, 72, 80]), (5, [])])
 def test_factor_matches_a_dense_solve(n: int, pins: list[int]) -> None:
     model = cloth(n, pins)
-    solver = make_solver("implicit", SolverOptions())
+    solver = make_solver("implicit")
     assert isinstance(solver, ImplicitSolver)
     dt = 1.0 / 24.0
     solver._prepare(model)
@@ -58,7 +58,7 @@ def test_factor_matches_a_dense_solve(n: int, pins: list[int]) -> None:
 
 def test_a_new_time_step_refactorises() -> None:
     model = cloth(6, [30, 35])
-    solver = make_solver("implicit", SolverOptions())
+    solver = make_solver("implicit")
     assert isinstance(solver, ImplicitSolver)
     state = State.at_rest(model)
     control = Control(np.tile([0.0, -9.81, 0.0], (model.vertex_count, 1)))
@@ -72,7 +72,7 @@ def test_a_new_time_step_refactorises() -> None:
 
 def test_all_vertices_pinned_steps_without_a_factor() -> None:
     model = cloth(3, list(range(9)))
-    solver = make_solver("implicit", SolverOptions())
+    solver = make_solver("implicit")
     assert isinstance(solver, ImplicitSolver)
     state = State.at_rest(model)
     before = state.positions.copy()

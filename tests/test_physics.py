@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -12,7 +13,7 @@ from meshdeform.material import KindMaterial, Material
 from meshdeform.mesh import Mesh, grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers import SOLVERS, SolverOptions
+from meshdeform.solvers import SOLVERS, SpringsOptions, XPBDOptions, solver_class
 
 SOLVER_NAMES = sorted(SOLVERS)
 G = 9.81
@@ -31,7 +32,7 @@ def test_free_fall_matches_analytic(name: str) -> None:
     """An unpinned mesh falls y0 - g t^2 / 2 (no air damping) with every solver."""
     mesh = grid_mesh(4, 4, plane="xz")
     model = SpringModel.from_mesh(mesh)
-    settings = Settings(solver=name, fps=24, frames=24, options=SolverOptions(damping=0.0))
+    settings = Settings(solver=name, fps=24, frames=24, options=solver_class(name).options_class(damping=0.0))
     frames = list(simulate(model, Scene(gravity=(0.0, -G, 0.0)), settings))
     t = frames[-1].time
     assert t == pytest.approx(1.0)
@@ -60,7 +61,9 @@ def spring_period(name: str, substeps: int | None) -> tuple[float, float]:
     state.positions[1, 0] += 0.05
     state.previous[1, 0] += 0.05
     fps = 24.0
-    options = SolverOptions(damping=0.0, tethers=None)  # tethers would cap the stretch at rest length
+    options = solver_class(name).options_class(damping=0.0)
+    if isinstance(options, XPBDOptions):
+        options = dataclasses.replace(options, tethers=None)  # tethers would cap the stretch at rest length
     settings = Settings(solver=name, fps=fps, frames=5 * 24, substeps=substeps, options=options)
     run = simulate(model, Scene(gravity=(0, 0, 0)), settings, state=state)
     ext = np.array([0.05] + [f.welded_positions[1, 0] - rest for f in run])
@@ -87,7 +90,7 @@ def sag(iterations: int) -> float:
                         bending=KindMaterial(stiffness=0.002))
     mesh, model, _ = hanging_cloth(12, material)
     # tethers off: they cap stretch along pin paths; this checks the compliance alone
-    settings = Settings(solver="xpbd", frames=96, options=SolverOptions(iterations=iterations, tethers=None))
+    settings = Settings(solver="xpbd", frames=96, options=XPBDOptions(iterations=iterations, tethers=None))
     last = list(simulate(model, Scene(), settings))[-1]
     return float(np.mean(mesh.positions[:, 1] - last.positions[:, 1]))
 
@@ -111,7 +114,7 @@ def test_strain_limit_keeps_structural_springs_within_ratio() -> None:
     _, model, _ = hanging_cloth(10, soft)
     free = [f.max_stretch for f in simulate(model, Scene(), Settings(solver="springs", frames=24))]
     assert max(free) > 1.15  # without the limit this soft cloth stretches beyond it
-    limited = Settings(solver="springs", frames=24, options=SolverOptions(strain_limit=1.1))
+    limited = Settings(solver="springs", frames=24, options=SpringsOptions(strain_limit=1.1))
     for frame in simulate(model, Scene(), limited):
         lengths = model.spring_lengths(frame.welded_positions)[model.kinds == 0]
         assert (lengths <= 1.1 * model.rest_lengths[model.kinds == 0] * (1 + 1e-6)).all()
@@ -168,7 +171,7 @@ def test_guard_stops_an_absurd_gravity_on_a_tethered_cloth(name: str) -> None:
 def test_guard_stops_an_unstable_explicit_setup() -> None:
     """Explicit springs far too stiff for the step, stability splitting off: stopped, never yields NaN."""
     _, model, _ = hanging_cloth(8, Material(stretch_modulus=1e5))
-    settings = Settings(solver="springs", frames=48, substeps=1, options=SolverOptions(stable_substeps=False))
+    settings = Settings(solver="springs", frames=48, substeps=1, options=SpringsOptions(stable_substeps=False))
     yielded = []
     with pytest.raises(SimulationDiverged) as info:
         for frame in simulate(model, Scene(), settings):

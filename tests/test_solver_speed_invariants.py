@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from meshdeform.mesh import grid_mesh
-from meshdeform.model import SpringModel
+from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers import SolverOptions
+from meshdeform.solvers import Control, Solver, solver_class
 from meshdeform.solvers.layout import AUTO_PARALLEL_SPRINGS, resolve_parts, spring_layout
 
 two_threads = pytest.mark.skipif(nb.config.NUMBA_NUM_THREADS < 2, reason="needs 2 Numba threads")
@@ -32,7 +32,8 @@ def run(model: SpringModel, solver: str, threads: int, partitions: int, frames: 
     before = nb.get_num_threads()
     nb.set_num_threads(threads)
     try:
-        settings = Settings(solver=solver, frames=frames, options=SolverOptions(partitions=partitions))
+        options = solver_class(solver).options_class(partitions=partitions)
+        settings = Settings(solver=solver, frames=frames, options=options)
         return np.stack([f.welded_positions for f in simulate(model, Scene(), settings)])
     finally:
         nb.set_num_threads(before)
@@ -127,12 +128,17 @@ def test_pins_bit_identical_and_run_reproducible(solver: str) -> None:
     assert a[:, pins].tobytes() == np.broadcast_to(model.rest_positions[pins], a[:, pins].shape).tobytes()
 
 
-class _SubstepOnly:
-    """A solver seen without its `advance` method: simulate then steps substep by substep."""
+class _SubstepOnly(Solver):
+    """A solver's `step` behind the default `Solver.advance` (a loop of `step`)."""
 
-    def __init__(self, solver: object) -> None:
+    def __init__(self, solver: Solver) -> None:
+        super().__init__(solver.options)
+        self.inner = solver
         self.name = solver.name
-        self.step = solver.step
+        self.hint = solver.hint
+
+    def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
+        self.inner.step(model, state, dt, control)
 
 
 @pytest.mark.parametrize("solver", ["xpbd", "verlet"])
@@ -153,4 +159,23 @@ def test_whole_frame_calls_match_the_substep_loop(solver: str) -> None:
         for f in simulate(model, Scene(), settings, solver=_SubstepOnly(make_solver(solver, settings.options)))
     ]
     assert np.abs(whole[-1] - model.rest_positions).max() > 1e-3  # the cloth fell
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(whole, stepped, strict=True))
+
+
+class _NoForce:
+    """A force that adds nothing: its presence alone makes simulate step substep by substep."""
+
+    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+        pass
+
+
+@pytest.mark.parametrize("solver", ["implicit", "springs", "anchor"])
+def test_default_advance_matches_the_substep_loop(solver: str) -> None:
+    """Solvers without their own `advance` run a gravity-only frame through the default one (a
+    loop of `step`): the same frames as the substep loop (implicit reads the state's time)."""
+    model = cloth(12)
+    settings = Settings(solver=solver, frames=4, substeps=3)
+    whole = [f.positions.copy() for f in simulate(model, Scene(), settings)]
+    stepped = [f.positions.copy() for f in simulate(model, Scene(forces=[_NoForce()]), settings)]
+    assert np.abs(whole[-1] - model.rest_positions).max() > 1e-4  # the cloth moved
     assert all(a.tobytes() == b.tobytes() for a, b in zip(whole, stepped, strict=True))

@@ -11,7 +11,17 @@ from meshdeform.errors import MeshdeformError
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Frame, Scene, Settings, rest_frame, simulate
-from meshdeform.solvers import SOLVERS, Control, SolverOptions, make_solver, solver_class
+from meshdeform.solvers import (
+    SOLVERS,
+    AnchorOptions,
+    Control,
+    SolverOptions,
+    SpringsOptions,
+    VerletOptions,
+    XPBDOptions,
+    make_solver,
+    solver_class,
+)
 from meshdeform.solvers.layout import spring_layout, tethers
 
 NAMES = ("anchor", "verlet", "xpbd", "springs", "implicit")
@@ -45,8 +55,28 @@ def test_settings_resolve_solver_defaults() -> None:
     assert Settings(solver="xpbd").substeps == solver_class("xpbd").default_substeps
     assert Settings(solver="xpbd", substeps=3).substeps == 3
     assert Settings(solver="xpbd").iterations == solver_class("xpbd").default_iterations
-    assert Settings(solver="verlet", options=SolverOptions(iterations=7)).iterations == 7
+    assert Settings(solver="verlet", options=VerletOptions(iterations=7)).iterations == 7
     assert Settings(solver="xpbd", fps=25, substeps=4).dt == pytest.approx(0.01)
+    assert type(Settings(solver="anchor").options) is AnchorOptions  # None: the solver's own defaults
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_solver_declares_the_contract(name: str) -> None:
+    """What the CLI help, the guard's hints and the recipe read from each registered solver."""
+    cls = solver_class(name)
+    assert cls.name == name and cls.summary and "\n" not in cls.summary and cls.hint
+    assert cls.default_substeps >= 1 and cls.default_iterations >= 0
+    assert issubclass(cls.options_class, SolverOptions)
+    assert type(make_solver(name).options) is cls.options_class
+
+
+def test_options_of_another_solver_are_refused() -> None:
+    with pytest.raises(MeshdeformError, match="XPBDOptions"):
+        make_solver("verlet", XPBDOptions())
+    with pytest.raises(MeshdeformError, match="springs"):
+        make_solver("springs", AnchorOptions())  # a subclass, but anchor's options
+    with pytest.raises(MeshdeformError):
+        Settings(solver="anchor", options=SpringsOptions())
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -78,7 +108,7 @@ def test_solver_rebuilds_its_cache_for_another_model(name: str) -> None:
 
 def test_anchor_rejects_unknown_frame() -> None:
     with pytest.raises(MeshdeformError, match="anchor_frame"):
-        make_solver("anchor", SolverOptions(anchor_frame="sideways"))
+        make_solver("anchor", AnchorOptions(anchor_frame="sideways"))
 
 
 def test_anchor_springs_back_after_a_kick() -> None:
@@ -104,7 +134,7 @@ def test_anchor_neighbour_springs_carry_pins() -> None:
     scene = Scene()
     plain = list(simulate(model, scene, Settings(solver="anchor", frames=48)))[-1]
     carried = list(
-        simulate(model, scene, Settings(solver="anchor", frames=48, options=SolverOptions(neighbour_springs=True)))
+        simulate(model, scene, Settings(solver="anchor", frames=48, options=AnchorOptions(neighbour_springs=True)))
     )[-1]
     near = 8 * 6  # the vertex below the pinned top-left corner
     assert carried.welded_positions[near, 1] > plain.welded_positions[near, 1]
@@ -140,14 +170,14 @@ def test_parallel_and_serial_sweeps_agree_in_quality() -> None:
     model = cloth(24)
     last = {}
     for parts in (1, 2):
-        settings = Settings(solver="xpbd", frames=12, options=SolverOptions(partitions=parts))
+        settings = Settings(solver="xpbd", frames=12, options=XPBDOptions(partitions=parts))
         last[parts] = list(simulate(model, Scene(), settings))[-1]
     assert np.allclose(last[1].welded_positions, last[2].welded_positions, atol=0.02)
 
 
 def test_parallel_runs_are_reproducible() -> None:
     model = cloth(24)
-    settings = Settings(solver="verlet", frames=6, options=SolverOptions(partitions=2))
+    settings = Settings(solver="verlet", frames=6, options=VerletOptions(partitions=2))
     a = list(simulate(model, Scene(), settings))[-1].welded_positions
     b = list(simulate(model, Scene(), settings))[-1].welded_positions
     assert np.array_equal(a, b)
@@ -183,7 +213,7 @@ def test_anchor_damping_decays_relative_velocity_exponentially(rate: float) -> N
     """The original's damping: a vertex moving away from its anchor (no spring to speak of, no
     air damping) keeps exp(-rate t) of its velocity after t seconds, whatever the step."""
     model = cloth(3)  # a pinned corner: anchors in the world frame
-    options = SolverOptions(anchor_stiffness=1e-12, anchor_damping=rate, damping=0.0)
+    options = AnchorOptions(anchor_stiffness=1e-12, anchor_damping=rate, damping=0.0)
     solver = make_solver("anchor", options)
     state = State.at_rest(model)
     free = np.flatnonzero(~model.pinned)[0]

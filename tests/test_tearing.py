@@ -23,7 +23,7 @@ from meshdeform.io import load
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers.base import SolverOptions
+from meshdeform.solvers import solver_class
 from meshdeform.tearing import Cut, Tearer, TearRegion, TearSettings, split_vertices
 from pipeline.recipe import parse_recipe
 
@@ -280,7 +280,8 @@ def hanging_grid(n: int = 12):
 
 
 def run(model, scene, frames=12, substeps=8, solver="xpbd"):
-    settings = Settings(solver=solver, frames=frames, substeps=substeps, options=SolverOptions(tethers=None))
+    options = solver_class(solver).options_class(tethers=None)
+    settings = Settings(solver=solver, frames=frames, substeps=substeps, options=options)
     return list(simulate(model, scene, settings))
 
 

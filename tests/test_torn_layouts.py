@@ -14,8 +14,9 @@ import pytest
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers import Control, SolverOptions, common, kernels, make_solver
+from meshdeform.solvers import Control, common, make_solver, solver_class
 from meshdeform.solvers.layout import SpringLayout, inherited_layout, spring_layout
+from meshdeform.solvers.xpbd import kernels
 from meshdeform.tearing import Tearer, TearRegion, TearSettings
 
 N = 32  # 32 x 32 has more springs than AUTO_PARALLEL_SPRINGS: two slabs and a separator
@@ -80,7 +81,7 @@ def test_torn_models_inherit_their_layout(solver: str, monkeypatch: pytest.Monke
     monkeypatch.setattr(common, "spring_layout", counting_fresh)
     monkeypatch.setattr(common, "inherited_layout", recording_inherited)
     model, scene = pulled_apart()
-    settings = Settings(solver=solver, frames=20, substeps=8, options=SolverOptions(tethers=None))
+    settings = Settings(solver=solver, frames=20, substeps=8, options=solver_class(solver).options_class(tethers=None))
     frames = list(simulate(model, scene, settings))
     assert frames[-1].pieces >= 2 and len(inherited) >= 2
     assert built == [model]  # only the untorn model was sorted afresh
@@ -158,8 +159,8 @@ def test_buffers_kept_from_a_larger_model_change_nothing(solver: str) -> None:
             instance.step(model, state, dt, control)
         return state.positions.tobytes() + state.velocities.tobytes()
 
-    used = make_solver(solver, SolverOptions())
+    used = make_solver(solver)
     big_state = State.at_rest(big)
     big_state.positions += 0.01 * np.random.default_rng(5).standard_normal(big_state.positions.shape)
     used.step(big, big_state, dt, Control(np.zeros((big.vertex_count, 3))))
-    assert run(used, small) == run(make_solver(solver, SolverOptions()), small)
+    assert run(used, small) == run(make_solver(solver), small)

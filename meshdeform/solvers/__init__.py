@@ -1,4 +1,4 @@
-"""Solvers behind one interface; importing this package registers the built-in ones.
+"""Solvers behind one interface (`base.Solver`), one folder each, listed in `registry.SOLVERS`.
 
 | name       | what                                                                   |
 |------------|------------------------------------------------------------------------|
@@ -9,7 +9,27 @@
 | `implicit` | projective dynamics (Liu et al. 2013) with BDF2, prefactored           |
 """
 
-from meshdeform.solvers import anchor, implicit, springs, verlet, xpbd  # noqa: F401
-from meshdeform.solvers.base import SOLVERS, Control, Solver, SolverOptions, make_solver, solver_class
+from meshdeform.solvers.base import Control, Solver, SolverOptions
+from meshdeform.solvers.options import (
+    AnchorOptions,
+    ImplicitOptions,
+    SpringsOptions,
+    VerletOptions,
+    XPBDOptions,
+)
+from meshdeform.solvers.registry import SOLVERS, make_solver, solver_class, solver_options
 
-__all__ = ["SOLVERS", "Control", "Solver", "SolverOptions", "make_solver", "solver_class"]
+__all__ = [
+    "SOLVERS",
+    "AnchorOptions",
+    "Control",
+    "ImplicitOptions",
+    "Solver",
+    "SolverOptions",
+    "SpringsOptions",
+    "VerletOptions",
+    "XPBDOptions",
+    "make_solver",
+    "solver_class",
+    "solver_options",
+]

@@ -107,15 +107,15 @@ def kernel_tethers(
     kinds: tuple[int, ...] | None = None,
     slack: float = 1.0,
 ) -> np.ndarray:
-    """Tethers (see `layout.tethers`, paths over springs of `kinds`) as `kernels.TETHER` records.
+    """Tethers (see `layout.tethers`, paths over springs of `kinds`) as `sweep_kernels.TETHER` records.
 
     In a layout's kernel numbering (rank: model vertex -> kernel vertex); limits times `slack`.
 
     Sorted by kernel vertex (stably, so a vertex's tethers keep their order); empty when
     `ratio` is None or not positive.
     """
-    from meshdeform.solvers.kernels import TETHER
     from meshdeform.solvers.layout import tethers
+    from meshdeform.solvers.sweep_kernels import TETHER
 
     if ratio is None or ratio <= 0:
         return np.zeros(0, dtype=TETHER)

@@ -3,13 +3,13 @@
 The serial and the parallel build of a kernel compute bit for bit the same result (the slabs
 of a `SpringLayout` share no vertex, and the vertex and tether chunks below split only
 element-wise work), so the choice changes the speed and never the output. It is made by
-measuring, not guessed: on an idle 2-core machine the parallel build runs a 64 x 64 cloth
-1.5-1.9x faster, while on a machine whose other core is busy (another job, another user)
-each parallel launch waits for it and the same step can run 8x slower. `KernelPicker` times
-a few calls of each build (the fastest call of each counts, so one interrupted call does not
-decide), runs the faster one, and measures again: every PROBE_EVERY calls while the parallel
-build wins, sooner while the serial one does (a probe spoiled by a moment of load on the other
-core is corrected within PROBE_AGAIN calls), so a run follows the machine's load as it changes.
+measuring, not guessed: the parallel build wins on an idle machine and loses badly when the
+other cores are busy (another job, another user: each parallel launch then waits for them; see
+docs/performance.md). `KernelPicker` times a few calls of each build (the fastest call of each
+counts, so one interrupted call does not decide), runs the faster one, and measures again: every
+PROBE_EVERY calls while the parallel build wins, sooner while the serial one does (a probe
+spoiled by a moment of load on the other core is corrected within PROBE_AGAIN calls), so a run
+follows the machine's load as it changes.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ sharing one of its vertices, and springs are stably re-sorted by level. Springs 
 share no vertex, so a Gauss-Seidel sweep in level order gives bit for bit the result of the
 sweep in the sorted order (and the reversed level order that of the reversed sweep), while
 consecutive springs no longer wait for each other's results: the CPU overlaps several spring
-projections instead of one long chain of dependent loads and stores (1.5-2x faster). Levels
+projections instead of one long chain of dependent loads and stores (docs/performance.md). Levels
 are formed within blocks of `LEVEL_BLOCK` consecutive springs of the sorted order (every level
 of a block above every level of the blocks before it), so a block is swept while its vertices
 are still in cache; the sweep's result is again bit for bit that of the sorted order.
@@ -33,7 +33,10 @@ import numpy as np
 
 from meshdeform.arrays import dense_rank, lexsort_int
 from meshdeform.model import SpringModel
-from meshdeform.solvers.kernels import ENDS, first_touch, inherit_order, sweep_levels
+from meshdeform.solvers.layout_kernels import first_touch, inherit_order, sweep_levels
+
+#: spring ends in kernel vertex numbering
+ENDS = np.dtype([("a", "u4"), ("b", "u4")], align=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,7 +46,7 @@ class SpringLayout:
     a, b: (S,) int64 end vertices in the new order; rest: (S,) rest lengths;
     offsets: (P + 2,) slab p is order[offsets[p]:offsets[p + 1]], the separator is
     order[offsets[P]:offsets[P + 1]]. vertex_order: (W,) kernel vertex k -> model vertex, in
-    the order the sweep first touches them; vertex_rank: its inverse; ends: (S,) `kernels.ENDS`
+    the order the sweep first touches them; vertex_rank: its inverse; ends: (S,) `ENDS`
     records, the springs' ends (a, b) in kernel numbering.
     """
 
@@ -63,8 +66,9 @@ class SpringLayout:
 
 
 #: springs per levelled block (see the module docstring): a block's springs (512 KB of records) and
-#: the vertices they touch stay in a core's L2 (1 MB here) while they are swept; levelling the
-#: whole slab at once spreads a level over the whole slab (at N = 256: 20 % slower sweeps)
+#: the vertices they touch stay in a core's L2 cache (1 MB on the machine it was tuned on) while
+#: they are swept; levelling the whole slab at once spreads a level over the whole slab (slower
+#: sweeps on large cloths: docs/performance.md)
 LEVEL_BLOCK = 8192
 
 #: springs from which `partitions = 0` (auto) makes two slabs; below it one parallel sweep
@@ -207,8 +211,9 @@ def inherited_layout(
     previous spring (`parent`) and joins the same two vertices or their copies. So each spring
     takes its parent's place in the order and slab (copies of a slab's vertex stay in that slab:
     slabs still share no vertex), kept vertices keep their kernel numbers and copies are
-    appended. About 3 ms at 128 x 128 where a fresh layout takes 25. None when the model does not
-    descend from `previous` that way (then the caller builds a fresh layout).
+    appended: linear in the springs, with no sort (docs/performance.md compares it with a fresh
+    layout). None when the model does not descend from `previous` that way (then the caller builds
+    a fresh layout).
     """
     n_old = previous.vertex_order.shape[0]
     n = model.vertex_count

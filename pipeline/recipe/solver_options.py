@@ -36,12 +36,7 @@ from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from meshdeform.solvers import SOLVERS
 from meshdeform.solvers.options import (
-    AnchorOptions,
-    ImplicitOptions,
     SolverOptions,
-    SpringsOptions,
-    VerletOptions,
-    XPBDOptions,
 )
 from pipeline.recipe.limits import LIMITS, magnitude_complaint
 from pipeline.recipe.messages import (
@@ -59,24 +54,15 @@ from pipeline.recipe.messages import (
 #: a complaint about the data: (key path, what is wrong, other key paths it is about)
 Problem = tuple[KeyPath, str, tuple[KeyPath, ...]]
 
-#: each registered solver's options class. The solver classes are to carry it as
-#: `Solver.options_class`; until they do, this is the one place that maps them, and `options_class`
-#: becomes `solver_class(name).options_class` (and this table goes) then.
-_OPTIONS_CLASSES: dict[str, type[SolverOptions]] = {
-    "anchor": AnchorOptions,
-    "implicit": ImplicitOptions,
-    "springs": SpringsOptions,
-    "verlet": VerletOptions,
-    "xpbd": XPBDOptions,
-}
-
 #: the options every solver takes: keys of [simulation] itself, not of a solver's table
 SHARED_OPTIONS = tuple(f.name for f in dataclasses.fields(SolverOptions))
 
 
 def options_class(solver: str) -> type[SolverOptions]:
-    """The options class of a registered solver (`SolverOptions` for a solver without its own)."""
-    return _OPTIONS_CLASSES.get(solver, SolverOptions)
+    """The options class of a registered solver (`Solver.options_class`); `SolverOptions` for a
+    name the registry does not hold (the solver key's own check reports that)."""
+    cls = SOLVERS.get(solver)
+    return cls.options_class if cls is not None else SolverOptions
 
 
 def own_options(solver: str) -> tuple[str, ...]:

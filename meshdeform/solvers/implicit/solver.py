@@ -12,12 +12,11 @@ M / b^2 + sum_s k_s (e_a - e_b)(e_a - e_b)^T does not change, so it is factorise
 and each iteration is a back-substitution for x, y and z together (one (n, 3) right-hand
 side). The matrix is symmetric positive definite (mass > 0 on every free vertex, weights
 > 0), so it is factorised by sparse Cholesky (CHOLMOD through cholespy, with its
-fill-reducing ordering): one triangle L instead of SuperLU's L and U, which at N = 256
-(65k vertices) holds about 86 MB instead of 114 MB and back-substitutes in half the time.
-Only the lower triangle of the matrix is passed (CSC, duplicates summed by SciPy, which leaves
-CHOLMOD less to convert: 4 MB lower peak at N = 256), and nothing but the factor
-(and one (n, 3) solution buffer) is kept. Pinned vertices are eliminated (their current
-positions go to the right-hand side). Then
+fill-reducing ordering): one triangle L instead of SuperLU's L and U, less memory and a
+faster back-substitution. Only the lower triangle of the matrix is passed (CSC, duplicates
+summed by SciPy, which leaves CHOLMOD less to convert), and nothing but the factor (and one
+(n, 3) solution buffer) is kept; docs/performance.md has the sizes. Pinned vertices are
+eliminated (their current positions go to the right-hand side). Then
 v' = 3 / (2 dt) (x' - 4/3 x_n + 1/3 x_n-1), times the air damping factor.
 
 k = stiffness * material.stretch_modulus (N/m), compression separately (a spring shorter than
@@ -27,10 +26,8 @@ consistent with constant external acceleration, so free fall is exact. Material 
 damping is not used: BDF2 damps the highest frequencies and air damping the rest.
 Every iteration lowers the step's energy, so the step cannot explode; too few iterations
 for very stiff springs make the cloth look softer than k (Liu et al.), not unstable.
-The default is 6 iterations a step. On the 64 x 64 cloth hanging from two corners
-(`benchmarks/cloth.py`) the stretch at rest is 1.055, against 1.045 with 10 iterations and
-1.062 with 5. The run is 1.6x faster than with 10 (137 against 87 frames/s). On Blender's
-comparison scene the max stretch is 1.128 against Blender's 1.245.
+The default is 6 iterations a step (the stretch and speed it was chosen by:
+docs/performance.md).
 """
 
 from __future__ import annotations
@@ -42,21 +39,24 @@ import numpy as np
 from scipy.sparse import coo_matrix
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
+from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
+from meshdeform.solvers.implicit import kernels
+from meshdeform.solvers.options import ImplicitOptions
 
 
-@register
-class ImplicitSolver(ModelCache):
+class ImplicitSolver(ModelCache, Solver):
     """Projective dynamics with a prefactored global matrix and BDF2 time integration."""
 
     name: ClassVar[str] = "implicit"
+    summary: ClassVar[str] = "projective dynamics (Liu et al. 2013) with BDF2, prefactored: stiff springs in few steps"
+    hint: ClassVar[str] = "use more substeps or iterations, or check the forces for non-finite values"
+    options_class: ClassVar[type[ImplicitOptions]] = ImplicitOptions
     default_substeps: ClassVar[int] = 1
     default_iterations: ClassVar[int] = 6
 
-    def __init__(self, options: SolverOptions) -> None:
-        self.options = options
+    def __init__(self, options: ImplicitOptions) -> None:
+        super().__init__(options)
         self.iterations = max(1, options.iterations_for(self))
         self._dt = -1.0
         self._state_key: tuple[int, float] | None = None

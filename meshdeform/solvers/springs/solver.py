@@ -24,10 +24,11 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
+from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, damping_coefficients, spring_constants, structural_mask
 from meshdeform.solvers.layout import spring_layout
+from meshdeform.solvers.options import SpringsOptions
+from meshdeform.solvers.springs import kernels
 
 
 def stable_step(model: SpringModel, k: np.ndarray, c: np.ndarray, extra_omega2: float = 0.0) -> float:
@@ -52,16 +53,15 @@ def stable_step(model: SpringModel, k: np.ndarray, c: np.ndarray, extra_omega2: 
     return (-gam + math.sqrt(gam * gam + budget * lam)) / lam
 
 
-class ExplicitSolver(ModelCache):
+class ExplicitSolver(ModelCache, Solver):
     """Semi-implicit Euler over springs and/or anchors; subclasses choose which."""
 
     use_springs: ClassVar[bool] = True
-    default_iterations: ClassVar[int] = 0
     #: decay rate (1/s) of velocities relative to the anchors (`anchor` only)
     anchor_damping: float = 0.0
 
-    def __init__(self, options: SolverOptions) -> None:
-        self.options = options
+    def __init__(self, options: SpringsOptions) -> None:
+        super().__init__(options)
         self._dt = -1.0
         self.inner_steps = 1
 
@@ -76,7 +76,7 @@ class ExplicitSolver(ModelCache):
         c = damping_coefficients(model, kt)
         springs_on = self.use_springs and model.spring_count > 0
         if springs_on:
-            lay = spring_layout(model, self.options.partitions)
+            lay = spring_layout(model, 0)  # the auto slab count: the order the force sums run in
             self.a, self.b, self.rest, self.offsets, self.parts = lay.a, lay.b, lay.rest, lay.offsets, lay.parts
             self.kt, self.kc, self.c = lay.take(kt), lay.take(kc), lay.take(c)
             structural = np.flatnonzero(structural_mask(model))
@@ -123,9 +123,11 @@ def pinned_velocity(x: np.ndarray, prev: np.ndarray, v: np.ndarray, inv_mass: np
     kernels.start_step(x, prev, v, inv_mass, inv_dt)
 
 
-@register
 class SpringsSolver(ExplicitSolver):
     """Mass-spring cloth with Hooke springs, spring damping and an optional Provot strain limit."""
 
     name: ClassVar[str] = "springs"
+    summary: ClassVar[str] = "Hooke springs, semi-implicit Euler, stable substeps, optional Provot strain limit"
+    hint: ClassVar[str] = "keep stable_substeps on, lower stiffness or use more substeps"
+    options_class: ClassVar[type[SpringsOptions]] = SpringsOptions
     default_substeps: ClassVar[int] = 8

@@ -4,10 +4,9 @@ Each substep integrates positions from the previous ones (x' = x + (x - x_prev) 
 a dt^2) and then relaxes every spring toward its rest length in `iterations` Gauss-Seidel
 sweeps (alternating direction, the first forward: from the pins outward, which carries their
 hold across the cloth in one pass), slabs of the mesh in parallel (see `layout`). Default:
-2 sweeps (a symmetric forward + backward step) and 18 substeps per frame: on a 64 x 64 cloth
-hanging from two corners max structural stretch 1.21 over 100 frames (Blender's cloth: 1.245),
-against 1.25 with 16 substeps and 1.16 with 20. A single forward sweep per substep (1 x 24:
-1.21) is not symmetric and can pump energy into the cloth (see `xpbd`).
+2 sweeps (a symmetric forward + backward step; a single forward sweep is not symmetric and can
+pump energy into the cloth, see `xpbd`) and 18 substeps per frame (the measurements behind it:
+docs/performance.md).
 
 Per-kind stiffness: a kind's stiffness s (0..1, compression separately) is the fraction of a
 spring's length error removed per substep; each sweep uses 1 - (1 - s) ** (1 / iterations)
@@ -17,16 +16,15 @@ material. s = 1 makes a spring as stiff as the sweeps can make it. Velocities ar
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
 the sweeps so that a cloth hanging from a few pins does not stretch far near them; their
 distances run along structural springs only (tighter, octile tethers as in `xpbd` fight the
-fully stiff relaxation here and raised the stretch from 1.25 to 1.40 at 2 x 16).
+fully stiff relaxation here and raise the stretch).
 
-Speed: a whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build
-on both cores when that is measured faster: `dispatch.KernelPicker`, same bytes either way),
-and so is a whole frame when nothing happens between its substeps (`advance`: the vertices
-stay in the scratch, previous positions beside it in kernel numbering, same bytes as substep
-by substep);
-per spring the factors k w_a / w and k w_b / w (tension and compression) are precomputed into
-one row, so the scratch vertex needs only its position and inverse mass (`kernels.POINT`, 32
-bytes: twice as many vertices per cache line as xpbd's records).
+A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
+bytes either way: `dispatch.KernelPicker` chooses), and so is a whole frame when nothing happens
+between its substeps (`advance`: the vertices stay in the scratch, previous positions beside it
+in kernel numbering, the same bytes as substep by substep). Per spring the factors k w_a / w and
+k w_b / w (tension and compression) are precomputed into one `kernels.RELAX_SPRING` row, so the
+scratch vertex needs only its position and inverse mass (`sweep_kernels.POINT`, 32 bytes: twice
+as many vertices per cache line as xpbd's records).
 """
 
 from __future__ import annotations
@@ -36,11 +34,13 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
+from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
 from meshdeform.solvers.layout import kernel_chunks
+from meshdeform.solvers.options import VerletOptions
+from meshdeform.solvers.sweep_kernels import POINT
+from meshdeform.solvers.verlet import kernels
 
 
 def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
@@ -50,16 +50,18 @@ def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
     return np.where(s >= 1.0, s, soft)
 
 
-@register
-class VerletSolver(LayoutCache):
+class VerletSolver(LayoutCache, Solver):
     """Position-based Verlet cloth with per-kind relaxation factors."""
 
     name: ClassVar[str] = "verlet"
+    summary: ClassVar[str] = "Verlet integration, springs relaxed as distance constraints (Jakobsen 2001)"
+    hint: ClassVar[str] = "keep stiffness within 0..1 or use more substeps"
+    options_class: ClassVar[type[VerletOptions]] = VerletOptions
     default_substeps: ClassVar[int] = 18
     default_iterations: ClassVar[int] = 2
 
-    def __init__(self, options: SolverOptions) -> None:
-        self.options = options
+    def __init__(self, options: VerletOptions) -> None:
+        super().__init__(options)
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
         # one picker for the solver's life: what it measured holds for every model (tearing)
@@ -84,7 +86,7 @@ class VerletSolver(LayoutCache):
         p["ac"] = self.kc * share_a
         p["bc"] = self.kc * share_b
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers)
-        self.scratch = self._buffer("scratch", model.vertex_count, kernels.POINT)
+        self.scratch = self._buffer("scratch", model.vertex_count, POINT)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.previous = self._buffer("previous", 3 * model.vertex_count, np.float64).reshape(-1, 3)  # kernel numbering

@@ -13,36 +13,30 @@ kind's damping ratio z.
 
 Springs are ordered from the pins outward (see `layout`), so a forward sweep carries the pins'
 hold across the whole cloth in one pass. Sweeps alternate direction inside a substep, the
-first forward; the default is the "small steps" style (Macklin et al. 2019): 2 sweeps (one
-forward, one backward: a symmetric Gauss-Seidel step) and 22 substeps per frame. Measured on a
-64 x 64 cloth hanging from two corners (max structural stretch over 100 frames): 2 x 16 1.65
-(1.41 with the tethers below), 2 x 20 1.27, 2 x 22 1.23, 2 x 24 1.22 (Blender's cloth: 1.245).
-One forward sweep per substep (1 x 32: 1.16 for less work) looks better but is not symmetric
-and pumps energy into stiff cloth: a 32 x 32 cloth of stretch_modulus 1e4..1e6 hanging from two corners still moved at
-0.1-0.3 m/s after 10 s where 2 x 22 comes to rest (1e-4 m/s); alternating the single sweep's
-direction from substep to substep is worse still (stretch 3.2).
-Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
-the sweeps; their distances run along structural and shear springs (the octile distance on a
-grid: a vertex diagonal from a pin cannot stretch 41 % before its tether acts, as it can
-along structural springs only), times 1.03: tethers to two pins that are both nearly exact
-(a vertex straight below one pin and diagonal from the other) make the alternating
-projections onto two spheres through the rest position ratchet it upward (0.6 mm in 5 steps
-of 1/96 s without slack) and neighbours near the line between the pins fight (N = 256: a
-spring at 3.4x its rest length 4 frames in with 1 % slack, 1.8x with 3 %); 3 % removes both
-and gives 1.22 at 2 x 24 (1.24 with 1 %, 1.48 with structural paths only). They cap
-stretch along paths from the pins (set them off to see the compliance alone).
+first forward, so an even count is a symmetric Gauss-Seidel step: a single forward sweep per
+substep is not symmetric and pumps energy into stiff cloth. The default is the "small steps"
+style (Macklin et al. 2019): 2 sweeps (one forward, one backward) and 22 substeps per frame
+(the measurements behind it: docs/performance.md).
 
-Speed: a whole substep (prediction, tethers, sweeps, velocities) is one compiled call
-(`kernels.xpbd_substep`, or its parallel build on both cores: `dispatch.KernelPicker` runs
-whichever is faster on the machine at the time, the results are bit for bit the same), and
-so is a whole frame when nothing happens between its substeps (`advance`, used by
-`simulate` for gravity-only scenes: the vertices stay in the scratch from one substep to the
-next, the State is read once and written once per frame, same bytes as substep by substep),
-on a cache-line-per-vertex scratch copy (position, inverse mass, previous position); per spring
-the constants (compliances, 1 / denominators, damping) are precomputed once per step size
-into one 56-byte record beside the spring's ends, so a projection streams one array and costs
-one square root and one division. The first sweep of a substep writes the multipliers
-without reading them (they start at zero).
+Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
+the sweeps. Their distances run along `TETHER_KINDS`, structural and shear springs (the octile
+distance on a grid: a vertex diagonal from a pin cannot stretch 41 % before its tether acts, as
+it can along structural springs only), times `TETHER_SLACK`: tethers to two pins that are both
+nearly exact (a vertex straight below one pin and diagonal from the other) make the alternating
+projections onto two spheres through the rest position ratchet it upward, and neighbours near
+the line between the pins fight; the slack removes both. They cap stretch along paths from the
+pins (set them off to see the compliance alone).
+
+A whole substep (prediction, tethers, sweeps, velocities) is one compiled call
+(`kernels.xpbd_substep`, or its parallel build, bit for bit the same result:
+`dispatch.KernelPicker` chooses), and so is a whole frame when nothing happens between its
+substeps (`advance`: the vertices stay in the scratch from one substep to the next, the State
+is read once and written once per frame, the same bytes as substep by substep). The scratch
+holds one cache line per vertex (`sweep_kernels.VERTEX`: position, inverse mass, previous
+position); per spring the constants (compliances, 1 / denominators, damping) are precomputed
+once per step size into one `kernels.XPBD_SPRING` record beside the spring's ends, so a
+projection streams one array and costs one square root and one division. The first sweep of a
+substep writes the multipliers without reading them (they start at zero).
 """
 
 from __future__ import annotations
@@ -52,14 +46,13 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers import kernels
-from meshdeform.solvers.base import Control, SolverOptions, register, velocity_retention
-from meshdeform.solvers.common import (
-    LayoutCache,
-    kernel_tethers,
-)
+from meshdeform.solvers.base import Control, Solver, velocity_retention
+from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
 from meshdeform.solvers.layout import kernel_chunks
+from meshdeform.solvers.options import XPBDOptions
+from meshdeform.solvers.sweep_kernels import VERTEX
+from meshdeform.solvers.xpbd import kernels
 from meshdeform.topology import SpringKind
 
 #: tether paths run along these spring kinds, with this slack (see the module docstring)
@@ -67,16 +60,18 @@ TETHER_KINDS = (int(SpringKind.STRUCTURAL), int(SpringKind.SHEAR))
 TETHER_SLACK = 1.03
 
 
-@register
-class XPBDSolver(LayoutCache):
+class XPBDSolver(LayoutCache, Solver):
     """Extended position-based dynamics with per-kind compliance and constraint damping."""
 
     name: ClassVar[str] = "xpbd"
+    summary: ClassVar[str] = "compliant distance constraints in small steps (Macklin et al. 2016/2019), the default"
+    hint: ClassVar[str] = "use more substeps or check the forces for non-finite values"
+    options_class: ClassVar[type[XPBDOptions]] = XPBDOptions
     default_substeps: ClassVar[int] = 22
     default_iterations: ClassVar[int] = 2
 
-    def __init__(self, options: SolverOptions) -> None:
-        self.options = options
+    def __init__(self, options: XPBDOptions) -> None:
+        super().__init__(options)
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
         # one picker for the solver's life: what it measured holds for every model (tearing)
@@ -86,7 +81,7 @@ class XPBDSolver(LayoutCache):
         lay = self.layout = self._layout_for(model, self.options.partitions)
         self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers, TETHER_KINDS, TETHER_SLACK)
-        self.scratch = self._buffer("scratch", model.vertex_count, kernels.VERTEX)
+        self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
         self.substep.allow_parallel(lay.parts > 1)

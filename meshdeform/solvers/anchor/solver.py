@@ -26,20 +26,20 @@ import numpy as np
 
 from meshdeform.errors import MeshdeformError
 from meshdeform.model import SpringModel
-from meshdeform.solvers.base import SolverOptions, register
-from meshdeform.solvers.springs import ExplicitSolver
-
-ANCHOR_FRAMES = ("auto", "world", "centroid")
+from meshdeform.solvers.options import ANCHOR_FRAMES, AnchorOptions
+from meshdeform.solvers.springs.solver import ExplicitSolver
 
 
-@register
 class AnchorSolver(ExplicitSolver):
     """Vertices spring back to their rest positions (optionally plus neighbour springs)."""
 
     name: ClassVar[str] = "anchor"
+    summary: ClassVar[str] = "vertices spring back to their rest shape (stress-ball deformer), semi-implicit Euler"
+    hint: ClassVar[str] = "lower anchor_stiffness or spring stiffness, or keep stable_substeps on"
+    options_class: ClassVar[type[AnchorOptions]] = AnchorOptions
     default_substeps: ClassVar[int] = 8
 
-    def __init__(self, options: SolverOptions) -> None:
+    def __init__(self, options: AnchorOptions) -> None:
         if options.anchor_frame not in ANCHOR_FRAMES:
             raise MeshdeformError(
                 f"unknown anchor_frame {options.anchor_frame!r}; choose one of: {', '.join(ANCHOR_FRAMES)}"

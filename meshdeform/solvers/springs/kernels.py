@@ -1,0 +1,177 @@
+"""Numba kernels of the explicit solvers (`springs`, and `anchor` which runs the same step)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from meshdeform.solvers.jit import FAST, JIT
+
+
+@nb.njit(inline="always", **FAST)
+def _force_range(x, v, a, b, rest, kt, kc, cd, f, lo, hi):  # pragma: no cover - compiled
+    for s in range(lo, hi):
+        ia = a[s]
+        ib = b[s]
+        dx = x[ib, 0] - x[ia, 0]
+        dy = x[ib, 1] - x[ia, 1]
+        dz = x[ib, 2] - x[ia, 2]
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if length < 1e-12:
+            continue
+        inv_l = 1.0 / length
+        nx = dx * inv_l
+        ny = dy * inv_l
+        nz = dz * inv_l
+        c = length - rest[s]
+        k = kt[s] if c > 0.0 else kc[s]
+        rv = nx * (v[ib, 0] - v[ia, 0]) + ny * (v[ib, 1] - v[ia, 1]) + nz * (v[ib, 2] - v[ia, 2])
+        t = k * c + cd[s] * rv
+        f[ia, 0] += t * nx
+        f[ia, 1] += t * ny
+        f[ia, 2] += t * nz
+        f[ib, 0] -= t * nx
+        f[ib, 1] -= t * ny
+        f[ib, 2] -= t * nz
+
+
+@nb.njit(**FAST)
+def _limit_strain(x, v, la, lb, lrest, inv_mass, ratio, inv_dt, max_passes):  # pragma: no cover - compiled
+    """Provot's deformation constraint: pull structural springs longer than ratio * rest back.
+
+    Gauss-Seidel passes until none exceeds the ratio (or max_passes); the position changes
+    are added to the velocities (divided by dt). Returns the passes used.
+    """
+    for p in range(max_passes):
+        worst = 0.0
+        for s in range(la.shape[0]):
+            ia = la[s]
+            ib = lb[s]
+            wa = inv_mass[ia]
+            wb = inv_mass[ib]
+            w = wa + wb
+            if w == 0.0:
+                continue
+            dx = x[ib, 0] - x[ia, 0]
+            dy = x[ib, 1] - x[ia, 1]
+            dz = x[ib, 2] - x[ia, 2]
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            limit = ratio * lrest[s]
+            if length <= limit:
+                continue
+            over = (length - limit) / limit
+            if over > worst:
+                worst = over
+            f = (length - limit) / (length * w)
+            fa = f * wa
+            fb = f * wb
+            x[ia, 0] += dx * fa
+            x[ia, 1] += dy * fa
+            x[ia, 2] += dz * fa
+            x[ib, 0] -= dx * fb
+            x[ib, 1] -= dy * fb
+            x[ib, 2] -= dz * fb
+            v[ia, 0] += dx * fa * inv_dt
+            v[ia, 1] += dy * fa * inv_dt
+            v[ia, 2] += dz * fa * inv_dt
+            v[ib, 0] -= dx * fb * inv_dt
+            v[ib, 1] -= dy * fb * inv_dt
+            v[ib, 2] -= dz * fb * inv_dt
+        if worst <= 1e-9:
+            return p
+    return max_passes
+
+
+@nb.njit(inline="always", **FAST)
+def _mass_mean(mass, values):  # pragma: no cover - compiled
+    """Mass-weighted mean of the rows of values (W, 3), as three numbers."""
+    total = 0.0
+    mx = 0.0
+    my = 0.0
+    mz = 0.0
+    for i in range(values.shape[0]):
+        m = mass[i]
+        mx += m * values[i, 0]
+        my += m * values[i, 1]
+        mz += m * values[i, 2]
+        total += m
+    return mx / total, my / total, mz / total
+
+
+@nb.njit(**FAST)
+def explicit_advance(
+    x, v, prev, inv_mass, mass, accel, retention, dt, steps,
+    a, b, rest, kt, kc, cd, offsets, parts, f,
+    anchor_k, anchors, anchor_follow, rest_center, anchor_keep,
+    la, lb, lrest, ratio, max_passes,
+):  # pragma: no cover - compiled
+    """`steps` semi-implicit Euler steps of length dt: springs (Hooke + damping), anchors, air damping.
+
+    Serial: the many short steps would pay a parallel launch each.
+
+    anchor_k > 0 adds -anchor_k (x - anchor) per unit mass, anchor = anchors + (centre of mass
+    - rest_center) when anchor_follow else anchors, and multiplies each velocity relative to
+    the anchors' (the centre of mass's when anchor_follow, else zero) by anchor_keep per step.
+    ratio > 0 applies the strain limit on the (la, lb, lrest) springs after each step. Pinned
+    vertices (inv_mass 0) are not moved.
+    """
+    nv = x.shape[0]
+    use_springs = a.shape[0] > 0
+    inv_dt = 1.0 / dt
+    for _ in range(steps):
+        if use_springs:
+            for i in range(nv):
+                f[i, 0] = 0.0
+                f[i, 1] = 0.0
+                f[i, 2] = 0.0
+            _force_range(x, v, a, b, rest, kt, kc, cd, f, offsets[0], offsets[parts + 1])
+        ox = 0.0
+        oy = 0.0
+        oz = 0.0
+        if anchor_k > 0.0 and anchor_follow:
+            ox, oy, oz = _mass_mean(mass, x)
+            ox -= rest_center[0]
+            oy -= rest_center[1]
+            oz -= rest_center[2]
+        for i in range(nv):
+            w = inv_mass[i]
+            if w == 0.0:
+                continue
+            for k in range(3):
+                acc = accel[i, k]
+                if use_springs:
+                    acc += f[i, k] * w
+                if anchor_k > 0.0:
+                    off = ox if k == 0 else (oy if k == 1 else oz)
+                    acc -= anchor_k * (x[i, k] - anchors[i, k] - off)
+                v[i, k] += acc * dt
+        # the velocity relative to the anchors' (the centre of mass's after this step, which the
+        # internal forces do not change; zero for world anchors) keeps anchor_keep of itself
+        keep = anchor_keep if anchor_k > 0.0 else 1.0
+        ux = 0.0
+        uy = 0.0
+        uz = 0.0
+        if keep < 1.0 and anchor_follow:
+            ux, uy, uz = _mass_mean(mass, v)
+        for i in range(nv):
+            if inv_mass[i] == 0.0:
+                continue
+            for k in range(3):
+                frame_v = ux if k == 0 else (uy if k == 1 else uz)
+                vi = (frame_v + (v[i, k] - frame_v) * keep) * retention
+                v[i, k] = vi
+                x[i, k] += vi * dt
+        if ratio > 0.0:
+            _limit_strain(x, v, la, lb, lrest, inv_mass, ratio, inv_dt, max_passes)
+
+
+@nb.njit(**JIT)
+def start_step(x, prev, v, inv_mass, inv_dt):  # pragma: no cover - compiled
+    """Before a velocity-based step: pinned v = (x - prev) / dt (their motion), free prev = x."""
+    for i in range(x.shape[0]):
+        if inv_mass[i] == 0.0:
+            for k in range(3):
+                v[i, k] = (x[i, k] - prev[i, k]) * inv_dt
+        else:
+            for k in range(3):
+                prev[i, k] = x[i, k]

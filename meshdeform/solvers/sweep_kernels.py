@@ -1,0 +1,236 @@
+"""Numba pieces shared by the position-based solvers (`verlet`, `xpbd`): scratch records, tethers.
+
+verlet and xpbd run a whole substep in one compiled call on a scratch copy of the vertices in
+the layout's kernel numbering, one record per vertex (`VERTEX`: position, inverse mass and
+previous position in one 64-byte cache line, so the two positions a spring reads arrive
+together; `POINT`: position and inverse mass, 32 bytes). Per spring one record of precomputed
+constants (see each solver's kernels), so a projection does one square root and one division
+and no gather of masses. Record fields compile to constant offsets and unsigned indices need no
+negative-index wraparound, which keeps the loops short. Only free vertices are written back:
+pinned positions stay bit-identical.
+
+All take spring data in a `SpringLayout` order: slabs 0..P-1 are swept in parallel (`prange`
+over slabs, they share no vertex), the separator after them. Positions and velocities are the
+State's (W, 3) float64 arrays, updated in place. Everything here is inlined into the solvers'
+substep kernels.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from meshdeform.solvers.jit import JIT, SWEEP
+
+#: squared distance ratio past which a tether no longer pulls a vertex back (see `apply_tethers`)
+_RUNAWAY2 = 1e30
+#: squared length below which a spring's direction is taken as undefined (no division by zero)
+_TINY2 = 1e-24
+
+#: scratch vertex: position, inverse mass, previous position (64 bytes)
+VERTEX = np.dtype(
+    [("x", "f8"), ("y", "f8"), ("z", "f8"), ("w", "f8"), ("px", "f8"), ("py", "f8"), ("pz", "f8"), ("pad", "f8")],
+    align=True,
+)
+#: verlet scratch vertex: position and inverse mass (32 bytes; the relaxation needs no previous
+#: position, and the write-back takes it from the State's positions before overwriting them)
+POINT = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("w", "f8")], align=True)
+#: tether: kernel vertex, kernel pin vertex, largest distance
+TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
+
+
+@nb.njit(inline="always", **JIT)
+def _verlet(x0, p0, a0, retention, dt2):  # pragma: no cover - compiled
+    """One coordinate's Verlet prediction x + (x - prev) retention + a dt^2 (every substep kernel's)."""
+    return x0 + (x0 - p0) * retention + a0 * dt2
+
+
+@nb.njit(inline="always", **JIT)
+def load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
+    """Scratch copy with the Verlet prediction x' = x + (x - prev) retention + a dt^2 of free vertices.
+
+    Model vertices lo..hi-1. Walks the State's arrays in order (rank: model vertex -> scratch
+    record), so only the scratch is written out of order, one cache line per vertex.
+    """
+    for i in range(lo, hi):
+        r = X[rank[i]]
+        w = inv_mass[i]
+        x0 = x[i, 0]
+        x1 = x[i, 1]
+        x2 = x[i, 2]
+        r.w = w
+        r.pad = 0.0
+        if w == 0.0:
+            r.x = x0
+            r.y = x1
+            r.z = x2
+            r.px = prev[i, 0]
+            r.py = prev[i, 1]
+            r.pz = prev[i, 2]
+        else:
+            r.x = _verlet(x0, prev[i, 0], accel[i, 0], retention, dt2)
+            r.y = _verlet(x1, prev[i, 1], accel[i, 1], retention, dt2)
+            r.z = _verlet(x2, prev[i, 2], accel[i, 2], retention, dt2)
+            r.px = x0
+            r.py = x1
+            r.pz = x2
+
+
+@nb.njit(inline="always", **JIT)
+def load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi, keep):  # pragma: no cover - compiled
+    """`load_vertices` for `POINT` records: predicted positions of free vertices, pinned ones as they are.
+
+    keep: also keep each free vertex's position before the prediction in XP (kernel numbering),
+    for a call that runs more than one substep (`predict_points`, `store_points`).
+    """
+    for i in range(lo, hi):
+        k = rank[i]
+        r = X[k]
+        w = inv_mass[i]
+        x0 = x[i, 0]
+        x1 = x[i, 1]
+        x2 = x[i, 2]
+        r.w = w
+        if w == 0.0:
+            r.x = x0
+            r.y = x1
+            r.z = x2
+        else:
+            r.x = _verlet(x0, prev[i, 0], accel[i, 0], retention, dt2)
+            r.y = _verlet(x1, prev[i, 1], accel[i, 1], retention, dt2)
+            r.z = _verlet(x2, prev[i, 2], accel[i, 2], retention, dt2)
+            if keep:
+                XP[k, 0] = x0
+                XP[k, 1] = x1
+                XP[k, 2] = x2
+
+
+@nb.njit(inline="always", **JIT)
+def predict_vertices(X, accel, order, retention, dt2, lo, hi):  # pragma: no cover - compiled
+    """The next substep's prediction inside `VERTEX` records, kernel vertices lo..hi-1 (a call
+    running several substeps): x' = x + (x - px) retention + a dt^2, px = x, as in `load_vertices`.
+    order: kernel vertex -> model vertex (for its acceleration)."""
+    for k in range(lo, hi):
+        r = X[k]
+        if r.w != 0.0:
+            i = order[k]
+            x0 = r.x
+            x1 = r.y
+            x2 = r.z
+            r.x = _verlet(x0, r.px, accel[i, 0], retention, dt2)
+            r.y = _verlet(x1, r.py, accel[i, 1], retention, dt2)
+            r.z = _verlet(x2, r.pz, accel[i, 2], retention, dt2)
+            r.px = x0
+            r.py = x1
+            r.pz = x2
+
+
+@nb.njit(inline="always", **JIT)
+def predict_points(X, XP, accel, order, retention, dt2, lo, hi):  # pragma: no cover - compiled
+    """`predict_vertices` for `POINT` records, the previous positions in XP (kernel numbering)."""
+    for k in range(lo, hi):
+        r = X[k]
+        if r.w != 0.0:
+            i = order[k]
+            x0 = r.x
+            x1 = r.y
+            x2 = r.z
+            r.x = _verlet(x0, XP[k, 0], accel[i, 0], retention, dt2)
+            r.y = _verlet(x1, XP[k, 1], accel[i, 1], retention, dt2)
+            r.z = _verlet(x2, XP[k, 2], accel[i, 2], retention, dt2)
+            XP[k, 0] = x0
+            XP[k, 1] = x1
+            XP[k, 2] = x2
+
+
+@nb.njit(inline="always", **JIT)
+def _put(x, prev, v, i, x0, x1, x2, p0, p1, p2, inv_dt):  # pragma: no cover - compiled
+    """x[i] = (x0, x1, x2), prev[i] = (p0, p1, p2), v[i] = (x - prev) / dt."""
+    x[i, 0] = x0
+    x[i, 1] = x1
+    x[i, 2] = x2
+    prev[i, 0] = p0
+    prev[i, 1] = p1
+    prev[i, 2] = p2
+    v[i, 0] = (x0 - p0) * inv_dt
+    v[i, 1] = (x1 - p1) * inv_dt
+    v[i, 2] = (x2 - p2) * inv_dt
+
+
+@nb.njit(inline="always", **JIT)
+def _put_pinned(x, prev, v, i, inv_dt):  # pragma: no cover - compiled
+    """A pinned vertex keeps x and prev bit for bit; v = (x - prev) / dt."""
+    v[i, 0] = (x[i, 0] - prev[i, 0]) * inv_dt
+    v[i, 1] = (x[i, 1] - prev[i, 1]) * inv_dt
+    v[i, 2] = (x[i, 2] - prev[i, 2]) * inv_dt
+
+
+@nb.njit(inline="always", **JIT)
+def store_vertices(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
+    """Model vertices lo..hi-1 back from `VERTEX` records: x = the record, prev = its position
+    before the last substep (px), v = (x - prev) / dt; pinned ones keep x and prev."""
+    for i in range(lo, hi):
+        r = X[rank[i]]
+        if r.w != 0.0:
+            _put(x, prev, v, i, r.x, r.y, r.z, r.px, r.py, r.pz, inv_dt)
+        else:
+            _put_pinned(x, prev, v, i, inv_dt)
+
+
+@nb.njit(inline="always", **JIT)
+def store_points(X, XP, x, prev, v, rank, inv_dt, lo, hi, kept):  # pragma: no cover - compiled
+    """`store_vertices` for `POINT` records: prev from XP when `kept` (several substeps), else the State's
+    positions before they are overwritten (one substep: they are the positions it started from)."""
+    for i in range(lo, hi):
+        k = rank[i]
+        r = X[k]
+        if r.w == 0.0:
+            _put_pinned(x, prev, v, i, inv_dt)
+        elif kept:
+            _put(x, prev, v, i, r.x, r.y, r.z, XP[k, 0], XP[k, 1], XP[k, 2], inv_dt)
+        else:
+            _put(x, prev, v, i, r.x, r.y, r.z, x[i, 0], x[i, 1], x[i, 2], inv_dt)
+
+
+@nb.njit(inline="always", **SWEEP)
+def apply_tethers(X, tethers, lo, hi):  # pragma: no cover - compiled
+    """Pull vertices of tethers lo..hi-1 back to within their limit of their pin (pins do not move)."""
+    for t in range(lo, hi):
+        te = tethers[t]
+        vi = X[te.v]
+        pin = X[te.p]
+        dx = vi.x - pin.x
+        dy = vi.y - pin.y
+        dz = vi.z - pin.z
+        d2 = dx * dx + dy * dy + dz * dz
+        lim2 = te.lim * te.lim
+        # a vertex 1e15 times past its limit (or overflowed) has blown up: left where it is for
+        # the divergence guard to report, not quietly pulled back onto its pin
+        if lim2 < d2 < lim2 * _RUNAWAY2:
+            s = te.lim / np.sqrt(d2)
+            vi.x = pin.x + dx * s
+            vi.y = pin.y + dy * s
+            vi.z = pin.z + dz * s
+
+
+@nb.njit(inline="always", **SWEEP)
+def span(va, vb):  # pragma: no cover - compiled
+    """d = x_b - x_a, |d| and 1 / |d|^2 (the division runs beside the square root, not after it:
+    a shorter dependency chain per spring)."""
+    dx = vb.x - va.x
+    dy = vb.y - va.y
+    dz = vb.z - va.z
+    d2 = max(dx * dx + dy * dy + dz * dz, _TINY2)
+    inv_d2 = 1.0 / d2
+    return dx, dy, dz, np.sqrt(d2), inv_d2
+
+
+@nb.njit(inline="always", **SWEEP)
+def pull(va, vb, dx, dy, dz, fa, fb):  # pragma: no cover - compiled
+    """x_a += d fa, x_b -= d fb."""
+    va.x += dx * fa
+    va.y += dy * fa
+    va.z += dz * fa
+    vb.x -= dx * fb
+    vb.y -= dy * fb
+    vb.z -= dz * fb

@@ -1,0 +1,101 @@
+"""Numba kernels of the `verlet` solver: the substep (serial and parallel builds)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from meshdeform.solvers.jit import SWEEP
+from meshdeform.solvers.sweep_kernels import apply_tethers, load_points, predict_points, pull, span, store_points
+
+#: verlet spring: ends (kernel numbering), rest length, k w_a / w and k w_b / w under tension and compression
+RELAX_SPRING = np.dtype(
+    [("a", "u4"), ("b", "u4"), ("rest", "f8"), ("at", "f8"), ("bt", "f8"), ("ac", "f8"), ("bc", "f8")], align=True
+)
+
+
+@nb.njit(inline="always", **SWEEP)
+def _relax_spring(X, P, s):  # pragma: no cover - compiled
+    """One Jakobsen relaxation (P[s]: see RELAX_SPRING)."""
+    c = P[s]
+    va = X[c.a]
+    vb = X[c.b]
+    at = c.at  # loaded before the test (see `_xpbd_spring`)
+    bt = c.bt
+    ac = c.ac
+    bc = c.bc
+    dx, dy, dz, length, inv_d2 = span(va, vb)
+    rest = c.rest
+    tension = length > rest
+    ka = at if tension else ac
+    kb = bt if tension else bc
+    f = 1.0 - rest * length * inv_d2
+    pull(va, vb, dx, dy, dz, f * ka, f * kb)
+
+
+@nb.njit(inline="always", **SWEEP)
+def _relax_range(X, P, lo, hi, backward):  # pragma: no cover - compiled
+    one = np.uint64(1)
+    if backward:
+        for j in range(hi - lo):
+            _relax_spring(X, P, hi - one - j)
+    else:
+        for s in range(lo, hi):
+            _relax_spring(X, P, s)
+
+
+@nb.njit(**SWEEP)
+def verlet_substep(
+    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, order, P, offsets, parts, iterations, tethers,
+    vchunks, tchunks, count,
+):  # pragma: no cover - compiled
+    """`count` Verlet substeps on one thread: predict, tethers, relaxation sweeps, tethers; then
+    the State. XP: (W, 3) previous positions in kernel numbering, used when count > 1."""
+    n = np.uint64(rank.shape[0])
+    nt = np.uint64(tethers.shape[0])
+    zero = np.uint64(0)
+    dt2 = dt * dt
+    keep = count > 1
+    load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, zero, n, keep)
+    apply_tethers(X, tethers, zero, nt)
+    for step in range(count):
+        for it in range(iterations):
+            backward = (it % 2) == 1
+            for p in range(parts + 1):
+                _relax_range(X, P, offsets[p], offsets[p + 1], backward)
+        apply_tethers(X, tethers, zero, nt)
+        if step + 1 < count:
+            predict_points(X, XP, accel, order, retention, dt2, zero, n)
+            apply_tethers(X, tethers, zero, nt)
+    store_points(X, XP, x, prev, v, rank, 1.0 / dt, zero, n, keep)
+
+
+@nb.njit(parallel=True, **SWEEP)
+def verlet_substep_parallel(
+    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, order, P, offsets, parts, iterations, tethers,
+    vchunks, tchunks, count,
+):  # pragma: no cover - compiled
+    """`verlet_substep` with every phase split over `parts` threads (see `xpbd_substep_parallel`)."""
+    dt2 = dt * dt
+    keep = count > 1
+    for p in nb.prange(parts):
+        load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1], keep)
+    for p in nb.prange(parts):
+        apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+    for step in range(count):
+        for it in range(iterations):
+            backward = (it % 2) == 1
+            for p in nb.prange(parts):
+                _relax_range(X, P, offsets[p], offsets[p + 1], backward)
+            _relax_range(X, P, offsets[parts], offsets[parts + 1], backward)
+        if step + 1 < count:
+            for p in nb.prange(parts):
+                apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+                predict_points(X, XP, accel, order, retention, dt2, vchunks[p], vchunks[p + 1])
+                apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+        else:
+            for p in nb.prange(parts):
+                apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+    inv_dt = 1.0 / dt
+    for p in nb.prange(parts):
+        store_points(X, XP, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1], keep)

@@ -1,0 +1,198 @@
+"""Numba kernels of the `xpbd` solver: the substep (serial and parallel builds) and the per-spring constants."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from meshdeform.solvers.jit import JIT, SWEEP
+from meshdeform.solvers.sweep_kernels import (
+    apply_tethers,
+    load_vertices,
+    predict_vertices,
+    pull,
+    span,
+    store_vertices,
+)
+
+#: xpbd spring: ends (kernel numbering), rest length, compliance / dt^2 and 1 / denominator
+#: under tension and compression, damping factor gamma (56 bytes, one stream per sweep; the
+#: inverse masses come from the vertex records)
+XPBD_SPRING = np.dtype(
+    [("a", "u4"), ("b", "u4"), ("rest", "f8"), ("at", "f8"), ("ac", "f8"), ("it", "f8"), ("ic", "f8"), ("g", "f8")],
+    align=True,
+)
+
+
+@nb.njit(inline="always", **SWEEP)
+def _xpbd_spring(X, P, lam, s, damped, first):  # pragma: no cover - compiled
+    """One XPBD distance constraint (P[s]: see XPBD_SPRING).
+
+    dlam = (-C - a~ lam - gamma n . (dx - dx_prev)) / ((1 + gamma) w + a~), written as
+    (L - l - gamma (l - d . dp / l) - a~ lam) / den with d = x_b - x_a, dp = prev_b - prev_a.
+    """
+    c = P[s]
+    va = X[c.a]
+    vb = X[c.b]
+    # both constants of each pair are loaded before the test: a select, not a load that waits for it
+    at = c.at
+    ac = c.ac
+    it = c.it
+    ic = c.ic
+    dx, dy, dz, length, inv_d2 = span(va, vb)
+    inv_l = length * inv_d2
+    rest = c.rest
+    tension = length > rest
+    alpha = at if tension else ac
+    inv_den = it if tension else ic
+    lam_s = 0.0 if first else lam[s]
+    num = rest - length - alpha * lam_s
+    if damped:
+        px = vb.px - va.px
+        py = vb.py - va.py
+        pz = vb.pz - va.pz
+        num -= c.g * (length - (dx * px + dy * py + dz * pz) * inv_l)
+    dlam = num * inv_den
+    lam[s] = lam_s + dlam
+    q = -dlam * inv_l
+    pull(va, vb, dx, dy, dz, q * va.w, q * vb.w)
+
+
+@nb.njit(inline="always", **SWEEP)
+def _xpbd_range(X, P, lam, lo, hi, backward, damped, first):  # pragma: no cover - compiled
+    """Springs lo..hi-1 (unsigned offsets: no wraparound code), forward or backward.
+
+    first: the substep's first sweep (forward), whose multipliers start at zero: written, not read.
+    """
+    one = np.uint64(1)
+    if first:
+        if damped:
+            for s in range(lo, hi):
+                _xpbd_spring(X, P, lam, s, True, True)
+        else:
+            for s in range(lo, hi):
+                _xpbd_spring(X, P, lam, s, False, True)
+    elif damped:
+        if backward:
+            for j in range(hi - lo):
+                _xpbd_spring(X, P, lam, hi - one - j, True, False)
+        else:
+            for s in range(lo, hi):
+                _xpbd_spring(X, P, lam, s, True, False)
+    elif backward:
+        for j in range(hi - lo):
+            _xpbd_spring(X, P, lam, hi - one - j, False, False)
+    else:
+        for s in range(lo, hi):
+            _xpbd_spring(X, P, lam, s, False, False)
+
+
+@nb.njit(**SWEEP)
+def xpbd_substep(
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, lam, offsets, parts, iterations, damped,
+    tethers, vchunks, tchunks, count,
+):  # pragma: no cover - compiled
+    """`count` XPBD substeps on one thread: predict, tethers, `iterations` sweeps, tethers; then
+    positions, previous positions and velocities back to the State.
+
+    The vertices stay in the scratch from one substep to the next (`predict_vertices`), so a frame with
+    nothing between its substeps is one call. Sweeps alternate direction, the first forward (from
+    the pins outward); slabs then the separator, in layout order. rank / order: model vertex ->
+    kernel vertex and back; offsets: (parts + 2,) uint64 (see `SpringLayout`); vchunks, tchunks:
+    the vertex and tether chunks of the parallel build (unused here).
+    """
+    n = np.uint64(rank.shape[0])
+    nt = np.uint64(tethers.shape[0])
+    zero = np.uint64(0)
+    dt2 = dt * dt
+    load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, zero, n)
+    apply_tethers(X, tethers, zero, nt)
+    for step in range(count):
+        for it in range(iterations):
+            backward = (it % 2) == 1
+            for p in range(parts + 1):
+                _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
+        apply_tethers(X, tethers, zero, nt)
+        if step + 1 < count:
+            predict_vertices(X, accel, order, retention, dt2, zero, n)
+            apply_tethers(X, tethers, zero, nt)
+    store_vertices(X, x, prev, v, rank, 1.0 / dt, zero, n)
+
+
+@nb.njit(parallel=True, **SWEEP)
+def xpbd_substep_parallel(
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, lam, offsets, parts, iterations, damped,
+    tethers, vchunks, tchunks, count,
+):  # pragma: no cover - compiled
+    """`xpbd_substep` with every phase split over `parts` threads (bit for bit the same result).
+
+    Load and write-back run over vertex chunks (vchunks) of the State; between two substeps one
+    pass per kernel vertex chunk applies the last substep's tethers, predicts and applies the
+    next one's (tchunks: the tethers of each chunk); sweeps run over the slabs, the separator
+    follows serially. Every vertex sees the same operations in the same order as in the serial
+    build.
+    """
+    dt2 = dt * dt
+    for p in nb.prange(parts):
+        load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
+    for p in nb.prange(parts):
+        apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+    for step in range(count):
+        for it in range(iterations):
+            backward = (it % 2) == 1
+            for p in nb.prange(parts):
+                _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
+            _xpbd_range(X, P, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
+        if step + 1 < count:
+            for p in nb.prange(parts):
+                apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+                predict_vertices(X, accel, order, retention, dt2, vchunks[p], vchunks[p + 1])
+                apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+        else:
+            for p in nb.prange(parts):
+                apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+    inv_dt = 1.0 / dt
+    for p in nb.prange(parts):
+        store_vertices(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
+
+
+
+
+@nb.njit(**JIT)
+def xpbd_constants(
+    order, springs, rest_lengths, stiffness, compression, damping, inv_mass, modulus, dt, P
+):  # pragma: no cover - compiled
+    """Fill the constants of `XPBD_SPRING` records P (layout order: P[k] is model spring order[k])
+    for step dt in one pass; True when any spring is damped. Serial: it runs in every job, also
+    where two jobs share a process (Dask threads), which the parallel runtime does not allow.
+
+    k = max(stiffness, 0) modulus under tension (compression alike), c = 2 z sqrt(k m_reduced),
+    alpha~ = 1 / (k dt^2), gamma = c / (k dt), 1 / ((1 + gamma) (w_a + w_b) + alpha~); 0 where
+    k = 0 (no constraint that way). The same operations in the same order as the NumPy
+    expressions they replace (no fast-math), so the records are bit for bit those values.
+    """
+    inv_dt2 = 1.0 / (dt * dt)
+    damped = False
+    for k in range(order.shape[0]):
+        s = order[k]
+        w = inv_mass[springs[s, 0]] + inv_mass[springs[s, 1]]
+        reduced = 1.0 / w if w > 0.0 else 0.0
+        kt = max(stiffness[s], 0.0) * modulus
+        kc = max(compression[s], 0.0) * modulus
+        c = 2.0 * max(damping[s], 0.0) * np.sqrt(kt * reduced)
+        r = P[k]
+        r.rest = rest_lengths[s]
+        at = inv_dt2 / kt if kt > 0.0 else 0.0
+        ac = inv_dt2 / kc if kc > 0.0 else 0.0
+        g = c / (kt * dt) if kt > 0.0 else 0.0
+        base = (1.0 + g) * w
+        den = base + at
+        r.at = at
+        r.ac = ac
+        r.g = g
+        r.it = 1.0 / den if kt > 0.0 and den > 0.0 else 0.0
+        den = base + ac
+        r.ic = 1.0 / den if kc > 0.0 and den > 0.0 else 0.0
+        if g > 0.0:
+            damped = True
+    return damped
