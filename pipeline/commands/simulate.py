@@ -25,15 +25,16 @@ def parse_vector(text: str, option: str) -> tuple[float, float, float]:
 
 def registry_help() -> dict[str, str]:
     """The help of the options that list a registry, by parameter name: the solvers
-    (`meshdeform.solvers.SOLVERS`) and the output formats with their one-line summaries
+    (`meshdeform.solvers.SOLVERS`) and the output formats, each with their one-line summaries
     (`meshdeform.export.EXPORTERS`)."""
     from meshdeform.export import EXPORTERS
     from meshdeform.solvers import SOLVERS
 
     formats = "; ".join(f"{name}: {cls.summary}" for name, cls in EXPORTERS.items())
     fixed = ", ".join(name for name, cls in EXPORTERS.items() if not cls.supports_topology_change)
+    solvers = "; ".join(f"{name}: {cls.summary}" for name, cls in SOLVERS.items())
     return {
-        "solver": f"Solver: {' | '.join(sorted(SOLVERS))} (default: the recipe's, see docs/recipes.md).",
+        "solver": f"Solver, replaces the recipe's simulation.solver: {solvers}.",
         "output_format": f"Output format, repeatable; replaces the recipe's output.formats: {formats}."
         f" A recipe that tears or cuts cannot write {fixed} (they need a fixed vertex count).",
     }
