@@ -22,6 +22,9 @@ from meshdeform.mesh import Mesh
 
 #: accepted values of `ExportContext.up_axis`
 UP_AXES = ("y", "z")
+#: bytes per vertex per frame of the point data a run hands its exporters (`FrameData.point_data`:
+#: strain and displacement float32, pinned uint8), for the estimates of the formats that write it
+POINT_DATA_BYTES = 4 + 4 + 1
 
 
 @dataclass(frozen=True)
@@ -94,6 +97,15 @@ class Exporter(Protocol):
     def abort(self) -> None: ...
 
 
+def uvs_have_seams(mesh: Mesh) -> bool:
+    """Whether the mesh's UVs are per corner (seams) rather than one per vertex: the PLY writer then
+    writes per-face texcoord lists instead of vertex columns, and VTK has no per-vertex TCoords."""
+    if mesh.uvs is None or mesh.face_uv_indices is None:
+        return False
+    per_vertex = mesh.uvs.shape[0] == mesh.vertex_count and np.array_equal(mesh.face_uv_indices, mesh.face_indices)
+    return not per_vertex
+
+
 def frame_file_name(index: int, frame_count: int | None, suffix: str, stem: str = "frame_") -> str:
     """`frame_0001.obj`: 4-digit zero padding, more digits when the sequence has more than 9999 frames."""
     width = max(4, len(str(frame_count))) if frame_count else 4
@@ -116,7 +128,8 @@ class BaseExporter:
 
     Subclasses implement `_open`, `_write` and `_close` (returning the finished files) and may
     override `_abort` to drop temporary files; files they finish during the run are listed in
-    `self._written` so that `abort()` can remove them.
+    `self._written` so that `abort()` can remove them. They also declare what the rest of the tool
+    reads from the registry: `name`, `summary`, `supports_topology_change` and `estimated_bytes`.
     """
 
     name: ClassVar[str] = ""
@@ -134,6 +147,13 @@ class BaseExporter:
         self._made_dirs: list[Path] = []
         self._count = 0
         self._last_index: int | None = None
+
+    @classmethod
+    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """About how many bytes this format writes for `frames` frames of `mesh` (exact or on the high
+        side; `meshdeform check` prints it and a run whose outputs would not fit on the disk is refused
+        before it starts), or None when the format cannot tell (it is then left out of the estimate)."""
+        return None
 
     # -- public protocol -------------------------------------------------------------------
     def open(self, ctx: ExportContext) -> None:

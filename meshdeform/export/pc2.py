@@ -44,6 +44,11 @@ class Pc2Exporter(BaseExporter):
     supports_topology_change: ClassVar[bool] = False
     topology_message: ClassVar[str] = "point caches need a fixed vertex count"
 
+    @classmethod
+    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """Exact: the 32-byte header, float32 x y z per vertex per frame."""
+        return int(PC2_HEADER.size + 12 * mesh.vertex_count * frames)
+
     def _open(self, ctx: ExportContext) -> None:
         self._file = StreamedFile(ctx.out_dir / FILE_NAME)
         self._file.handle.write(pc2_header(ctx.mesh.vertex_count, ctx.start_frame, 0))

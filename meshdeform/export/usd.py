@@ -73,6 +73,14 @@ class UsdExporter(BaseExporter):
         self.ascii = ascii
         self.normals = normals
 
+    @classmethod
+    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """float32 points (and normals) per frame, int32 topology once, UVs once, and the stage's own."""
+        corners = int(mesh.face_indices.shape[0])
+        uvs = 0 if mesh.uvs is None else 8 * int(mesh.uvs.shape[0]) + 4 * corners
+        per_vertex = 24 if mesh.normals is not None else 12
+        return int(8192 + (per_vertex * mesh.vertex_count + 64) * frames + 4 * (corners + mesh.face_count) + uvs)
+
     @property
     def file_name(self) -> str:
         return "scene.usda" if self.ascii else "scene.usdc"
