@@ -13,12 +13,15 @@ import contextlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from meshdeform.errors import ExportError
 from meshdeform.mesh import Mesh
+
+if TYPE_CHECKING:
+    from meshdeform.export.results import ResultReading
 
 #: accepted values of `ExportContext.up_axis`
 UP_AXES = ("y", "z")
@@ -129,7 +132,8 @@ class BaseExporter:
     Subclasses implement `_open`, `_write` and `_close` (returning the finished files) and may
     override `_abort` to drop temporary files; files they finish during the run are listed in
     `self._written` so that `abort()` can remove them. They also declare what the rest of the tool
-    reads from the registry: `name`, `summary`, `supports_topology_change` and `estimated_bytes`.
+    reads from the registry: `name`, `summary`, `supports_topology_change`, `estimated_bytes` and
+    `reading`.
     """
 
     name: ClassVar[str] = ""
@@ -153,6 +157,13 @@ class BaseExporter:
         """About how many bytes this format writes for `frames` frames of `mesh` (exact or on the high
         side; `meshdeform check` prints it and a run whose outputs would not fit on the disk is refused
         before it starts), or None when the format cannot tell (it is then left out of the estimate)."""
+        return None
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        """How previews read this format back, from a result folder or from a run's frames in memory
+        (its reader and `ReadBack`, beside the writer), or None when they cannot (the format is then
+        never searched for)."""
         return None
 
     # -- public protocol -------------------------------------------------------------------

@@ -25,7 +25,7 @@ import numpy as np
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError
 from meshdeform.export.base import POINT_DATA_BYTES, BaseExporter, ExportContext, FrameData
-from meshdeform.export.results import ReadBack, ResultFrames, prefer_input
+from meshdeform.export.results import ReadBack, ResultFrames, ResultReading, prefer_input
 from meshdeform.mesh import Mesh
 
 FILE_NAME = "positions.npz"
@@ -71,6 +71,15 @@ class NpzExporter(BaseExporter):
         positions once, and the zip's own records."""
         v, f, corners = mesh.vertex_count, mesh.face_count, int(mesh.face_indices.shape[0])
         return int(4096 + (12 + POINT_DATA_BYTES) * v * frames + 16 * frames + 8 * (corners + f + 1) + 24 * v)
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        return ResultReading(
+            priority=30,
+            looks_for=FILE_NAME,
+            read=lambda root, input_mesh, up_axis: read_npz_result(root, input_mesh),
+            read_back=NpzReadBack,
+        )
 
     def _open(self, ctx: ExportContext) -> None:
         self._spools: dict[str, _Spool] = {

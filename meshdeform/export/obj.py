@@ -16,7 +16,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from meshdeform.export.base import ExportContext
-from meshdeform.export.sequence import FrameSequenceExporter, copy_material_libraries
+from meshdeform.export.results import ResultReading
+from meshdeform.export.sequence import FrameSequenceExporter, copy_material_libraries, frame_files_reading
 from meshdeform.mesh import Mesh
 
 #: characters of one OBJ coordinate as `%r` writes a simulated float64 (sign, 17 digits, point: 19-20)
@@ -62,7 +63,13 @@ class ObjExporter(FrameSequenceExporter):
 
     @classmethod
     def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """`obj_frame_bytes` per frame."""
         return int(obj_frame_bytes(mesh) * frames)
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        """`frames/` first of all (a run writing obj and ply previews its .obj files)."""
+        return frame_files_reading(10, cls.suffix)
 
     def _make_writer(self, mesh: Mesh) -> Any:
         from meshdeform.io import ObjWriter

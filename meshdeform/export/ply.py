@@ -11,7 +11,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from meshdeform.export.base import uvs_have_seams
-from meshdeform.export.sequence import FrameSequenceExporter
+from meshdeform.export.results import ResultReading
+from meshdeform.export.sequence import FrameSequenceExporter, frame_files_reading
 from meshdeform.mesh import Mesh
 
 
@@ -43,6 +44,11 @@ class PlyExporter(FrameSequenceExporter):
         if uvs_have_seams(mesh):
             per_frame += mesh.face_count + 8 * corners  # per-corner texcoord lists
         return int(per_frame * frames)
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        """`frames/`, searched once with obj's; previews of a run read .ply frames when it writes no .obj."""
+        return frame_files_reading(20, cls.suffix)
 
     def _make_writer(self, mesh: Mesh) -> Any:
         from meshdeform.io import PlyWriter

@@ -27,7 +27,7 @@ from meshdeform.export.base import (
     frame_file_name,
     uvs_have_seams,
 )
-from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, numbered_files
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, ResultReading, numbered_files
 from meshdeform.mesh import Mesh
 
 FOLDER = "vtk"
@@ -123,6 +123,18 @@ class VtkExporter(BaseExporter):
         if mesh.uvs is not None and not uvs_have_seams(mesh):
             per_frame += 8 * v  # TCoords
         return int(per_frame * frames + 256 * frames)
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        """The `.vtp` frames; their first frame's `pinned` array also serves the frames other readers find."""
+        return ResultReading(
+            priority=50,
+            looks_for=f"{FOLDER}/*.vtp",
+            read=lambda root, input_mesh, up_axis: read_vtk_result(root, input_mesh),
+            read_back=VtkReadBack,
+            folder_pinned=vtp_pinned,
+            frame_pinned=first_frame_pinned,
+        )
 
     def __init__(self, *, compress: bool = True, **options: Any) -> None:
         super().__init__(**options)

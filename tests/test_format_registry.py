@@ -1,0 +1,91 @@
+"""The export registry is the one list of formats: what each exporter class declares (help text,
+topology, size estimate, how previews read it back) is what the estimate and the previews use.
+
+Every test iterates `EXPORTERS`, so a new format is checked here as soon as it is registered.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from meshdeform.export import EXPORTERS, ExportContext, ExportSession, FrameData
+from meshdeform.mesh import Mesh, grid_mesh
+from meshdeform.preview.results import no_frames_found, open_result, read_back_for, search_order
+from pipeline.estimate import output_bytes
+from pipeline.recipe import parse_recipe
+
+READABLE = [name for name, cls in EXPORTERS.items() if cls.reading() is not None]
+
+
+@pytest.fixture
+def mesh() -> Mesh:
+    return grid_mesh(5, 4)
+
+
+def sag(mesh: Mesh, index: int) -> np.ndarray:
+    """Frame `index` of a sheet sagging below its top row (V, 3)."""
+    return mesh.positions - [0.0, 0.01 * index, 0.0] * (1.0 - mesh.positions[:, 1:2])
+
+
+def write(name: str, mesh: Mesh, out: Path, count: int = 3) -> ExportContext:
+    """`count` frames of `sag` in format `name` into `out`."""
+    ctx = ExportContext(mesh=mesh, out_dir=out, fps=24.0, frame_count=count)
+    with ExportSession([name], ctx) as session:
+        for i in range(1, count + 1):
+            session.write(FrameData(index=i, time=i / 24.0, positions=sag(mesh, i)))
+    return ctx
+
+
+def test_every_format_declares_its_help_its_topology_and_a_growing_size_estimate(mesh: Mesh) -> None:
+    for name, cls in EXPORTERS.items():
+        assert cls.name == name
+        assert cls.summary and "\n" not in cls.summary
+        assert isinstance(cls.supports_topology_change, bool)
+        short, long = cls.estimated_bytes(mesh, 4), cls.estimated_bytes(mesh, 8)
+        assert short is None or (type(short) is int and type(long) is int and 0 < short < long), name
+
+
+def test_the_run_estimate_is_each_formats_own_in_the_recipes_order(mesh: Mesh) -> None:
+    formats = list(reversed(EXPORTERS))
+    recipe = parse_recipe(f"[simulation]\nframes = 5\n[output]\nformats = {json.dumps(formats)}\n")
+    expected = {n: EXPORTERS[n].estimated_bytes(mesh, 5) for n in formats}
+    assert output_bytes(recipe, mesh) == {n: size for n, size in expected.items() if size is not None}
+    assert list(output_bytes(recipe, mesh)) == [n for n in formats if expected[n] is not None]
+
+
+def test_readings_have_distinct_priorities_and_formats_writing_the_same_files_share_a_reader() -> None:
+    readings = [EXPORTERS[name].reading() for name in READABLE]
+    assert len({r.priority for r in readings}) == len(readings)
+    for reading in readings:
+        assert all(r.read is reading.read for r in readings if r.looks_for == reading.looks_for)
+    order = search_order()
+    assert [r.priority for r in order] == sorted(r.priority for r in order)
+    assert {r.looks_for for r in order} == {r.looks_for for r in readings}
+    message = str(no_frames_found(Path("result")))
+    assert message.endswith(f"(looked for {', '.join(r.looks_for for r in order)})")
+
+
+@pytest.mark.parametrize("name", READABLE)
+def test_a_folder_in_one_format_is_read_by_that_formats_reader_as_its_read_back_says(
+    name: str, mesh: Mesh, tmp_path: Path
+) -> None:
+    ctx = write(name, mesh, tmp_path / name)
+    own = EXPORTERS[name].reading()
+    for reading in search_order():  # no other kind of files is found in the folder
+        found = reading.read(ctx.out_dir, mesh, None)
+        assert (found is not None) == (reading.looks_for == own.looks_for), reading.looks_for
+    result = open_result(ctx.out_dir, mesh=mesh)
+    read_back = read_back_for([name], ctx)
+    assert read_back is not None and result.source == read_back.source
+    assert result.frame_numbers == [1, 2, 3]
+    np.testing.assert_allclose(np.asarray(result.frames[-1]), sag(mesh, 3), atol=1e-6)
+
+
+def test_formats_previews_cannot_read_have_no_read_back(mesh: Mesh, tmp_path: Path) -> None:
+    for name in set(EXPORTERS) - set(READABLE):
+        ctx = ExportContext(mesh=mesh, out_dir=tmp_path, fps=24.0)
+        assert read_back_for([name], ctx) is None
