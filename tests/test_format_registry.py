@@ -89,3 +89,47 @@ def test_formats_previews_cannot_read_have_no_read_back(mesh: Mesh, tmp_path: Pa
     for name in set(EXPORTERS) - set(READABLE):
         ctx = ExportContext(mesh=mesh, out_dir=tmp_path, fps=24.0)
         assert read_back_for([name], ctx) is None
+
+
+def test_the_format_table_of_the_export_package_is_the_registrys() -> None:
+    import meshdeform.export
+
+    rows = [line.split("|")[1:-1] for line in (meshdeform.export.__doc__ or "").splitlines() if line.startswith("| ")]
+    table = {cells[0].strip(): cells[2].strip() for cells in rows[1:]}  # below the header row
+    assert list(table) == list(EXPORTERS)
+    for name, cls in EXPORTERS.items():
+        assert table[name].startswith("refused") != cls.supports_topology_change, name
+
+
+@pytest.mark.parametrize("name", list(EXPORTERS))
+def test_a_runs_preview_from_memory_is_the_one_read_back_from_its_files(name: str, tmp_path: Path) -> None:
+    """`RunPreview` (a run's previews from its frames) renders the same bytes, or raises the same error,
+    as rendering the folder the run wrote in that one format."""
+    from meshdeform.model import SpringModel
+    from meshdeform.preview.live import RunPreview
+    from meshdeform.preview.results import render_result_previews
+
+    mesh = grid_mesh(6, 6)
+    model = SpringModel.from_mesh(mesh, pinned_input=mesh.positions[:, 1] > 0.99)
+    options = {"frames": [3], "size": [64, 48]}
+    ctx = ExportContext(mesh=mesh, out_dir=tmp_path / "run", fps=24.0, frame_count=3)
+    live = RunPreview(options, ctx, [name], model)
+    with ExportSession([name], ctx) as session:
+        for i in range(1, 4):
+            frame = FrameData(index=i, time=i / 24.0, positions=sag(mesh, i))
+            session.write(frame)
+            live.add(frame)
+
+    def outcome(render) -> dict[str, bytes] | str:
+        try:
+            files = render()
+        except Exception as exc:
+            return f"{type(exc).__name__}: {exc}"
+        return {p.name: p.read_bytes() for p in files}
+
+    read_back = outcome(
+        lambda: render_result_previews(ctx.out_dir, options, mesh=mesh, model=model, out_dir=ctx.out_dir)
+    )
+    in_memory = outcome(lambda: live.render(ctx.out_dir).files)
+    assert in_memory == read_back
+    assert isinstance(read_back, dict) == (name in READABLE), read_back

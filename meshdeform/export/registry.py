@@ -1,10 +1,11 @@
 """The exporter registry: format name -> exporter class, and the streaming session over several.
 
 `EXPORTERS` is the one list of output formats: the recipe's `output.formats` accepts its names,
-`meshdeform simulate --help` lists them with each class's one-line `summary`, and a recipe that
-tears or cuts is refused the formats whose class has `supports_topology_change = False`. Adding a
-format is one exporter module (a `BaseExporter` subclass with `name`, `summary` and
-`supports_topology_change`) plus its class in the tuple below.
+`meshdeform simulate --help` lists them with each class's one-line `summary`, a recipe that tears or
+cuts is refused the formats whose class has `supports_topology_change = False`, `meshdeform check`
+adds up their `estimated_bytes`, and previews search a result folder for the formats whose
+`reading()` says how to read them back. Adding a format is one exporter module (a `BaseExporter`
+subclass declaring those) plus its class in the tuple below (docs/ARCHITECTURE.md, "Adding a format").
 """
 
 from __future__ import annotations
