@@ -6,8 +6,8 @@ solver sweeps per frame are known. `meshdeform check` prints it; `require_disk_s
 run whose outputs would not fit on the disk before anything is simulated or written.
 
 The bytes of each format are its exporter's own estimate (`BaseExporter.estimated_bytes` in
-`meshdeform.export`): exact for the point caches (pc2, mdd: a header plus 12 bytes per vertex per
-frame) and approximate, on the high side, for the text and container formats. A run that tears
+`meshdeform.export`): exact for the point caches (a header plus 12 bytes per vertex per frame) and
+approximate, on the high side, for the text and container formats. A run that tears
 adds vertices as it goes; its estimate counts the input's vertices.
 """
 

@@ -133,3 +133,27 @@ def test_a_runs_preview_from_memory_is_the_one_read_back_from_its_files(name: st
     in_memory = outcome(lambda: live.render(ctx.out_dir).files)
     assert in_memory == read_back
     assert isinstance(read_back, dict) == (name in READABLE), read_back
+
+
+def test_a_fixed_topology_format_refusing_a_torn_frame_names_the_registrys_formats_that_follow(
+    mesh: Mesh, tmp_path: Path
+) -> None:
+    from meshdeform.errors import ExportError
+
+    following = [name for name, cls in EXPORTERS.items() if cls.supports_topology_change]
+    names = f"{', '.join(following[:-1])} or {following[-1]}"
+    torn = grid_mesh(6, 4)
+    for name in [name for name, cls in EXPORTERS.items() if not cls.supports_topology_change]:
+        ctx = ExportContext(mesh=mesh, out_dir=tmp_path / name, fps=24.0)
+        with pytest.raises(ExportError) as info, ExportSession([name], ctx) as session:
+            session.write(FrameData(index=1, time=0.0, positions=mesh.positions))
+            session.write(FrameData(index=2, time=0.1, positions=torn.positions, mesh=torn))
+        assert str(info.value).endswith(f"(tearing). Export {names} instead, or turn tearing off"), name
+
+
+def test_the_format_lists_of_the_readme_and_the_recipe_reference_are_the_registrys() -> None:
+    repo = Path(__file__).resolve().parents[1]
+    readme = (repo / "README.md").read_text(encoding="utf-8")
+    assert f"# formats = {json.dumps(list(EXPORTERS))};" in readme
+    recipes = (repo / "docs" / "recipes.md").read_text(encoding="utf-8")
+    assert f"any of {', '.join(f'`{name}`' for name in EXPORTERS)};" in recipes

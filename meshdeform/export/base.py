@@ -197,9 +197,11 @@ class BaseExporter:
             )
         if frame.mesh is not None:
             if not self.supports_topology_change:
+                from meshdeform.export.registry import topology_following  # the registry imports this module
+
                 raise ExportError(
                     f"{self.name}: {self.topology_message}; the mesh topology changed at frame {frame.index} "
-                    "(tearing). Export obj, ply, usd or vtk instead, or turn tearing off"
+                    f"(tearing). Export {topology_following()} instead, or turn tearing off"
                 )
             self._mesh = frame.mesh
         mesh = self._mesh

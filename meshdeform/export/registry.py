@@ -32,6 +32,13 @@ EXPORTERS: dict[str, type[BaseExporter]] = {
 }
 
 
+def topology_following() -> str:
+    """The formats that follow a topology change (`supports_topology_change`), as a sentence lists them:
+    "obj, ply, usd or vtk"."""
+    names = [name for name, cls in EXPORTERS.items() if cls.supports_topology_change]
+    return " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
+
+
 def make_exporter(name: str, **options: Any) -> BaseExporter:
     """A new exporter for a format name (case-insensitive); `options` go to its constructor.
 

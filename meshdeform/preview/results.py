@@ -115,15 +115,16 @@ def no_frames_found(root: Path) -> MeshLoadError:
 
 
 def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str | None = None) -> ResultSequence:
-    """Find a result folder's frames, in this order: `frames/*.obj|ply`, `positions.npz`,
-    `scene.usdc|usda`, `vtk/*.vtp`, `cache.pc2`, `cache.mdd`.
+    """Find a result folder's frames with the first reader of `search_order` that finds its files (the
+    exporters' `ResultReading.priority`: per-frame files first, point caches last).
 
     The rest pose is `mesh` if given, else the input mesh named by `report.json` (key `input`)
     when it still exists, else the first frame. Point caches need that mesh for the topology;
     their axis convention is `up_axis`, the report's `up_axis`, or whichever makes the first
-    frame closest to the rest pose. Pinned vertices come from the report (`pinned`: vertex
-    indices), the npz (`point_pinned`) or the first VTK frame (`pinned` array); fps from the
-    report, the npz, the USD stage or the MDD times. Raises MeshLoadError when nothing is found.
+    frame closest to the rest pose. Pinned vertices come from the files read (`ResultFrames.pinned`),
+    else the report (`pinned`: vertex indices), else another format's files in the folder
+    (`folder_pinned`); fps from the report, else the files read. Raises MeshLoadError when nothing
+    is found.
     """
     from meshdeform.io import load
 
