@@ -5,11 +5,10 @@ x frames) and the bytes each output format will write; without a mesh only the f
 solver sweeps per frame are known. `meshdeform check` prints it; `require_disk_space` refuses a
 run whose outputs would not fit on the disk before anything is simulated or written.
 
-The byte counts are exact for the point caches (pc2, mdd: a header plus 12 bytes per vertex per
-frame) and approximate, on the high side, for the text and container formats: an OBJ coordinate
-is written as the shortest round trip of a float64 (`%r`), up to 17 digits plus sign, point and
-exponent, taken as 20 characters. A run that tears adds vertices as it goes; its estimate counts
-the input's vertices.
+The bytes of each format are its exporter's own estimate (`BaseExporter.estimated_bytes` in
+`meshdeform.export`): exact for the point caches (a header plus 12 bytes per vertex per frame) and
+approximate, on the high side, for the text and container formats. A run that tears
+adds vertices as it goes; its estimate counts the input's vertices.
 """
 
 from __future__ import annotations
@@ -20,9 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from meshdeform.errors import ExportError, MeshdeformError
+from meshdeform.export import EXPORTERS
 
 if TYPE_CHECKING:
     from meshdeform.mesh import Mesh
@@ -31,18 +29,10 @@ if TYPE_CHECKING:
 
 __all__ = ["InsufficientDiskSpace", "RunEstimate", "estimate_run", "human_bytes", "output_bytes", "require_disk_space"]
 
-#: characters of one OBJ coordinate as `%r` writes a simulated float64 (sign, 17 digits, point: 19-20)
-OBJ_COORDINATE_CHARS = 20
-#: characters of one OBJ normal component (`%.7g`: sign, 7 digits, point, maybe an exponent)
-OBJ_NORMAL_CHARS = 12
-#: characters of one number in XDMF's inline XML (measured: about 13 on a cloth grid)
-XDMF_NUMBER_CHARS = 16
 #: bytes per pixel of a rendered preview PNG (measured 0.02 on a white background: a mesh and flat colour)
 PNG_BYTES_PER_PIXEL = 0.1
 #: bytes per pixel per frame of a preview video by kind (measured: mp4 0.0006, the encoder keeps only changes)
 VIDEO_BYTES_PER_PIXEL = {"mp4": 0.01, "gif": 0.1}
-#: per-frame point data the job hands to exporters that keep it (strain, displacement: float32; pinned: uint8)
-POINT_DATA_BYTES = 4 + 4 + 1
 
 
 class InsufficientDiskSpace(MeshdeformError):
@@ -111,91 +101,15 @@ def human_bytes(n: float) -> str:
     return f"{int(n)} bytes"
 
 
-def _digits(values: np.ndarray) -> int:
-    """Total decimal digits of non-negative integers (vectorised)."""
-    v = np.asarray(values, dtype=np.int64)
-    if v.size == 0:
-        return 0
-    return int(np.sum(np.floor(np.log10(np.maximum(v, 1))).astype(np.int64) + 1))
-
-
-def _obj_frame_bytes(mesh: Mesh) -> int:
-    """Bytes of one OBJ frame: `v` lines (x y z [r g b]), `vt`, `vn`, faces with their index pattern, lines."""
-    has_uvs = mesh.uvs is not None and mesh.face_uv_indices is not None
-    has_normals = mesh.normals is not None and mesh.face_normal_indices is not None
-    channels = 6 if "color" in mesh.vertex_properties else 3
-    size = 128 + sum(len(text) + 1 for _, text in mesh.statements)
-    size += mesh.vertex_count * (2 + channels * (1 + OBJ_COORDINATE_CHARS))
-    corners = int(mesh.face_indices.shape[0])
-    size += 2 * mesh.face_count + corners + _digits(mesh.face_indices + 1)  # "f" + "\n", a space per corner
-    if has_uvs:
-        size += int(mesh.uvs.shape[0]) * (3 + 2 * (1 + OBJ_COORDINATE_CHARS))
-        size += corners + _digits(mesh.face_uv_indices + 1)  # "/" + index
-    if has_normals:
-        size += int(mesh.normals.shape[0]) * (3 + 3 * (1 + OBJ_NORMAL_CHARS))
-        size += corners * (1 if has_uvs else 2) + _digits(mesh.face_normal_indices + 1)
-    if mesh.line_count:
-        size += 2 * mesh.line_count + int(mesh.line_indices.shape[0]) + _digits(mesh.line_indices + 1)
-    return size
-
-
-def _uvs_have_seams(mesh: Mesh) -> bool:
-    """Whether the UVs are per corner (seams): PLY then writes per-face texcoord lists."""
-    if mesh.uvs is None or mesh.face_uv_indices is None:
-        return False
-    per_vertex = mesh.uvs.shape[0] == mesh.vertex_count and np.array_equal(mesh.face_uv_indices, mesh.face_indices)
-    return not per_vertex
-
-
-def _vertex_channels(mesh: Mesh) -> int:
-    """Extra per-vertex columns a PLY frame carries (properties, normals, per-vertex UVs)."""
-    n = 0
-    for values in mesh.vertex_properties.values():
-        shape = np.shape(values)
-        n += int(np.prod(shape[1:])) if len(shape) > 1 else 1
-    if mesh.normals is not None:
-        n += 3
-    if mesh.uvs is not None and not _uvs_have_seams(mesh):
-        n += 2
-    return n
-
-
 def output_bytes(recipe: Recipe, mesh: Mesh) -> dict[str, int]:
     """Estimated bytes each of the recipe's output formats writes for `mesh`, plus "preview"."""
     frames = recipe.simulation.frames
-    v = mesh.vertex_count
-    f = mesh.face_count
-    corners = int(mesh.face_indices.shape[0])
     sizes: dict[str, int] = {}
     for name in dict.fromkeys(recipe.output.formats):
-        if name == "obj":
-            size = _obj_frame_bytes(mesh) * frames
-        elif name == "ply":  # binary: float32 x y z, 4 bytes per extra column, uchar count + int32 indices
-            per_frame = 512 + v * 4 * (3 + _vertex_channels(mesh)) + f + 4 * corners
-            if _uvs_have_seams(mesh):
-                per_frame += f + 8 * corners  # per-corner texcoord lists
-            size = per_frame * frames
-        elif name == "pc2":  # 32-byte header, float32 x y z per vertex per frame
-            size = 32 + 12 * v * frames
-        elif name == "mdd":  # frame count, point count, a float32 time per frame, float32 x y z
-            size = 8 + 4 * frames + 12 * v * frames
-        elif name == "npz":  # float32 positions and point data per frame, topology and rest positions once
-            size = 4096 + (12 + POINT_DATA_BYTES) * v * frames + 16 * frames + 8 * (corners + f + 1) + 24 * v
-        elif name == "usd":  # float32 points (and normals) per frame, int32 topology once, UVs once
-            uvs = 0 if mesh.uvs is None else 8 * int(mesh.uvs.shape[0]) + 4 * corners
-            per_vertex = 24 if mesh.normals is not None else 12
-            size = 8192 + (per_vertex * v + 64) * frames + 4 * (corners + f) + uvs
-        elif name == "vtk":  # appended data per frame: float32 points, displacement (V, 3) and point data as
-            # written (zlib keeps about that of simulated floats), int64 cells at half (they compress well), XML
-            per_frame = 2048 + v * (12 + 12 + POINT_DATA_BYTES) + 4 * (corners + f)
-            if mesh.uvs is not None and not _uvs_have_seams(mesh):
-                per_frame += 8 * v  # TCoords
-            size = per_frame * frames + 256 * frames
-        elif name == "xdmf":  # inline XML text: geometry, displacement (3 each), strain, pinned per vertex per step
-            size = XDMF_NUMBER_CHARS * (8 * v * frames + 3 * v + corners)
-        else:
-            continue
-        sizes[name] = int(size)
+        exporter = EXPORTERS.get(name)
+        size = None if exporter is None else exporter.estimated_bytes(mesh, frames)
+        if size is not None:
+            sizes[name] = int(size)
     preview = _preview_bytes(recipe)
     if preview:
         sizes["preview"] = preview

@@ -13,15 +13,21 @@ import contextlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from meshdeform.errors import ExportError
 from meshdeform.mesh import Mesh
 
+if TYPE_CHECKING:
+    from meshdeform.export.results import ResultReading
+
 #: accepted values of `ExportContext.up_axis`
 UP_AXES = ("y", "z")
+#: bytes per vertex per frame of the point data a run hands its exporters (`FrameData.point_data`:
+#: strain and displacement float32, pinned uint8), for the estimates of the formats that write it
+POINT_DATA_BYTES = 4 + 4 + 1
 
 
 @dataclass(frozen=True)
@@ -94,6 +100,15 @@ class Exporter(Protocol):
     def abort(self) -> None: ...
 
 
+def uvs_have_seams(mesh: Mesh) -> bool:
+    """Whether the mesh's UVs are per corner (seams) rather than one per vertex: the PLY writer then
+    writes per-face texcoord lists instead of vertex columns, and VTK has no per-vertex TCoords."""
+    if mesh.uvs is None or mesh.face_uv_indices is None:
+        return False
+    per_vertex = mesh.uvs.shape[0] == mesh.vertex_count and np.array_equal(mesh.face_uv_indices, mesh.face_indices)
+    return not per_vertex
+
+
 def frame_file_name(index: int, frame_count: int | None, suffix: str, stem: str = "frame_") -> str:
     """`frame_0001.obj`: 4-digit zero padding, more digits when the sequence has more than 9999 frames."""
     width = max(4, len(str(frame_count))) if frame_count else 4
@@ -116,7 +131,9 @@ class BaseExporter:
 
     Subclasses implement `_open`, `_write` and `_close` (returning the finished files) and may
     override `_abort` to drop temporary files; files they finish during the run are listed in
-    `self._written` so that `abort()` can remove them.
+    `self._written` so that `abort()` can remove them. They also declare what the rest of the tool
+    reads from the registry: `name`, `summary`, `supports_topology_change`, `estimated_bytes` and
+    `reading`.
     """
 
     name: ClassVar[str] = ""
@@ -134,6 +151,20 @@ class BaseExporter:
         self._made_dirs: list[Path] = []
         self._count = 0
         self._last_index: int | None = None
+
+    @classmethod
+    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """About how many bytes this format writes for `frames` frames of `mesh` (exact or on the high
+        side; `meshdeform check` prints it and a run whose outputs would not fit on the disk is refused
+        before it starts), or None when the format cannot tell (it is then left out of the estimate)."""
+        return None
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        """How previews read this format back, from a result folder or from a run's frames in memory
+        (its reader and `ReadBack`, beside the writer), or None when they cannot (the format is then
+        never searched for)."""
+        return None
 
     # -- public protocol -------------------------------------------------------------------
     def open(self, ctx: ExportContext) -> None:
@@ -166,9 +197,11 @@ class BaseExporter:
             )
         if frame.mesh is not None:
             if not self.supports_topology_change:
+                from meshdeform.export.registry import topology_following  # the registry imports this module
+
                 raise ExportError(
                     f"{self.name}: {self.topology_message}; the mesh topology changed at frame {frame.index} "
-                    "(tearing). Export obj, ply, usd or vtk instead, or turn tearing off"
+                    f"(tearing). Export {topology_following()} instead, or turn tearing off"
                 )
             self._mesh = frame.mesh
         mesh = self._mesh

@@ -24,8 +24,8 @@ import numpy as np
 
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError
-from meshdeform.export.base import BaseExporter, ExportContext, FrameData
-from meshdeform.export.results import ReadBack, ResultFrames, prefer_input
+from meshdeform.export.base import POINT_DATA_BYTES, BaseExporter, ExportContext, FrameData
+from meshdeform.export.results import ReadBack, ResultFrames, ResultReading, prefer_input
 from meshdeform.mesh import Mesh
 
 FILE_NAME = "positions.npz"
@@ -64,6 +64,22 @@ class NpzExporter(BaseExporter):
     summary: ClassVar[str] = "NumPy arrays of every frame"
     supports_topology_change: ClassVar[bool] = False
     topology_message: ClassVar[str] = "the npz positions array needs a fixed vertex count"
+
+    @classmethod
+    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """float32 positions and point data per frame, time and number per frame, topology and rest
+        positions once, and the zip's own records."""
+        v, f, corners = mesh.vertex_count, mesh.face_count, int(mesh.face_indices.shape[0])
+        return int(4096 + (12 + POINT_DATA_BYTES) * v * frames + 16 * frames + 8 * (corners + f + 1) + 24 * v)
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        return ResultReading(
+            priority=30,
+            looks_for=FILE_NAME,
+            read=lambda root, input_mesh, up_axis: read_npz_result(root, input_mesh),
+            read_back=NpzReadBack,
+        )
 
     def _open(self, ctx: ExportContext) -> None:
         self._spools: dict[str, _Spool] = {

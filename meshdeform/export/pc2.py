@@ -23,7 +23,13 @@ import numpy as np
 
 from meshdeform.errors import ExportError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, StreamedFile, convert_up_axis
-from meshdeform.export.results import PointCacheReadBack, ResultFrames, point_cache_frames, require_input_mesh
+from meshdeform.export.results import (
+    PointCacheReadBack,
+    ResultFrames,
+    ResultReading,
+    point_cache_frames,
+    require_input_mesh,
+)
 from meshdeform.mesh import Mesh
 
 PC2_MAGIC = b"POINTCACHE2\0"
@@ -43,6 +49,15 @@ class Pc2Exporter(BaseExporter):
     summary: ClassVar[str] = "PC2 point cache (Blender, Maya, 3ds Max)"
     supports_topology_change: ClassVar[bool] = False
     topology_message: ClassVar[str] = "point caches need a fixed vertex count"
+
+    @classmethod
+    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """Exact: the 32-byte header, float32 x y z per vertex per frame."""
+        return int(PC2_HEADER.size + 12 * mesh.vertex_count * frames)
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        return ResultReading(priority=60, looks_for=FILE_NAME, read=read_pc2_result, read_back=Pc2ReadBack)
 
     def _open(self, ctx: ExportContext) -> None:
         self._file = StreamedFile(ctx.out_dir / FILE_NAME)

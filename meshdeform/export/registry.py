@@ -1,10 +1,11 @@
 """The exporter registry: format name -> exporter class, and the streaming session over several.
 
 `EXPORTERS` is the one list of output formats: the recipe's `output.formats` accepts its names,
-`meshdeform simulate --help` lists them with each class's one-line `summary`, and a recipe that
-tears or cuts is refused the formats whose class has `supports_topology_change = False`. Adding a
-format is one exporter module (a `BaseExporter` subclass with `name`, `summary` and
-`supports_topology_change`) plus its class in the tuple below.
+`meshdeform simulate --help` lists them with each class's one-line `summary`, a recipe that tears or
+cuts is refused the formats whose class has `supports_topology_change = False`, `meshdeform check`
+adds up their `estimated_bytes`, and previews search a result folder for the formats whose
+`reading()` says how to read them back. Adding a format is one exporter module (a `BaseExporter`
+subclass declaring those) plus its class in the tuple below (docs/ARCHITECTURE.md, "Adding a format").
 """
 
 from __future__ import annotations
@@ -29,6 +30,13 @@ EXPORTERS: dict[str, type[BaseExporter]] = {
     cls.name: cls
     for cls in (ObjExporter, PlyExporter, Pc2Exporter, MddExporter, UsdExporter, VtkExporter, XdmfExporter, NpzExporter)
 }
+
+
+def topology_following() -> str:
+    """The formats that follow a topology change (`supports_topology_change`), as a sentence lists them:
+    "obj, ply, usd or vtk"."""
+    names = [name for name, cls in EXPORTERS.items() if cls.supports_topology_change]
+    return " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
 
 
 def make_exporter(name: str, **options: Any) -> BaseExporter:

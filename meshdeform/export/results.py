@@ -3,15 +3,16 @@
 Each format module that can be read back has its reader beside its writer (`sequence.read_frame_files`
 for `frames/*.obj|ply`, `npz.read_npz_result`, `usd.read_usd_result`, `vtk.read_vtk_result`,
 `pc2.read_pc2_result`, `mdd.read_mdd_result`): given the folder and the input mesh (or None), it
-returns the frames it found as `ResultFrames`, or None when the folder holds none of its files.
-Which reader wins for a folder is `meshdeform.preview.results`'s choice. Beside each reader, a
-`ReadBack` gives what it would read for a run's frames still in memory (previews of a run).
+returns the frames it found as `ResultFrames`, or None when the folder holds none of its files. Beside
+each reader, a `ReadBack` gives what it would read for a run's frames still in memory (previews of a
+run). The exporter class declares both, and where they come in the search, as a `ResultReading`
+(`BaseExporter.reading`); `meshdeform.preview.results` searches the registry's in priority order.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -164,3 +165,29 @@ class PointCacheReadBack(ReadBack):
 
     def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
         return restore_up_axis(kept.astype(np.float64), self.up_axis)
+
+
+@dataclass(frozen=True)
+class ResultReading:
+    """How previews read one format back, from a result folder or from a run's frames in memory; an
+    exporter class declares it (`BaseExporter.reading`, None when previews cannot read the format).
+
+    priority: result folders are searched in increasing priority and the first reader that finds its
+        files wins; a run's previews read its frames as the format of lowest priority among its formats.
+        Distinct across the registry.
+    looks_for: the files `read` reads, as the error for a folder without frames names them. Formats that
+        write the same files (obj and ply: `frames/`) share one reader, searched once.
+    read: (folder, input mesh or None, point-cache up axis or None) -> the frames found, or None when the
+        folder holds none of the files; MeshLoadError when they are there but cannot be read.
+    read_back: the `ReadBack` of what `read` reads from the folder a run writes, on the run's context.
+    folder_pinned: (folder, vertex count n) -> the (n,) pinned mask the format's files carry, used when the
+        frames found and the report have none, whichever reader found them (None: the files carry none).
+    frame_pinned: `folder_pinned` for a run's first frame in memory, (frame, n) -> mask or None.
+    """
+
+    priority: int
+    looks_for: str
+    read: Callable[[Path, Mesh | None, str | None], ResultFrames | None]
+    read_back: Callable[[ExportContext], ReadBack]
+    folder_pinned: Callable[[Path, int], np.ndarray | None] | None = None
+    frame_pinned: Callable[[FrameData, int], np.ndarray | None] | None = None

@@ -5,7 +5,7 @@ groups and properties kept; normals recomputed per frame when the input had them
 The file number is the frame number (from 1), zero padded to 4 digits, or more when the run has
 more than 9999 frames and `frame_count` says so. A changed topology (tearing) simply switches
 the writer to the new mesh from that frame on. `read_frame_files` reads the frames back
-(`meshdeform.export.results`).
+(`meshdeform.export.results`); `frame_files_reading` is the reading both formats declare.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 
 from meshdeform.atomic import atomic_path
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, frame_file_name
-from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, numbered_files, prefer_input
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, ResultReading, numbered_files, prefer_input
 from meshdeform.io.obj import material_libraries
 from meshdeform.mesh import Mesh
 
@@ -143,3 +143,18 @@ class FrameFilesReadBack(ReadBack):
             )
             self._same = (mesh, same)
         return kept.astype(np.float64) if self._same[1] else self._as_read(mesh, kept)
+
+
+def _read_any_frame_files(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
+    return read_frame_files(root, input_mesh)
+
+
+def frame_files_reading(priority: int, suffix: str) -> ResultReading:
+    """The `ResultReading` of the per-frame files of `suffix`: one reader of `frames/` for every suffix
+    (a folder is read as the suffix of its lowest-numbered file), and the `FrameFilesReadBack` of `suffix`."""
+    return ResultReading(
+        priority=priority,
+        looks_for=f"{FOLDER}/*.obj|ply",
+        read=_read_any_frame_files,
+        read_back=lambda ctx: FrameFilesReadBack(ctx, suffix),
+    )

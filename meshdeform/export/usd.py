@@ -25,7 +25,7 @@ import numpy as np
 from meshdeform.atomic import atomic_path
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
-from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, prefer_input, restore_up_axis
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, ResultReading, prefer_input, restore_up_axis
 from meshdeform.geometry import vertex_normals
 from meshdeform.mesh import Mesh
 
@@ -72,6 +72,23 @@ class UsdExporter(BaseExporter):
         super().__init__(**options)
         self.ascii = ascii
         self.normals = normals
+
+    @classmethod
+    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """float32 points (and normals) per frame, int32 topology once, UVs once, and the stage's own."""
+        corners = int(mesh.face_indices.shape[0])
+        uvs = 0 if mesh.uvs is None else 8 * int(mesh.uvs.shape[0]) + 4 * corners
+        per_vertex = 24 if mesh.normals is not None else 12
+        return int(8192 + (per_vertex * mesh.vertex_count + 64) * frames + 4 * (corners + mesh.face_count) + uvs)
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        return ResultReading(
+            priority=40,
+            looks_for="scene.usdc",
+            read=lambda root, input_mesh, up_axis: read_usd_result(root, input_mesh),
+            read_back=UsdReadBack,
+        )
 
     @property
     def file_name(self) -> str:

@@ -19,8 +19,15 @@ import numpy as np
 
 from meshdeform.atomic import atomic_path, write_text_atomic
 from meshdeform.errors import MeshLoadError
-from meshdeform.export.base import BaseExporter, ExportContext, FrameData, frame_file_name
-from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, numbered_files
+from meshdeform.export.base import (
+    POINT_DATA_BYTES,
+    BaseExporter,
+    ExportContext,
+    FrameData,
+    frame_file_name,
+    uvs_have_seams,
+)
+from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, ResultReading, numbered_files
 from meshdeform.mesh import Mesh
 
 FOLDER = "vtk"
@@ -105,6 +112,29 @@ class VtkExporter(BaseExporter):
     name: ClassVar[str] = "vtk"
     summary: ClassVar[str] = "a VTK file per frame and a ParaView collection"
     supports_topology_change: ClassVar[bool] = True
+
+    @classmethod
+    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
+        """Appended data per frame: float32 points, displacement (V, 3) and point data as written (zlib
+        keeps about that of simulated floats), int64 cells at half (they compress well), XML, and a
+        line of the collection per frame."""
+        v, corners = mesh.vertex_count, int(mesh.face_indices.shape[0])
+        per_frame = 2048 + v * (12 + 12 + POINT_DATA_BYTES) + 4 * (corners + mesh.face_count)
+        if mesh.uvs is not None and not uvs_have_seams(mesh):
+            per_frame += 8 * v  # TCoords
+        return int(per_frame * frames + 256 * frames)
+
+    @classmethod
+    def reading(cls) -> ResultReading | None:
+        """The `.vtp` frames; their first frame's `pinned` array also serves the frames other readers find."""
+        return ResultReading(
+            priority=50,
+            looks_for=f"{FOLDER}/*.vtp",
+            read=lambda root, input_mesh, up_axis: read_vtk_result(root, input_mesh),
+            read_back=VtkReadBack,
+            folder_pinned=vtp_pinned,
+            frame_pinned=first_frame_pinned,
+        )
 
     def __init__(self, *, compress: bool = True, **options: Any) -> None:
         super().__init__(**options)

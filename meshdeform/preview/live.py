@@ -22,10 +22,9 @@ from typing import Any
 import numpy as np
 
 from meshdeform.export.base import ExportContext, FrameData
-from meshdeform.export.vtk import first_frame_pinned
 from meshdeform.mesh import Mesh
 from meshdeform.preview.options import PreviewOptions, PreviewResult
-from meshdeform.preview.results import no_frames_found, read_back_for, welded_strain
+from meshdeform.preview.results import frame_pinned, no_frames_found, read_back_for, welded_strain
 from meshdeform.preview.sequence import SequencePreview
 
 
@@ -101,8 +100,8 @@ class RunPreview:
         read_back = self._read_back
         assert read_back is not None
         pinned = read_back.pinned
-        if pinned is None and "vtk" in self.formats:  # `open_result` looks in the first .vtp frame
-            pinned = first_frame_pinned(first, base.vertex_count)
+        if pinned is None:  # as `open_result` looks in the other files (the first .vtp frame)
+            pinned = frame_pinned(self.formats, first, base.vertex_count)
         strain: Any = self._strain if read_back.strain(first) is not None else None
         vertex_map = np.asarray(self.model.vertex_map)
         if vertex_map.shape == (base.vertex_count,):

@@ -1,14 +1,16 @@
 """Previews of a result folder: which format's reader to use for it, and rendering what it read.
 
-The readers sit beside their writers in `meshdeform.export` (`meshdeform.export.results`); this module
-only picks the first of them that finds frames (`READERS`) and adds what `report.json` knows.
+The readers sit beside their writers in `meshdeform.export`, and each exporter class declares how its
+format is read back (`BaseExporter.reading`: a `meshdeform.export.results.ResultReading`); this module
+searches the registry's readings in priority order (`search_order`), picks the first that finds frames
+and adds what `report.json` knows.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,52 +18,53 @@ from typing import Any
 import numpy as np
 
 from meshdeform.errors import MeshLoadError
-from meshdeform.export.base import ExportContext
-from meshdeform.export.mdd import MddReadBack, read_mdd_result
-from meshdeform.export.npz import NpzReadBack, read_npz_result
-from meshdeform.export.pc2 import Pc2ReadBack, read_pc2_result
-from meshdeform.export.results import FrameItem, ReadBack, ResultFrames
-from meshdeform.export.sequence import FrameFilesReadBack, read_frame_files
-from meshdeform.export.usd import UsdReadBack, read_usd_result
-from meshdeform.export.vtk import VtkReadBack, read_vtk_result, vtp_pinned
+from meshdeform.export.base import ExportContext, FrameData
+from meshdeform.export.registry import EXPORTERS
+from meshdeform.export.results import FrameItem, ReadBack, ResultReading
 from meshdeform.mesh import Mesh
 from meshdeform.preview.options import PreviewOptions, PreviewResult
 from meshdeform.preview.render import as_pinned_mask
 from meshdeform.preview.sequence import render_previews
 
 
-@dataclass(frozen=True)
-class Source:
-    """A kind of files a preview reads frames from: the formats that write them, the reader of a folder
-    (folder, input mesh or None, point-cache up axis or None) and the `ReadBack` of a run's frames in
-    memory (export context, the run's formats)."""
-
-    formats: tuple[str, ...]
-    read: Callable[[Path, Mesh | None, str | None], ResultFrames | None]
-    read_back: Callable[[ExportContext, Sequence[str]], ReadBack]
+def readings(formats: Iterable[str]) -> list[ResultReading]:
+    """The readings of the registered `formats` previews can read back, in priority order (names the
+    registry does not know are skipped)."""
+    found = (EXPORTERS[name].reading() for name in dict.fromkeys(formats) if name in EXPORTERS)
+    return sorted((r for r in found if r is not None), key=lambda r: r.priority)
 
 
-#: what a preview reads, in the order a result folder is searched: the first whose files are there wins
-#: (frames: the suffix of the lowest-numbered file, `.obj` when a run wrote both)
-SOURCES: tuple[Source, ...] = (
-    Source(
-        ("obj", "ply"),
-        lambda root, mesh, up: read_frame_files(root, mesh),
-        lambda ctx, formats: FrameFilesReadBack(ctx, ".obj" if "obj" in formats else ".ply"),
-    ),
-    Source(("npz",), lambda root, mesh, up: read_npz_result(root, mesh), lambda ctx, _: NpzReadBack(ctx)),
-    Source(("usd",), lambda root, mesh, up: read_usd_result(root, mesh), lambda ctx, _: UsdReadBack(ctx)),
-    Source(("vtk",), lambda root, mesh, up: read_vtk_result(root, mesh), lambda ctx, _: VtkReadBack(ctx)),
-    Source(("pc2",), read_pc2_result, lambda ctx, _: Pc2ReadBack(ctx)),
-    Source(("mdd",), read_mdd_result, lambda ctx, _: MddReadBack(ctx)),
-)
+def search_order() -> list[ResultReading]:
+    """What a result folder is searched for, in order: one reading per kind of files (formats writing the
+    same files share a reader), the first whose files are there wins."""
+    first: dict[str, ResultReading] = {}
+    for reading in readings(EXPORTERS):
+        first.setdefault(reading.looks_for, reading)
+    return list(first.values())
 
 
 def read_back_for(formats: Sequence[str], ctx: ExportContext) -> ReadBack | None:
     """The `ReadBack` of what `open_result` reads from a folder a run writes in `formats` (on `ctx`), or
     None when it reads none of them (xdmf alone)."""
-    source = next((s for s in SOURCES if set(s.formats) & set(formats)), None)
-    return None if source is None else source.read_back(ctx, formats)
+    chosen = readings(formats)
+    return chosen[0].read_back(ctx) if chosen else None
+
+
+def folder_pinned(root: Path, n: int) -> np.ndarray | None:
+    """The pinned mask (n,) the files of a result folder carry apart from those the frames were read from
+    (the first `.vtp` frame's `pinned` array), or None."""
+    for reading in readings(EXPORTERS):
+        if reading.folder_pinned is not None and (mask := reading.folder_pinned(root, n)) is not None:
+            return mask
+    return None
+
+
+def frame_pinned(formats: Sequence[str], frame: FrameData, n: int) -> np.ndarray | None:
+    """`folder_pinned` for a run in `formats` from its first frame in memory."""
+    for reading in readings(formats):
+        if reading.frame_pinned is not None and (mask := reading.frame_pinned(frame, n)) is not None:
+            return mask
+    return None
 
 
 @dataclass
@@ -107,22 +110,21 @@ def _report_pinned(report: Mapping[str, Any], n: int) -> np.ndarray | None:
 
 def no_frames_found(root: Path) -> MeshLoadError:
     """The error for a folder none of the readers finds frames in."""
-    return MeshLoadError(
-        f"{root}: no frames found (looked for frames/*.obj|ply, positions.npz, scene.usdc, vtk/*.vtp, "
-        "cache.pc2, cache.mdd)"
-    )
+    looked_for = ", ".join(reading.looks_for for reading in search_order())
+    return MeshLoadError(f"{root}: no frames found (looked for {looked_for})")
 
 
 def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str | None = None) -> ResultSequence:
-    """Find a result folder's frames, in this order: `frames/*.obj|ply`, `positions.npz`,
-    `scene.usdc|usda`, `vtk/*.vtp`, `cache.pc2`, `cache.mdd`.
+    """Find a result folder's frames with the first reader of `search_order` that finds its files (the
+    exporters' `ResultReading.priority`: per-frame files first, point caches last).
 
     The rest pose is `mesh` if given, else the input mesh named by `report.json` (key `input`)
     when it still exists, else the first frame. Point caches need that mesh for the topology;
     their axis convention is `up_axis`, the report's `up_axis`, or whichever makes the first
-    frame closest to the rest pose. Pinned vertices come from the report (`pinned`: vertex
-    indices), the npz (`point_pinned`) or the first VTK frame (`pinned` array); fps from the
-    report, the npz, the USD stage or the MDD times. Raises MeshLoadError when nothing is found.
+    frame closest to the rest pose. Pinned vertices come from the files read (`ResultFrames.pinned`),
+    else the report (`pinned`: vertex indices), else another format's files in the folder
+    (`folder_pinned`); fps from the report, else the files read. Raises MeshLoadError when nothing
+    is found.
     """
     from meshdeform.io import load
 
@@ -141,7 +143,7 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
     if up_axis is None and report.get("up_axis") in ("y", "z"):
         up_axis = str(report["up_axis"])
     # the first reader that finds its files wins
-    found = next((f for f in (source.read(root, input_mesh, up_axis) for source in SOURCES) if f is not None), None)
+    found = next((f for f in (r.read(root, input_mesh, up_axis) for r in search_order()) if f is not None), None)
     if found is None:
         raise no_frames_found(root)
     base = found.base
@@ -149,7 +151,7 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
     if pinned is None:
         pinned = _report_pinned(report, base.vertex_count)
     if pinned is None:
-        pinned = vtp_pinned(root, base.vertex_count)
+        pinned = folder_pinned(root, base.vertex_count)
     return ResultSequence(
         mesh=base,
         frames=found.frames,

@@ -1,7 +1,7 @@
 """`meshdeform preview RESULT_DIR`: render PNGs, a contact sheet and a video of an existing result.
 
 No re-simulation: the frames are read from the result folder by the first reader that finds its files
-(`meshdeform.preview.results.SOURCES`: `frames/*.obj|ply`, `positions.npz`, `scene.usdc`, `vtk/*.vtp`,
+(`meshdeform.preview.results.search_order`: `frames/*.obj|ply`, `positions.npz`, `scene.usdc`, `vtk/*.vtp`,
 `cache.pc2`, `cache.mdd`), with `report.json` for the input mesh (rest pose), fps and pinned vertices.
 """
 
