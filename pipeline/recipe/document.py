@@ -15,6 +15,7 @@ from pydantic import Field, PrivateAttr
 
 from meshdeform.errors import RecipeError
 from meshdeform.export import EXPORTERS
+from meshdeform.export.registry import topology_following
 from pipeline.recipe.messages import KeyPath, line_at, message, parse_path
 from pipeline.recipe.schema import (
     AssetRule,
@@ -91,12 +92,10 @@ class Recipe(Table):
         for i, name in enumerate(self.output.formats):
             if not EXPORTERS[name].supports_topology_change:
                 what = "[[tears]]" if self.tears else "[[cuts]]"
-                following = [n for n, cls in EXPORTERS.items() if cls.supports_topology_change]
-                choices = " or ".join([", ".join(following[:-1]), following[-1]] if len(following) > 1 else following)
                 raise self.error(
                     ("output", "formats", i),
                     f"{name} needs a fixed vertex count, but this recipe opens the mesh ({what}) and adds "
-                    f"vertices where it tears; write {choices} instead, or remove the tearing",
+                    f"vertices where it tears; write {topology_following()} instead, or remove the tearing",
                 )
 
     @property
