@@ -1,4 +1,11 @@
-"""Shared fixtures: the real/broken mesh folders beside the repo, headless rendering, a fresh Numba cache."""
+"""Shared fixtures: the real/broken mesh folders beside the repo, headless rendering, one Numba thread.
+
+Shared builders are plain functions beside this file, imported by name (this folder is on the
+path of every test module): tests/factories.py makes cloth grids (`grid_sheet`), their pins by
+side or corner (`grid_pins`, `TOP_CORNERS`), their spring models (`grid_cloth`), OBJ files of them
+(`write_grid`) and slit copies of them (`slit_grid`); tests/shared_meshes.py finds the shared
+real and broken meshes.
+"""
 
 from __future__ import annotations
 

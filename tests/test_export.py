@@ -15,6 +15,7 @@ import meshio
 import numpy as np
 import pytest
 import trimesh
+from factories import grid_sheet
 
 from meshdeform.errors import ExportError
 from meshdeform.export import (
@@ -26,7 +27,7 @@ from meshdeform.export import (
     make_exporter,
 )
 from meshdeform.geometry import vertex_normals
-from meshdeform.mesh import Mesh, grid_mesh
+from meshdeform.mesh import Mesh
 
 NX, NY, FRAMES, FPS = 7, 5, 6, 24.0
 
@@ -69,7 +70,7 @@ def export(
 
 @pytest.fixture
 def mesh() -> Mesh:
-    return grid_mesh(NX, NY)
+    return grid_sheet(NX, NY)
 
 
 def visible_files(folder: Path) -> list[str]:
@@ -128,7 +129,7 @@ def test_obj_frames_round_trip_through_meshio_and_trimesh(mesh: Mesh, tmp_path: 
 
 
 def test_obj_keeps_groups_and_recomputes_normals_per_frame(tmp_path: Path) -> None:
-    base = grid_mesh(5, 4)
+    base = grid_sheet(5, 4)
     n_faces = base.face_count
     mesh = replace(
         base,

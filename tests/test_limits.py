@@ -16,12 +16,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from factories import grid_sheet
 from typer.testing import CliRunner
 
 from meshdeform.errors import RecipeError
 from meshdeform.io import load
 from meshdeform.io.obj import write_obj
-from meshdeform.mesh import grid_mesh
 from pipeline import estimate
 from pipeline.cli import app
 from pipeline.estimate import InsufficientDiskSpace, estimate_run, output_bytes, require_disk_space
@@ -350,7 +350,7 @@ def test_check_prints_the_estimate_without_and_with_a_mesh(tmp_path: Path) -> No
     )
 
     mesh = tmp_path / "m.obj"
-    write_obj(mesh, grid_mesh(5, 4))
+    write_obj(mesh, grid_sheet(5, 4))
     result = runner.invoke(app, ["check", str(recipe), "--mesh", str(mesh)])
     assert result.exit_code == 0, result.output
     lines = result.stdout.splitlines()
@@ -365,7 +365,7 @@ def test_check_prints_the_estimate_without_and_with_a_mesh(tmp_path: Path) -> No
 def test_output_estimates_cover_what_a_run_writes(tmp_path: Path) -> None:
     """The estimate of every format is at least what a real run writes, and not wildly more."""
     mesh_path = tmp_path / "m.obj"
-    write_obj(mesh_path, grid_mesh(9, 7, size=(2.0, 1.0)))
+    write_obj(mesh_path, grid_sheet(9, 7, size=(2.0, 1.0)))
     mesh = load(mesh_path)
     formats = ["obj", "ply", "pc2", "mdd", "npz", "usd", "vtk"]
     recipe = parse_recipe(
@@ -417,7 +417,7 @@ def test_estimate_of_a_built_run_is_refused_on_a_full_disk_through_the_cli_error
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(estimate.shutil, "disk_usage", lambda path: usage(100, 100, 0))
     recipe = parse_recipe("[simulation]\nframes = 5\n")
-    mesh = grid_mesh(3, 3)
+    mesh = grid_sheet(3)
     total = estimate_run(recipe, mesh).total_bytes
     assert total is not None and total > 0
     with pytest.raises(typer.Exit) as info, cli_errors():
@@ -441,7 +441,7 @@ def test_estimate_of_a_built_run_is_refused_on_a_full_disk_through_the_cli_error
 )
 def test_simulate_stops_at_once_past_a_limit(tmp_path: Path, args: tuple[str, ...], expected: str) -> None:
     mesh = tmp_path / "m.obj"
-    write_obj(mesh, grid_mesh(4, 4))
+    write_obj(mesh, grid_sheet(4))
     out = tmp_path / "out"
     started = time.perf_counter()
     result = runner.invoke(app, ["simulate", str(mesh), "-o", str(out), "-q", *args])
@@ -529,7 +529,7 @@ def _mutated(path: tuple, value: Any) -> dict[str, Any]:
 
 def test_corpus_of_mutated_recipes_ends_quickly_with_one_line(tmp_path: Path) -> None:
     mesh = tmp_path / "m.obj"
-    write_obj(mesh, grid_mesh(4, 4))
+    write_obj(mesh, grid_sheet(4))
     recipe = tmp_path / "r.toml"
     recipe.write_text(_document(BASE))
     base = runner.invoke(app, ["check", str(recipe), "--mesh", str(mesh)])
@@ -559,7 +559,7 @@ def test_simulate_refuses_a_run_whose_outputs_do_not_fit_before_writing_anything
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(estimate.shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 1000, 1000))
     mesh = tmp_path / "m.obj"
-    write_obj(mesh, grid_mesh(6, 6))
+    write_obj(mesh, grid_sheet(6))
     out = tmp_path / "out"
     result = runner.invoke(app, ["simulate", str(mesh), "-o", str(out), "--frames", "3", "-q"])
     assert result.exit_code == 2

@@ -21,10 +21,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from factories import write_grid
 from typer.testing import CliRunner
 
-from meshdeform.io.obj import write_obj
-from meshdeform.mesh import grid_mesh
 from pipeline.cli import app
 from pipeline.job import MARKER_NAME, output_lock
 
@@ -53,12 +52,6 @@ def snapshot(root: Path) -> dict[str, str]:
     return found
 
 
-def put_mesh(path: Path, n: int = 4) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_obj(path, grid_mesh(n, n, size=(1.0, 1.0), plane="xz"))
-    return path
-
-
 def put(path: Path, text: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text, encoding="utf-8")
@@ -84,7 +77,7 @@ def user(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
         "root": tmp_path,
         "home": home,
         "project": project,
-        "mesh": put_mesh(project / "cloth.obj"),
+        "mesh": write_grid(project / "cloth.obj", 4, plane="xz"),
         "notes": put(project / "notes.txt", "my notes\n"),
         "recipe": put(project / "recipes" / "cloth.toml", RECIPE),
         "docs": home / "docs",
@@ -265,7 +258,7 @@ def test_a_second_run_on_a_locked_folder_is_refused_at_once(user: dict[str, Path
 
 
 def test_two_simulate_runs_on_one_folder(user: dict[str, Path]) -> None:
-    big = put_mesh(user["root"] / "big.obj", 30)
+    big = write_grid(user["root"] / "big.obj", 30, plane="xz")
     out = user["root"] / "out"
     command = [sys.executable, "-c", "from pipeline.cli import app; app()", "simulate", str(big), "-o", str(out)]
     first = subprocess.Popen(
@@ -326,10 +319,10 @@ def batch(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
     folder of someone else's meshes the links point at."""
     root = tmp_path
     assets = root / "project" / "assets"
-    put_mesh(assets / "a.obj")
-    put_mesh(assets / "sub" / "b.obj")
-    put_mesh(root / "private" / "secret.obj")
-    put_mesh(root / "private" / "more" / "other.obj")
+    write_grid(assets / "a.obj", 4, plane="xz")
+    write_grid(assets / "sub" / "b.obj", 4, plane="xz")
+    write_grid(root / "private" / "secret.obj", 4, plane="xz")
+    write_grid(root / "private" / "more" / "other.obj", 4, plane="xz")
     (assets / "inner.obj").symlink_to(assets / "a.obj")  # inside: an asset like any other
     (assets / "sub" / "leak.obj").symlink_to(root / "private" / "secret.obj")
     (assets / "private").symlink_to(root / "private", target_is_directory=True)
@@ -405,7 +398,7 @@ def test_batch_asset_folder_holding_a_users_file_fails_alone(batch: dict[str, Pa
     out = batch["root"] / "out"
     assert cli("batch", batch["assets"], "-r", batch["recipe"], "-o", out, "--jobs", 0, "-q").exit_code == 0
     mine = put(out / "a" / "notes.txt", "mine\n")
-    put_mesh(batch["assets"] / "a.obj", 5)  # changed: a.obj must be redone
+    write_grid(batch["assets"] / "a.obj", 5, plane="xz")  # changed: a.obj must be redone
     second = cli("batch", batch["assets"], "-r", batch["recipe"], "-o", out, "--jobs", 0, "-q")
     assert second.exit_code == 1, second.output
     entries = manifest(out)

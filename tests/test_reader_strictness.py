@@ -11,13 +11,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from factories import grid_sheet
 from typer.testing import CliRunner
 
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.export.sequence import copy_material_libraries
 from meshdeform.io import load, read_obj, read_ply, save
 from meshdeform.io.obj import ObjWriter
-from meshdeform.mesh import Mesh, grid_mesh
+from meshdeform.mesh import Mesh
 from meshdeform.topology import build_springs
 from pipeline.cli import app
 
@@ -315,7 +316,7 @@ def test_a_20000_corner_polygon_inspects_in_under_a_second(tmp_path: Path) -> No
 
 
 def test_writers_refuse_nonfinite_values_and_write_nothing(tmp_path: Path) -> None:
-    mesh = grid_mesh(3, 3)
+    mesh = grid_sheet(3)
     bad = mesh.positions.copy()
     bad[4, 1] = np.nan
     for suffix in (".obj", ".ply"):
