@@ -17,10 +17,11 @@ from factories import grid_cloth, grid_pins, grid_sheet, slit_grid  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
 from meshdeform.errors import MeshLoadError  # noqa: E402
-from meshdeform.export import ExportContext, ExportSession, FrameData  # noqa: E402
+from meshdeform.export import UP_AXES, ExportContext, ExportSession, FrameData  # noqa: E402
 from meshdeform.io import save  # noqa: E402
 from meshdeform.mesh import Mesh  # noqa: E402
 from meshdeform.preview import open_result, render_result_previews  # noqa: E402
+from meshdeform.preview.results import SOURCES  # noqa: E402
 from pipeline.commands.preview import parse_frames, parse_size, register  # noqa: E402
 
 FRAMES = 8
@@ -98,12 +99,12 @@ def test_parsers() -> None:
 
 @pytest.mark.parametrize(
     ("formats", "up_axis"),
-    [(["ply"], "y"), (["npz"], "y"), (["usd"], "z"), (["vtk"], "y"), (["pc2"], "y"), (["pc2"], "z"), (["mdd"], "z")],
+    [pytest.param([name], up, id=f"{name}-{up}") for source in SOURCES for name in source.formats for up in UP_AXES],
 )
 def test_open_result_reads_each_kind_of_folder(tmp_path: Path, formats: list[str], up_axis: str) -> None:
     mesh = make_result(tmp_path / "r", formats, up_axis=up_axis)
     seq = open_result(tmp_path / "r")
-    assert seq.source.split(".")[-1].strip("*/") in {"ply", "npz", "usdc", "vtp", "pc2", "mdd"}
+    assert list((tmp_path / "r").glob(seq.source))  # it names the files it read
     assert seq.frame_numbers == list(range(1, FRAMES + 1))
     assert seq.fps == 12.0
     assert seq.mesh.face_count == mesh.face_count

@@ -8,11 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import typer
-from factories import grid_sheet
+from factories import grid_sheet, write_grid
 from typer.testing import CliRunner
 
 from meshdeform.errors import RecipeError
-from meshdeform.io.obj import write_obj
 from pipeline.build import build_simulation
 from pipeline.commands.check import register
 from pipeline.recipe import (
@@ -318,7 +317,7 @@ def _app() -> typer.Typer:
 def test_check_command_prints_selection_counts_or_one_error_line(tmp_path: Path) -> None:
     runner = CliRunner()
     mesh = tmp_path / "flag.obj"
-    write_obj(mesh, grid_sheet(8, 5, size=(2.0, 1.0)))
+    write_grid(mesh, 8, 5, size=(2.0, 1.0))
     recipe = tmp_path / "r.toml"
     recipe.write_text(
         "[[pins]]\nselect = { box = { min = [0, 0.99, 0], max = [1, 1, 1] }, relative = true }\n"
@@ -563,8 +562,8 @@ def test_the_deprecation_line_goes_to_stderr_once_and_into_the_batch_log(tmp_pat
 
     assets = tmp_path / "assets"
     assets.mkdir()
-    write_obj(assets / "a.obj", grid_sheet(3))
-    write_obj(assets / "b.obj", grid_sheet(3))
+    write_grid(assets / "a.obj", 3)
+    write_grid(assets / "b.obj", 3)
     recipe = tmp_path / "flat.toml"
     recipe.write_text(FLAT + "frames = 2\n[[assets]]\nglob = 'a.obj'\nmaterial = { density = 0.3 }\n")
     expected = parse_recipe(recipe.read_text(), str(recipe)).deprecation
