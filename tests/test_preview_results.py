@@ -1,4 +1,5 @@
-"""`meshdeform preview RESULT_DIR` and reading a result folder's frames back (OBJ, PLY, npz, USD)."""
+"""Previews of a result folder: `meshdeform preview RESULT_DIR`, each kind of folder's frames read back
+(meshdeform.preview.results), and a run's previews from its frames in memory (meshdeform.preview.live)."""
 
 from __future__ import annotations
 
