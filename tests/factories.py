@@ -1,4 +1,5 @@
-"""Cloth grids for the tests: the sheet, its pins, its spring model, an OBJ file of it, a slit in it.
+"""What the tests build: cloth grids (the sheet, its pins, its spring model, an OBJ file of it, a
+slit in it) and a command-line app holding one command.
 
 Every grid is `meshdeform.mesh.grid_mesh`: nx x ny vertices, vertex (i, j) at index `j * nx + i`,
 i along x and j along y (plane "xy", a hanging sheet with Y up) or along z (plane "xz", a
@@ -20,11 +21,12 @@ helpers and parametrised tests can call them with any size; tests/conftest.py sa
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Literal, NamedTuple
 
 import numpy as np
+import typer
 
 from meshdeform.io import write_obj
 from meshdeform.material import Material
@@ -168,3 +170,16 @@ def slit_grid(
         positions=np.vstack([mesh.positions, moved]), face_indices=faces.ravel(), face_offsets=mesh.face_offsets
     )
     return torn, copies
+
+
+def command_app(register: Callable[[typer.Typer], None]) -> typer.Typer:
+    """A Typer app holding only the command(s) `register(app)` adds (a `pipeline.commands` module's
+    `register`); its callback keeps a single command a named subcommand, as in the real app."""
+    app = typer.Typer()
+
+    @app.callback()
+    def main() -> None:
+        """Test app."""
+
+    register(app)
+    return app

@@ -10,7 +10,6 @@ run on a folder being written is refused, and a batch does not follow symlinks o
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import subprocess
@@ -22,6 +21,7 @@ from typing import Any
 
 import pytest
 from factories import write_grid
+from robustness_corpus import snapshot
 from typer.testing import CliRunner
 
 from pipeline.cli import app
@@ -34,22 +34,6 @@ OUTSIDE_LINK = "symlink to a path outside the assets folder"
 
 def cli(*args: Any) -> Any:
     return runner.invoke(app, [str(a) for a in args])
-
-
-def snapshot(root: Path) -> dict[str, str]:
-    """Every entry under `root` (symlinks not followed): relative path -> sha256, 'dir' or 'link -> target'."""
-    found: dict[str, str] = {}
-    for here, dirs, files in os.walk(root):
-        for name in dirs + files:
-            path = Path(here) / name
-            key = path.relative_to(root).as_posix()
-            if path.is_symlink():
-                found[key] = f"link -> {os.readlink(path)}"
-            elif path.is_dir():
-                found[key] = "dir"
-            else:
-                found[key] = hashlib.sha256(path.read_bytes()).hexdigest()
-    return found
 
 
 def put(path: Path, text: str) -> Path:

@@ -14,7 +14,7 @@ import imageio.v3 as iio  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import typer  # noqa: E402
-from factories import grid_cloth, grid_pins, grid_sheet, slit_grid  # noqa: E402
+from factories import command_app, grid_cloth, grid_pins, grid_sheet, slit_grid  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
 from meshdeform.errors import MeshLoadError  # noqa: E402
@@ -53,14 +53,7 @@ def make_result(folder: Path, formats: list[str], report: bool = True, up_axis: 
 
 @pytest.fixture
 def app() -> typer.Typer:
-    app = typer.Typer()
-
-    @app.callback()
-    def main() -> None:
-        """Test app."""
-
-    register(app)
-    return app
+    return command_app(register)
 
 
 def test_preview_command_renders_pngs_sheet_and_gif(app: typer.Typer, tmp_path: Path) -> None:

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import typer
-from factories import grid_sheet, write_grid
+from factories import command_app, grid_sheet, write_grid
 from typer.testing import CliRunner
 
 from meshdeform.errors import RecipeError
@@ -303,17 +302,6 @@ def test_recipe_from_data_validates_merged_data() -> None:
         recipe_from_data({"simulation": {"frames": "x"}}, "sidecar")
 
 
-def _app() -> typer.Typer:
-    app = typer.Typer()
-
-    @app.callback()
-    def main() -> None:
-        """test app"""
-
-    register(app)
-    return app
-
-
 def test_check_command_prints_selection_counts_or_one_error_line(tmp_path: Path) -> None:
     runner = CliRunner()
     mesh = tmp_path / "flag.obj"
@@ -323,7 +311,7 @@ def test_check_command_prints_selection_counts_or_one_error_line(tmp_path: Path)
         "[[pins]]\nselect = { box = { min = [0, 0.99, 0], max = [1, 1, 1] }, relative = true }\n"
         "[[tears]]\nselect = { indices = [3, 4, 5] }\nmax_stretch = 1.5\n"
     )
-    result = runner.invoke(_app(), ["check", str(recipe), "--mesh", str(mesh)])
+    result = runner.invoke(command_app(register), ["check", str(recipe), "--mesh", str(mesh)])
     assert result.exit_code == 0, result.output
     assert result.stdout.startswith(f"OK {recipe}")
     assert re.search(r"pins\[0\]\.select\s+8 vertices", result.stdout)
@@ -331,14 +319,14 @@ def test_check_command_prints_selection_counts_or_one_error_line(tmp_path: Path)
 
     bad = tmp_path / "bad.toml"
     bad.write_text("[simulation]\nframes = -1\n")
-    result = runner.invoke(_app(), ["check", str(bad)])
+    result = runner.invoke(command_app(register), ["check", str(bad)])
     assert result.exit_code == 2
     assert result.stdout == ""
     assert result.stderr.strip() == f"error: {bad}: simulation.frames (line 2): must be at least 1, got -1"
 
     empty = tmp_path / "empty.toml"
     empty.write_text("[[pins]]\nselect = { sphere = { center = [9, 9, 9], radius = 0.1 } }\n")
-    result = runner.invoke(_app(), ["check", str(empty), "--mesh", str(mesh)])
+    result = runner.invoke(command_app(register), ["check", str(empty), "--mesh", str(mesh)])
     assert result.exit_code == 2
     assert "pins[0].select (line 2): selects no vertex of flag.obj (40 vertices)" in result.stderr
 
