@@ -1,4 +1,12 @@
-"""Shared fixtures: the real/broken mesh folders beside the repo, headless rendering, a fresh Numba cache."""
+"""Shared fixtures: the real/broken mesh folders beside the repo, headless rendering, one Numba thread.
+
+Shared builders are plain functions beside this file, imported by name (this folder is on the
+path of every test module): tests/factories.py makes cloth grids (`grid_sheet`), their pins by
+side or corner (`grid_pins`, `TOP_CORNERS`), their spring models (`grid_cloth`), OBJ files of them
+(`write_grid`), slit copies of them (`slit_grid`) and a one-command CLI app (`command_app`);
+tests/checks.py holds shared checks (`refused`: a reader's one-line refusal); tests/shared_meshes.py
+finds the shared real and broken meshes.
+"""
 
 from __future__ import annotations
 

@@ -178,10 +178,17 @@ def sample_mesh(name: str) -> bytes:
     return (SAMPLES / "meshes" / name).read_bytes()
 
 
+#: every solver, in the order random recipes draw from (this module runs any checkout's CLI without
+#: importing its engine: tests/test_robustness.py checks these against the solver registry)
+SOLVERS = ("xpbd", "verlet", "anchor", "springs", "implicit")
+#: the output formats random recipes draw from: registered formats, usd and xdmf left out
+RECIPE_FORMATS = ("obj", "ply", "pc2", "mdd", "npz", "vtk")
+
+
 def minimal_recipe(rng: random.Random, frames: int = 2) -> str:
     """A short valid recipe with a random solver and random output formats."""
-    solver = rng.choice(["xpbd", "verlet", "anchor", "springs", "implicit"])
-    formats = rng.sample(["obj", "ply", "pc2", "mdd", "npz", "vtk"], rng.randint(1, 3))
+    solver = rng.choice(SOLVERS)
+    formats = rng.sample(RECIPE_FORMATS, rng.randint(1, 3))
     listed = ", ".join(f'"{f}"' for f in formats)
     return f'[simulation]\nsolver = "{solver}"\nframes = {frames}\nsubsteps = 4\n\n[output]\nformats = [{listed}]\n'
 
@@ -1170,7 +1177,7 @@ def warm_up(
         (root / f"{name}.toml").write_text(shorten_recipe(text, frames=1))
         runs.append(["simulate", mesh, "-r", f"{name}.toml", "-o", f"out-{name}", "-q"])
     (root / "grid.obj").write_bytes(obj_grid(8, 8))
-    for solver in ("anchor", "verlet", "xpbd", "springs", "implicit"):
+    for solver in SOLVERS:
         runs.append(["simulate", "grid.obj", "--solver", solver, "--frames", "1", "-o", f"out-{solver}", "-q"])
     for argv in runs:
         run_cli(argv, root, env, python, 900.0)

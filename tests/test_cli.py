@@ -9,11 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import typer
+from factories import TOP_CORNERS, grid_pins, write_grid
 from typer.testing import CliRunner
 
 from meshdeform.io import load
-from meshdeform.io.obj import write_obj
-from meshdeform.mesh import grid_mesh
 from pipeline import __version__
 from pipeline.cli import app
 
@@ -55,7 +54,7 @@ def test_simulate_help_lists_the_registered_solvers_and_formats() -> None:
 @pytest.mark.parametrize(("n", "m"), [(5, 9), (13, 4)])
 def test_inspect_json_counts_springs_of_quad_grids(tmp_path: Path, n: int, m: int) -> None:
     path = tmp_path / "grid.obj"
-    write_obj(path, grid_mesh(n, m))
+    write_grid(path, n, m)
     result = run("inspect", path, "--json")
     assert result.exit_code == 0, result.output
     info = json.loads(result.stdout)
@@ -89,18 +88,11 @@ def test_inspect_welded_counts_match_trimesh_on_real_meshes(shared_meshes: Path)
         assert info["welded_vertices"] == len(unique), path.name
 
 
-def _grid_obj(tmp_path: Path, n: int = 12, m: int = 10, plane: str = "xz") -> Path:
-    """A 1 x 1 m quad grid; lying flat (XZ) by default so that it falls when pinned at two corners."""
-    path = tmp_path / "cloth.obj"
-    write_obj(path, grid_mesh(n, m, size=(1.0, 1.0), plane=plane))
-    return path
-
-
 def test_simulate_writes_frames_in_input_order_with_pins_unmoved(tmp_path: Path) -> None:
     n, m = 12, 10
-    mesh_path = _grid_obj(tmp_path, n, m)
+    mesh_path = write_grid(tmp_path / "cloth.obj", n, m, plane="xz")  # lying flat: it falls when pinned at two corners
     out = tmp_path / "out"
-    top_left, top_right = (m - 1) * n, m * n - 1
+    top_left, top_right = np.flatnonzero(grid_pins(n, m, TOP_CORNERS))
     result = run(
         "simulate", mesh_path, "--out", out, "--frames", "12", "--solver", "verlet",
         "--pin", f"indices:{top_left},{top_right}", "--quiet",
@@ -127,7 +119,7 @@ def test_simulate_writes_frames_in_input_order_with_pins_unmoved(tmp_path: Path)
 
 
 def test_simulate_box_pin_is_relative_to_bounds(tmp_path: Path) -> None:
-    mesh_path = _grid_obj(tmp_path, 8, 8)
+    mesh_path = write_grid(tmp_path / "cloth.obj", 8, 8, plane="xz")
     out = tmp_path / "out"
     result = run("simulate", mesh_path, "--out", out, "--frames", "5", "--pin", "box:0,0,0.99,1,1,1", "--quiet")
     assert result.exit_code == 0, result.output
@@ -164,7 +156,7 @@ def test_simulate_ply_output_keeps_vertex_count(tmp_path: Path, samples_dir: Pat
     ],
 )
 def test_bad_options_give_one_line_and_exit_2(tmp_path: Path, args: tuple[str, ...], message: str) -> None:
-    mesh_path = _grid_obj(tmp_path, 4, 4)
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
     out = tmp_path / "out"
     result = run("simulate", mesh_path, "--out", out, "--frames", "2", "--quiet", *args)
     assert result.exit_code == 2, result.output
@@ -201,7 +193,7 @@ def test_every_broken_mesh_loads_with_warning_or_fails_with_one_line(tmp_path: P
 
 
 def test_diverging_run_names_the_frame_and_leaves_nothing(tmp_path: Path) -> None:
-    mesh_path = _grid_obj(tmp_path, 6, 6)
+    mesh_path = write_grid(tmp_path / "cloth.obj", 6, 6, plane="xz")
     recipe = tmp_path / "stiff.toml"
     recipe.write_text(
         '[simulation]\nsolver = "springs"\nsubsteps = 1\nfps = 2\n\n[simulation.springs]\nstable_substeps = false\n\n'

@@ -14,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from factories import TOP_CORNERS, grid_cloth, grid_pins, grid_sheet, write_grid
 from typer.testing import CliRunner
 
 from meshdeform.errors import SimulationDiverged
 from meshdeform.io import load
-from meshdeform.io.obj import write_obj
 from meshdeform.material import Material
-from meshdeform.mesh import Mesh, grid_mesh
+from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel
 from meshdeform.scene.colliders import Collider, Plane
 from meshdeform.scene.effects import NearestPinTethers
@@ -47,11 +47,7 @@ def run_until_diverged(model: SpringModel, scene: Scene, settings: Settings) -> 
 def unstable_tethered_cloth() -> tuple[SpringModel, Scene, Settings]:
     """Explicit springs far too stiff for one substep per frame, stability splitting off (an
     unstable step), on a cloth hanging from two corners held by `[material.tethers]`."""
-    n = 8
-    mesh = grid_mesh(n, n, plane="xy")
-    pinned = np.zeros(n * n, dtype=bool)
-    pinned[[n * (n - 1), n * n - 1]] = True
-    model = SpringModel.from_mesh(mesh, Material(stretch_modulus=1e5), pinned_input=pinned)
+    model = grid_cloth(8, pins=TOP_CORNERS, material=Material(stretch_modulus=1e5)).model
     scene = Scene(constraints=[NearestPinTethers(model, np.flatnonzero(model.pinned), 1.05)])
     settings = Settings(solver="springs", frames=48, substeps=1, options=SpringsOptions(stable_substeps=False))
     return model, scene, settings
@@ -78,7 +74,7 @@ def test_an_explosion_held_finite_by_tethers_stops_as_stretched() -> None:
 def sheet_on_the_ground(strength: float) -> tuple[SpringModel, Scene, Settings]:
     """A 1 m sheet lying on a ground with friction, hit at t = 0.1 s (frame 3) by a radial push of
     `strength` m/s from 0.5 m above its centre (the push spreads over 20 ms)."""
-    model = SpringModel.from_mesh(grid_mesh(8, 8, size=(1.0, 1.0), plane="xz"))
+    model = grid_cloth(8, plane="xz").model
     ground = Collider(Plane((0.0, -0.01, 0.0), (0.0, 1.0, 0.0)), thickness=0.005, friction=0.5)
     push = Impact(time=0.1, radius=0.3, strength=strength, duration=0.02, point=(0.5, 0.5, 0.5), direction="radial")
     return model, Scene(forces=[push], constraints=[ground]), Settings(solver="springs", frames=24)
@@ -104,9 +100,7 @@ def test_the_same_push_a_hundred_times_weaker_runs_through() -> None:
 
 
 def test_a_200_m_free_fall_onto_the_ground_reaches_60_m_per_s_and_runs_through() -> None:
-    mesh = grid_mesh(6, 6, plane="xz")
-    mesh = dataclasses.replace(mesh, positions=mesh.positions + np.array([0.0, 200.0, 0.0]))
-    model = SpringModel.from_mesh(mesh)
+    model = grid_cloth(6, plane="xz", offset=(0.0, 200.0, 0.0)).model
     ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), thickness=0.01, friction=0.5)
     settings = Settings(solver="xpbd", frames=170, options=XPBDOptions(damping=0.0))
     frames = list(simulate(model, Scene(constraints=[ground]), settings))
@@ -119,9 +113,7 @@ def test_a_200_m_free_fall_onto_the_ground_reaches_60_m_per_s_and_runs_through()
 def strip_pulled_apart(tear_at: float | None) -> tuple[SpringModel, Scene, Settings]:
     """A 1 x 0.25 m strip whose right edge is pulled away from its pinned left edge at 10 m/s,
     without gravity; `tear_at`: the strip may tear everywhere beyond this stretch."""
-    mesh = grid_mesh(5, 2, size=(1.0, 0.25), plane="xy")
-    ends = (mesh.positions[:, 0] < 1e-9) | (mesh.positions[:, 0] > 1 - 1e-9)
-    model = SpringModel.from_mesh(mesh, pinned_input=ends)
+    mesh, model, _ = grid_cloth(5, 2, size=(1.0, 0.25), pins=("left", "right"))
     rest = model.rest_positions[model.pinned]
     right = rest[:, 0] > 0.5
 
@@ -158,7 +150,7 @@ def test_a_strip_allowed_to_tear_at_twelve_times_its_length_tears_instead_of_div
 def sliver_sheet() -> Mesh:
     """A 1 m hanging sheet whose second column of vertices sits 1 mm right of the first: a column
     of sliver quads (1 mm structural springs among 0.2 m ones), as CAD exports have."""
-    mesh = grid_mesh(6, 6, plane="xy")
+    mesh = grid_sheet(6)
     x = mesh.positions[:, 0]
     columns = np.unique(x)
     positions = mesh.positions.copy()
@@ -170,10 +162,9 @@ def test_a_sliver_edge_stretched_by_millimetres_is_not_a_blow_up() -> None:
     """Springs stretch by a similar absolute amount, so a 1 mm spring near the pins of a hanging
     sheet stretches past 10x while its 0.2 m neighbours stretch a few percent; the report shows
     the exact ratio, the guard judges slivers against a normal spring's length."""
-    mesh = sliver_sheet()
-    x, y = mesh.positions[:, 0], mesh.positions[:, 1]
-    corners = (y > 1 - 1e-9) & ((x < 1e-9) | (x > 1 - 1e-9))
-    model = SpringModel.from_mesh(mesh, Material(stretch_modulus=100.0), pinned_input=corners)
+    model = SpringModel.from_mesh(
+        sliver_sheet(), Material(stretch_modulus=100.0), pinned_input=grid_pins(6, 6, TOP_CORNERS)
+    )
     frames = list(simulate(model, Scene(), Settings(solver="xpbd", frames=24, options=XPBDOptions(tethers=None))))
     assert len(frames) == 24
     assert max(f.max_stretch for f in frames) > 10
@@ -194,8 +185,7 @@ def test_the_samples_run_through_their_whole_length(samples_dir: Path, mesh_name
 
 def test_cli_stops_a_tethered_explosion_with_exit_1_one_line_and_no_output(tmp_path: Path) -> None:
     n = 8
-    mesh_path = tmp_path / "cloth.obj"
-    write_obj(mesh_path, grid_mesh(n, n, plane="xy"))
+    mesh_path = write_grid(tmp_path / "cloth.obj", n)
     recipe = tmp_path / "explode.toml"
     recipe.write_text(
         '[simulation]\nsolver = "springs"\nsubsteps = 1\nframes = 48\n\n'

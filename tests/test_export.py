@@ -6,8 +6,10 @@ not from our writer, so a layout mistake cannot cancel itself out.
 
 from __future__ import annotations
 
+import re
 import struct
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,10 +17,12 @@ import meshio
 import numpy as np
 import pytest
 import trimesh
+from factories import grid_sheet
 
 from meshdeform.errors import ExportError
 from meshdeform.export import (
     EXPORTERS,
+    BaseExporter,
     ExportContext,
     ExportSession,
     FrameData,
@@ -26,7 +30,7 @@ from meshdeform.export import (
     make_exporter,
 )
 from meshdeform.geometry import vertex_normals
-from meshdeform.mesh import Mesh, grid_mesh
+from meshdeform.mesh import Mesh
 
 NX, NY, FRAMES, FPS = 7, 5, 6, 24.0
 
@@ -69,7 +73,7 @@ def export(
 
 @pytest.fixture
 def mesh() -> Mesh:
-    return grid_mesh(NX, NY)
+    return grid_sheet(NX, NY)
 
 
 def visible_files(folder: Path) -> list[str]:
@@ -80,11 +84,24 @@ def visible_files(folder: Path) -> list[str]:
 # registry and naming
 
 
-def test_registry_has_every_format_and_rejects_unknown_names() -> None:
-    assert set(EXPORTERS) == {"obj", "ply", "pc2", "mdd", "usd", "vtk", "xdmf", "npz"}
+def test_every_exporter_module_is_registered_and_unknown_names_are_refused() -> None:
+    """Each exporter class of a meshdeform.export module (a named BaseExporter) is in EXPORTERS under
+    its name, with a summary for the help; unknown names and options are refused."""
+    import importlib
+    import pkgutil
+
+    import meshdeform.export as package
+
+    defined = {
+        cls.name: cls
+        for info in pkgutil.iter_modules(package.__path__)
+        for cls in vars(importlib.import_module(f"{package.__name__}.{info.name}")).values()
+        if isinstance(cls, type) and issubclass(cls, BaseExporter) and cls.name and cls.__module__.endswith(info.name)
+    }
+    assert defined == EXPORTERS
     for name, cls in EXPORTERS.items():
         exporter = make_exporter(name.upper())
-        assert exporter.name == name and isinstance(exporter, cls)
+        assert exporter.name == name and isinstance(exporter, cls) and cls.summary
     with pytest.raises(ExportError, match=r"unknown export format 'fbx'.*obj.*pc2.*usd"):
         make_exporter("fbx")
     with pytest.raises(ExportError, match="unknown option"):
@@ -128,7 +145,7 @@ def test_obj_frames_round_trip_through_meshio_and_trimesh(mesh: Mesh, tmp_path: 
 
 
 def test_obj_keeps_groups_and_recomputes_normals_per_frame(tmp_path: Path) -> None:
-    base = grid_mesh(5, 4)
+    base = grid_sheet(5, 4)
     n_faces = base.face_count
     mesh = replace(
         base,
@@ -292,7 +309,7 @@ def test_usd_writes_polylines_as_basis_curves(tmp_path: Path) -> None:
     curves = UsdGeom.BasisCurves(stage.GetPrimAtPath("/Root/mesh_lines"))
     assert list(curves.GetCurveVertexCountsAttr().Get()) == [6]
     np.testing.assert_allclose(np.asarray(curves.GetPointsAttr().Get(Usd.TimeCode(2))), frames[1].positions, atol=1e-6)
-    vtp = read_vtp(tmp_path / "vtk" / "frame_0002.vtp")
+    vtp = read_with_vtk(tmp_path / "vtk" / "frame_0002.vtp")
     assert vtp.n_lines == 1 and vtp.lines.tolist() == [6, 0, 1, 2, 3, 4, 5]
 
 
@@ -300,8 +317,9 @@ def test_usd_writes_polylines_as_basis_curves(tmp_path: Path) -> None:
 # VTK, XDMF, NPZ
 
 
-def read_vtp(path: Path):
-    """meshio reads .vtu but not .vtp: read the PolyData with VTK's own XML reader (via PyVista)."""
+def read_with_vtk(path: Path):
+    """A .vtp or .ply file read by VTK's own readers (via PyVista): meshio reads .vtu but not .vtp, and
+    PLY frames of a torn mesh that trimesh (unused vertices) and meshio (per-corner UVs) cannot."""
     import pyvista as pv
 
     return pv.read(path)
@@ -314,7 +332,7 @@ def test_vtk_collection_of_vtp_frames_with_point_data(mesh: Mesh, tmp_path: Path
     entries = [(float(d.get("timestep")), d.get("file")) for d in root.iter("DataSet")]
     assert entries == [(i / FPS, f"vtk/frame_{i:04d}.vtp") for i in range(1, FRAMES + 1)]
     for i in range(1, FRAMES + 1):
-        m = read_vtp(tmp_path / "vtk" / f"frame_{i:04d}.vtp")
+        m = read_with_vtk(tmp_path / "vtk" / f"frame_{i:04d}.vtp")
         expected = wave(mesh, i)
         np.testing.assert_allclose(m.points, expected, rtol=1e-6, atol=1e-7)
         assert m.n_cells == m.n_faces == mesh.face_count
@@ -373,21 +391,118 @@ def test_npz_holds_positions_topology_and_point_data(mesh: Mesh, tmp_path: Path)
 
 
 # ---------------------------------------------------------------------------------------------
-# streaming, atomicity, topology changes
+# every registered format, read back by code that is not meshdeform's
 
-ALL = ["obj", "ply", "pc2", "mdd", "usd", "vtk", "xdmf", "npz"]
+ALL = list(EXPORTERS)
+FOLLOWING = [name for name, cls in EXPORTERS.items() if cls.supports_topology_change]
+FIXED = [name for name, cls in EXPORTERS.items() if not cls.supports_topology_change]
+
+
+def trimesh_frames(paths: list[Path]) -> list[np.ndarray]:
+    return [np.asarray(trimesh.load(p, process=False, maintain_order=True).vertices) for p in paths]
+
+
+def usd_frames(folder: Path) -> list[np.ndarray]:
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(folder / "scene.usdc"))
+    points = UsdGeom.Mesh(stage.GetDefaultPrim().GetChildren()[0]).GetPointsAttr()
+    return [np.asarray(points.Get(Usd.TimeCode(t))) for t in points.GetTimeSamples()]
+
+
+def vtk_frames(folder: Path) -> list[np.ndarray]:
+    collection = ET.parse(folder / "scene.pvd").getroot()
+    return [np.asarray(read_with_vtk(folder / entry.get("file")).points) for entry in collection.iter("DataSet")]
+
+
+def xdmf_frames(folder: Path) -> list[np.ndarray]:
+    with meshio.xdmf.TimeSeriesReader(folder / "scene.xdmf") as reader:
+        rest, _ = reader.read_points_cells()
+        return [rest + reader.read_data(k)[1]["displacement"] for k in range(reader.num_steps)]
+
+
+def npz_frames(folder: Path) -> list[np.ndarray]:
+    with np.load(folder / "positions.npz") as data:
+        return list(data["positions"])
+
+
+#: format -> the positions of every frame of a result folder, as an independent reader reads them
+INDEPENDENT_READERS: dict[str, Callable[[Path], list[np.ndarray]]] = {
+    "obj": lambda folder: trimesh_frames(sorted((folder / "frames").glob("*.obj"))),
+    "ply": lambda folder: [np.asarray(read_with_vtk(p).points) for p in sorted((folder / "frames").glob("*.ply"))],
+    "pc2": lambda folder: list(read_pc2(folder / "cache.pc2")[1]),
+    "mdd": lambda folder: list(read_mdd(folder / "cache.mdd")[1]),
+    "usd": usd_frames,
+    "vtk": vtk_frames,
+    "xdmf": xdmf_frames,
+    "npz": npz_frames,
+}
+
+
+def torn(mesh: Mesh) -> Mesh:
+    """The grid with its first quad cut loose: vertex 0 duplicated as a new last vertex."""
+    positions = np.vstack([mesh.positions, mesh.positions[:1]])
+    faces = mesh.face_indices.copy()
+    faces[0] = mesh.vertex_count
+    return replace(mesh, positions=positions, face_indices=faces, face_uv_indices=mesh.face_uv_indices)
+
+
+def torn_run(mesh: Mesh) -> list[FrameData]:
+    """Four frames: the cloth tears at frame 3 (the torn mesh given with it), the loose corner 0.3 m off."""
+    frames = frames_of(mesh, 2)
+    moved = np.vstack([wave(mesh, 3), wave(mesh, 3)[:1] + [0.0, 0.0, 0.3]])
+    frames.append(FrameData(3, 3 / FPS, moved, mesh=torn(mesh)))
+    frames.append(FrameData(4, 4 / FPS, moved + 0.01))
+    return frames
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # trimesh's UV code on a material-less OBJ
+@pytest.mark.parametrize("name", ALL)
+def test_every_format_writes_frames_an_independent_reader_reads(mesh: Mesh, tmp_path: Path, name: str) -> None:
+    assert name in INDEPENDENT_READERS, f"{name}: add a reader that is not meshdeform's to INDEPENDENT_READERS"
+    export([name], mesh, tmp_path)
+    frames = INDEPENDENT_READERS[name](tmp_path)
+    assert len(frames) == FRAMES
+    for i, positions in enumerate(frames, start=1):
+        np.testing.assert_allclose(positions, wave(mesh, i), rtol=0, atol=1e-6)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+@pytest.mark.parametrize("name", FOLLOWING)
+def test_every_format_that_follows_a_tear_writes_the_torn_frames(mesh: Mesh, tmp_path: Path, name: str) -> None:
+    run = torn_run(mesh)
+    export([name], mesh, tmp_path, run)
+    frames = INDEPENDENT_READERS[name](tmp_path)
+    assert [len(f) for f in frames] == [mesh.vertex_count] * 2 + [mesh.vertex_count + 1] * 2
+    np.testing.assert_allclose(frames[-1], run[-1].positions, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", FIXED)
+def test_every_fixed_topology_format_refuses_a_torn_frame_and_leaves_nothing(
+    mesh: Mesh, tmp_path: Path, name: str
+) -> None:
+    with pytest.raises(ExportError, match=re.escape(EXPORTERS[name].topology_message)):
+        export([name], mesh, tmp_path, torn_run(mesh)[:3])
+    assert "fixed" in EXPORTERS[name].topology_message
+    assert visible_files(tmp_path) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# streaming, atomicity, topology changes
 
 
 def test_nothing_looks_finished_until_close_and_abort_leaves_nothing(mesh: Mesh, tmp_path: Path) -> None:
-    ctx = ExportContext(mesh=mesh, out_dir=tmp_path, fps=FPS, frame_count=FRAMES)
-    session = ExportSession(ALL, ctx).open()
+    closed = export(ALL, mesh, tmp_path / "closed", frames_of(mesh, 3))
+    finished_names = {p.name for paths in closed.values() for p in paths if p.parent == tmp_path / "closed"}
+    assert len(finished_names) >= len(FIXED)  # every single-file format's file, the VTK collection, ...
+    out = tmp_path / "aborted"
+    session = ExportSession(ALL, ExportContext(mesh=mesh, out_dir=out, fps=FPS, frame_count=FRAMES)).open()
     for frame in frames_of(mesh, 3):
         session.write(frame)
-    finished_names = {"cache.pc2", "cache.mdd", "scene.usdc", "scene.pvd", "scene.xdmf", "positions.npz"}
-    assert not finished_names & {p.name for p in tmp_path.iterdir()}
+    assert not finished_names & {p.name for p in out.iterdir()}
     session.abort()
-    assert visible_files(tmp_path) == []  # no frames, no temporary files, no spools
-    assert list(tmp_path.iterdir()) == []  # not even the empty frames/ and vtk/ folders
+    assert visible_files(out) == []  # no frames, no temporary files, no spools
+    assert list(out.iterdir()) == []  # not even the empty frames/ and vtk/ folders
 
 
 def test_an_exception_mid_run_aborts_every_exporter(mesh: Mesh, tmp_path: Path) -> None:
@@ -459,41 +574,18 @@ def test_frames_must_increase_and_match_the_vertex_count(mesh: Mesh, tmp_path: P
     exporter.abort()
 
 
-def torn(mesh: Mesh) -> Mesh:
-    """The grid with its first quad cut loose: vertex 0 duplicated as a new last vertex."""
-    positions = np.vstack([mesh.positions, mesh.positions[:1]])
-    faces = mesh.face_indices.copy()
-    faces[0] = mesh.vertex_count
-    return replace(mesh, positions=positions, face_indices=faces, face_uv_indices=mesh.face_uv_indices)
-
-
-@pytest.mark.parametrize("name", ["pc2", "mdd", "npz", "xdmf"])
-def test_fixed_topology_formats_refuse_a_torn_frame(mesh: Mesh, tmp_path: Path, name: str) -> None:
-    assert not EXPORTERS[name].supports_topology_change
-    frames = frames_of(mesh, 2)
-    new = torn(mesh)
-    tear = FrameData(3, 3 / FPS, np.vstack([wave(mesh, 3), wave(mesh, 3)[:1]]), mesh=new)
-    message = "point caches need a fixed vertex count" if name in ("pc2", "mdd") else "fixed"
-    with pytest.raises(ExportError, match=message):
-        export([name], mesh, tmp_path, [*frames, tear])
-    assert visible_files(tmp_path) == []
-
-
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 def test_obj_usd_vtk_follow_a_topology_change(mesh: Mesh, tmp_path: Path) -> None:
     from pxr import Usd, UsdGeom
 
-    new = torn(mesh)
-    frames = frames_of(mesh, 2)
-    moved = np.vstack([wave(mesh, 3), wave(mesh, 3)[:1] + [0.0, 0.0, 0.3]])
-    frames.append(FrameData(3, 3 / FPS, moved, mesh=new))
-    frames.append(FrameData(4, 4 / FPS, moved + 0.01))
+    frames = torn_run(mesh)
+    moved = frames[2].positions
     export(["obj", "usd", "vtk"], mesh, tmp_path, frames)
     assert meshio.read(tmp_path / "frames" / "frame_0002.obj").points.shape[0] == mesh.vertex_count
     m3 = trimesh.load(tmp_path / "frames" / "frame_0003.obj", process=False, maintain_order=True)
     np.testing.assert_allclose(m3.vertices, moved, atol=1e-9)
     assert m3.faces[0, 0] == mesh.vertex_count
-    assert read_vtp(tmp_path / "vtk" / "frame_0004.vtp").n_points == mesh.vertex_count + 1
+    assert read_with_vtk(tmp_path / "vtk" / "frame_0004.vtp").n_points == mesh.vertex_count + 1
     stage = Usd.Stage.Open(str(tmp_path / "scene.usdc"))
     geom = UsdGeom.Mesh(stage.GetDefaultPrim().GetChildren()[0])
     indices = geom.GetFaceVertexIndicesAttr()
@@ -508,16 +600,7 @@ def test_export_the_sample_flag_with_groups_to_every_format(samples_dir: Path, t
     flag = load(samples_dir / "meshes" / "flag.obj")
     frames = frames_of(flag, 3)
     outputs = export(ALL, flag, tmp_path, frames)
-    assert {p.name for ps in outputs.values() for p in ps} >= {
-        "frame_0003.obj",
-        "frame_0003.ply",
-        "cache.pc2",
-        "cache.mdd",
-        "scene.usdc",
-        "scene.pvd",
-        "scene.xdmf",
-        "positions.npz",
-    }
+    assert list(outputs) == ALL and all(paths and all(p.is_file() for p in paths) for paths in outputs.values())
     back = load(tmp_path / "frames" / "frame_0002.obj")
     assert sorted(back.groups) == sorted(flag.groups)
     np.testing.assert_allclose(back.positions, frames[1].positions)
@@ -573,26 +656,23 @@ def test_two_threads_opening_their_first_usd_stages_do_not_deadlock() -> None:
 
 
 def test_each_reader_reads_back_its_own_files_only(mesh: Mesh, tmp_path: Path) -> None:
-    from meshdeform.export.mdd import read_mdd_result
-    from meshdeform.export.npz import read_npz_result
-    from meshdeform.export.pc2 import read_pc2_result
-    from meshdeform.export.sequence import read_frame_files
-    from meshdeform.export.usd import read_usd_result
-    from meshdeform.export.vtk import read_vtk_result
+    """Every kind of files a preview reads (`SOURCES`), written alone: its reader finds the frames and
+    names files that are there, every other reader finds nothing; no reader finds frames in an empty
+    folder nor in one of the formats no preview reads."""
+    from meshdeform.preview.results import SOURCES
 
-    readers = {
-        "frames/*.obj": lambda root: read_frame_files(root, mesh),
-        "positions.npz": lambda root: read_npz_result(root, mesh),
-        "scene.usdc": lambda root: read_usd_result(root, mesh),
-        "vtk/*.vtp": lambda root: read_vtk_result(root, mesh),
-        "cache.pc2": lambda root: read_pc2_result(root, mesh, "y"),
-        "cache.mdd": lambda root: read_mdd_result(root, mesh, "y"),
-    }
-    export(ALL, mesh, tmp_path / "all")
-    (tmp_path / "none").mkdir()
-    for source, read in readers.items():
-        assert read(tmp_path / "none") is None
-        found = read(tmp_path / "all")
-        assert found is not None and found.source == source and found.numbers == list(range(1, FRAMES + 1))
+    unread = [name for name in ALL if not any(name in source.formats for source in SOURCES)]
+    folders = {source: tmp_path / source.formats[0] for source in SOURCES}
+    for source, folder in folders.items():
+        export(list(source.formats), mesh, folder)
+    for folder in (tmp_path / "none", tmp_path / "unread"):
+        folder.mkdir()
+    if unread:
+        export(unread, mesh, tmp_path / "unread")
+    for source, folder in folders.items():
+        found = source.read(folder, mesh, "y")
+        assert found is not None and list(folder.glob(found.source)) and found.numbers == list(range(1, FRAMES + 1))
         assert found.base is mesh  # the input mesh: same vertex count (and polygons for vtk)
         np.testing.assert_allclose(np.asarray(found.frames[FRAMES - 1]), wave(mesh, FRAMES), atol=1e-6)
+        for elsewhere in [*(f for s, f in folders.items() if s is not source), tmp_path / "none", tmp_path / "unread"]:
+            assert source.read(elsewhere, mesh, "y") is None, (source.formats, elsewhere.name)

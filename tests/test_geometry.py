@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from factories import grid_sheet
 from shared_meshes import MESHES, needs_meshes
 
 from meshdeform.geometry import (
@@ -14,7 +15,7 @@ from meshdeform.geometry import (
     polygon_normals,
     vertex_normals,
 )
-from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
+from meshdeform.mesh import Mesh, polygons_to_csr
 
 
 def _mesh(positions, polygons, **kwargs) -> Mesh:
@@ -107,7 +108,7 @@ def test_vertex_normal_counts_a_polygon_once_even_if_it_repeats_the_vertex() -> 
 
 
 def test_flat_grid_corner_normals_are_z() -> None:
-    grid = grid_mesh(6, 5)  # xy plane, counter-clockwise: +z
+    grid = grid_sheet(6, 5)  # xy plane, counter-clockwise: +z
     n = corner_normals(grid)
     assert n.shape == (30, 3)
     assert np.allclose(n, [0, 0, 1])
@@ -117,7 +118,7 @@ def test_flat_grid_corner_normals_are_z() -> None:
 
 
 def test_authored_side_is_kept_when_winding_disagrees() -> None:
-    grid = grid_mesh(4, 4)
+    grid = grid_sheet(4)
     down = np.tile([0.0, 0.0, -1.0], (16, 1))  # authored normals point against the winding
     mesh = Mesh(positions=grid.positions, face_indices=grid.face_indices, face_offsets=grid.face_offsets,
                 normals=down, face_normal_indices=grid.face_indices.copy())  # fmt: skip
@@ -205,7 +206,7 @@ def test_clean_polygons_degenerate_big_polygon() -> None:
 
 
 def test_orientation_is_judged_at_rest_even_through_with_positions_copies() -> None:
-    grid = grid_mesh(4, 4)
+    grid = grid_sheet(4)
     down = np.tile([0.0, 0.0, -1.0], (16, 1))
     mesh = Mesh(positions=grid.positions, face_indices=grid.face_indices, face_offsets=grid.face_offsets,
                 normals=down, face_normal_indices=grid.face_indices.copy())  # fmt: skip

@@ -116,6 +116,18 @@ def slow_assets(tmp_path: Path, count: int, frames: int) -> tuple[Path, Path]:
     return assets, recipe
 
 
+def batch_with_two_jobs_running(
+    tmp_path: Path, count: int, frames: int
+) -> tuple[subprocess.Popen[str], Path, list[int]]:
+    """`meshdeform batch -j 2` over `slow_assets(tmp_path, count, frames)`, once both workers write
+    frames: the batch process, its output folder and its workers' pids."""
+    assets, recipe = slow_assets(tmp_path, count, frames)
+    out = tmp_path / "out"
+    process = meshdeform("batch", assets, "-r", recipe, "-o", out, "-j", 2, "-q")
+    wait_for(lambda: out.is_dir() and stages_writing(out) == 2, "two jobs running", process)
+    return process, out, children(process.pid)
+
+
 def asset_folders(out: Path) -> list[str]:
     return sorted(p.name for p in out.iterdir() if p.is_dir() and not p.name.startswith("."))
 
@@ -124,11 +136,7 @@ def asset_folders(out: Path) -> list[str]:
 def test_batch_interrupted_stops_its_workers_and_leaves_no_staging(tmp_path: Path, signum: signal.Signals) -> None:
     """The signal goes to the batch process alone (as `kill PID` does): it stops its workers,
     removes their staging folders, writes its manifest and says so in one line."""
-    assets, recipe = slow_assets(tmp_path, 3, 100000)
-    out = tmp_path / "out"
-    process = meshdeform("batch", assets, "-r", recipe, "-o", out, "-j", 2, "-q")
-    wait_for(lambda: out.is_dir() and stages_writing(out) == 2, "two jobs running", process)
-    workers = children(process.pid)
+    process, out, workers = batch_with_two_jobs_running(tmp_path, 3, 100000)
     assert len(workers) >= 2
     process.send_signal(signum)
     lines = finish(process)
@@ -170,11 +178,7 @@ def gone(pid: int) -> bool:
 def test_workers_die_with_a_killed_batch_and_never_publish(tmp_path: Path) -> None:
     """kill -9 of the batch process alone: its workers end within seconds, and no asset folder
     appears afterwards, although their jobs would have finished (a job here takes ~1-3 s)."""
-    assets, recipe = slow_assets(tmp_path, 2, 1500)
-    out = tmp_path / "out"
-    process = meshdeform("batch", assets, "-r", recipe, "-o", out, "-j", 2, "-q")
-    wait_for(lambda: out.is_dir() and stages_writing(out) == 2, "two jobs running", process)
-    workers = children(process.pid)
+    process, out, workers = batch_with_two_jobs_running(tmp_path, 2, 1500)
     assert len(workers) == 2
     before = asset_folders(out)
     process.kill()

@@ -10,7 +10,6 @@ run on a folder being written is refused, and a batch does not follow symlinks o
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import subprocess
@@ -21,10 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from factories import write_grid
+from robustness_corpus import snapshot
 from typer.testing import CliRunner
 
-from meshdeform.io.obj import write_obj
-from meshdeform.mesh import grid_mesh
 from pipeline.cli import app
 from pipeline.job import MARKER_NAME, output_lock
 
@@ -35,28 +34,6 @@ OUTSIDE_LINK = "symlink to a path outside the assets folder"
 
 def cli(*args: Any) -> Any:
     return runner.invoke(app, [str(a) for a in args])
-
-
-def snapshot(root: Path) -> dict[str, str]:
-    """Every entry under `root` (symlinks not followed): relative path -> sha256, 'dir' or 'link -> target'."""
-    found: dict[str, str] = {}
-    for here, dirs, files in os.walk(root):
-        for name in dirs + files:
-            path = Path(here) / name
-            key = path.relative_to(root).as_posix()
-            if path.is_symlink():
-                found[key] = f"link -> {os.readlink(path)}"
-            elif path.is_dir():
-                found[key] = "dir"
-            else:
-                found[key] = hashlib.sha256(path.read_bytes()).hexdigest()
-    return found
-
-
-def put_mesh(path: Path, n: int = 4) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_obj(path, grid_mesh(n, n, size=(1.0, 1.0), plane="xz"))
-    return path
 
 
 def put(path: Path, text: str) -> Path:
@@ -84,7 +61,7 @@ def user(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
         "root": tmp_path,
         "home": home,
         "project": project,
-        "mesh": put_mesh(project / "cloth.obj"),
+        "mesh": write_grid(project / "cloth.obj", 4, plane="xz"),
         "notes": put(project / "notes.txt", "my notes\n"),
         "recipe": put(project / "recipes" / "cloth.toml", RECIPE),
         "docs": home / "docs",
@@ -265,7 +242,7 @@ def test_a_second_run_on_a_locked_folder_is_refused_at_once(user: dict[str, Path
 
 
 def test_two_simulate_runs_on_one_folder(user: dict[str, Path]) -> None:
-    big = put_mesh(user["root"] / "big.obj", 30)
+    big = write_grid(user["root"] / "big.obj", 30, plane="xz")
     out = user["root"] / "out"
     command = [sys.executable, "-c", "from pipeline.cli import app; app()", "simulate", str(big), "-o", str(out)]
     first = subprocess.Popen(
@@ -326,10 +303,10 @@ def batch(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
     folder of someone else's meshes the links point at."""
     root = tmp_path
     assets = root / "project" / "assets"
-    put_mesh(assets / "a.obj")
-    put_mesh(assets / "sub" / "b.obj")
-    put_mesh(root / "private" / "secret.obj")
-    put_mesh(root / "private" / "more" / "other.obj")
+    write_grid(assets / "a.obj", 4, plane="xz")
+    write_grid(assets / "sub" / "b.obj", 4, plane="xz")
+    write_grid(root / "private" / "secret.obj", 4, plane="xz")
+    write_grid(root / "private" / "more" / "other.obj", 4, plane="xz")
     (assets / "inner.obj").symlink_to(assets / "a.obj")  # inside: an asset like any other
     (assets / "sub" / "leak.obj").symlink_to(root / "private" / "secret.obj")
     (assets / "private").symlink_to(root / "private", target_is_directory=True)
@@ -405,7 +382,7 @@ def test_batch_asset_folder_holding_a_users_file_fails_alone(batch: dict[str, Pa
     out = batch["root"] / "out"
     assert cli("batch", batch["assets"], "-r", batch["recipe"], "-o", out, "--jobs", 0, "-q").exit_code == 0
     mine = put(out / "a" / "notes.txt", "mine\n")
-    put_mesh(batch["assets"] / "a.obj", 5)  # changed: a.obj must be redone
+    write_grid(batch["assets"] / "a.obj", 5, plane="xz")  # changed: a.obj must be redone
     second = cli("batch", batch["assets"], "-r", batch["recipe"], "-o", out, "--jobs", 0, "-q")
     assert second.exit_code == 1, second.output
     entries = manifest(out)

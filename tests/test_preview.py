@@ -13,9 +13,10 @@ import imageio.v2 as imageio_v2  # noqa: E402
 import imageio.v3 as iio  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from factories import grid_pins, grid_sheet, slit_grid  # noqa: E402
 
 from meshdeform.errors import ExportError  # noqa: E402
-from meshdeform.mesh import Mesh, grid_mesh  # noqa: E402
+from meshdeform.mesh import Mesh  # noqa: E402
 from meshdeform.preview import (  # noqa: E402
     EdgeStrain,
     FrameRenderer,
@@ -36,9 +37,9 @@ def hanging_cloth(n: int = 16, frames: int = FRAMES) -> tuple[Mesh, list[np.ndar
     With u the distance from the top, u -> u + s (2u - u^2) / 2: the vertical stretch is 1 + s
     at the pins and 1 at the bottom. A travelling wave in z makes every frame different.
     """
-    mesh = grid_mesh(n, n)
+    mesh = grid_sheet(n)
     rest = mesh.positions
-    pinned = np.flatnonzero(rest[:, 1] > 1 - 1e-9)
+    pinned = np.flatnonzero(grid_pins(n, n, ["top"]))
     out = []
     for i in range(1, frames + 1):
         s = 0.4 * i / frames
@@ -159,27 +160,14 @@ def test_golden_iso_view_flat(cloth) -> None:
 
 
 def test_torn_edges_are_highlighted() -> None:
-    mesh = grid_mesh(8, 8)
-    # cut the sheet between columns 3 and 4 in the lower half: the right half gets new vertices
-    positions = mesh.positions.copy()
-    cut_rows = np.arange(0, 3)  # the vertex at row 3 stays shared: the tip of the cut
-    copies = cut_rows * 8 + 4
-    faces = mesh.face_indices.reshape(-1, 4).copy()
-    new_index = {int(v): 64 + k for k, v in enumerate(copies)}
-    quad_col = np.tile(np.arange(7), 7)
-    quad_row = np.repeat(np.arange(7), 7)
-    for f in np.flatnonzero((quad_col >= 4) & (quad_row < 3)):
-        faces[f] = [new_index.get(int(v), int(v)) for v in faces[f]]
-    torn = Mesh(
-        positions=np.vstack([positions, positions[copies] + [0.04, 0, 0]]),
-        face_indices=faces.ravel(),
-        face_offsets=mesh.face_offsets,
-    )
+    mesh = grid_sheet(8)
+    # a slit along column 4 through the lowest three rows of quads (the vertex at row 3 is its tip)
+    torn, _ = slit_grid(mesh, 8, column=4, quad_rows=3, shift=(0.04, 0.0, 0.0))
     edges = boundary_edges(torn)
     assert len(edges) == len(boundary_edges(mesh)) + 6  # three cut quad sides on each side
     pos = torn.positions.copy()
     pos[64:, 0] += 0.1
-    pos[:64][positions[:, 0] > 0.5, 0] += 0.1
+    pos[:64][mesh.positions[:, 0] > 0.5, 0] += 0.1
     common = {"size": (320, 240), "view": "front", "color": "flat", "label": False}
     bounds = np.stack([pos.min(axis=0), pos.max(axis=0)])
     images = []
@@ -284,7 +272,7 @@ def test_unknown_background_colour_is_an_export_error(cloth, tmp_path: Path) -> 
 
 
 def test_edge_strain_is_the_largest_stretch_at_each_vertex() -> None:
-    mesh = grid_mesh(3, 2)  # vertices 0 1 2 / 3 4 5
+    mesh = grid_sheet(3, 2)  # vertices 0 1 2 / 3 4 5
     pos = mesh.positions.copy()
     pos[2, 0] += 0.5  # edge 1-2 from 0.5 to 1.0 long: ratio 2
     ratios = EdgeStrain(mesh, mesh.positions)(pos)

@@ -7,12 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import typer
+from factories import command_app, grid_sheet, write_grid
 from typer.testing import CliRunner
 
 from meshdeform.errors import RecipeError
-from meshdeform.io.obj import write_obj
-from meshdeform.mesh import grid_mesh
 from pipeline.build import build_simulation
 from pipeline.commands.check import register
 from pipeline.recipe import (
@@ -109,13 +107,13 @@ def test_full_recipe_parses_into_typed_sections() -> None:
 def test_defaults_and_gravity_following_the_up_axis() -> None:
     r = load_recipe(None)
     assert r.simulation.gravity is None
-    assert build_simulation(r, grid_mesh(3, 3)).scene.gravity == (0.0, -9.81, 0.0)
+    assert build_simulation(r, grid_sheet(3)).scene.gravity == (0.0, -9.81, 0.0)
     assert r.pins == () and r.wind is None and r.output.formats == ("obj",)
     z_up = parse_recipe('[simulation]\nup = "z"\n')
-    assert build_simulation(z_up, grid_mesh(3, 3)).scene.gravity == (0.0, 0.0, -9.81)
+    assert build_simulation(z_up, grid_sheet(3)).scene.gravity == (0.0, 0.0, -9.81)
     assert z_up.up_axis == "z"
     given = parse_recipe('[simulation]\nup = "z"\ngravity = [0, -1, 0]\n')
-    assert build_simulation(given, grid_mesh(3, 3)).scene.gravity == (0.0, -1.0, 0.0)
+    assert build_simulation(given, grid_sheet(3)).scene.gravity == (0.0, -1.0, 0.0)
 
 
 @pytest.mark.parametrize("path", sorted(SAMPLES.glob("*.toml")), ids=lambda p: p.name)
@@ -231,12 +229,12 @@ def test_empty_selection_is_a_build_error_with_key_path_and_line() -> None:
     )
     recipe = parse_recipe(text, "pins.toml")
     with pytest.raises(RecipeError, match=r"^pins\.toml: pins\[1\]\.select \(line 8\): selects no vertex"):
-        build_simulation(recipe, grid_mesh(4, 4))
+        build_simulation(recipe, grid_sheet(4))
     bad_group = parse_recipe("[[pins]]\nselect = { all = [ { indices = [0] }, { group = 'pole' } ] }\n", "g.toml")
     with pytest.raises(
         RecipeError, match=r"^g\.toml: pins\[0\]\.select\.all\[1\]\.group \(line 2\): the mesh has no group"
     ):
-        build_simulation(bad_group, grid_mesh(4, 4))
+        build_simulation(bad_group, grid_sheet(4))
 
 
 def test_merge_deep_merges_tables_and_replaces_arrays() -> None:
@@ -277,7 +275,7 @@ def test_apply_overrides_win_and_add_hard_pins() -> None:
     assert o.output.formats == ("usd",)
     assert len(o.pins) == 3 and o.pins[1].select.indices == (0, 5) and o.pins[2].select.relative
     assert r.simulation.frames == 12  # the original is unchanged
-    built = build_simulation(o, grid_mesh(6, 6))
+    built = build_simulation(o, grid_sheet(6))
     assert built.selections["pins[1].select"] == 2 and built.selections["pins[2].select"] == 6
     with pytest.raises(RecipeError, match=r"^command line: --frames: must be at least 1"):
         apply_overrides(r, frames=0)
@@ -285,7 +283,7 @@ def test_apply_overrides_win_and_add_hard_pins() -> None:
         apply_overrides(r, pins=["box:1,2"])
     far = apply_overrides(r, pins=["indices:99"])
     with pytest.raises(RecipeError, match=r"^command line: --pin 'indices:99': .*out of range"):
-        build_simulation(far, grid_mesh(6, 6))
+        build_simulation(far, grid_sheet(6))
 
 
 def test_recipe_hash_is_stable_and_normalised() -> None:
@@ -304,27 +302,16 @@ def test_recipe_from_data_validates_merged_data() -> None:
         recipe_from_data({"simulation": {"frames": "x"}}, "sidecar")
 
 
-def _app() -> typer.Typer:
-    app = typer.Typer()
-
-    @app.callback()
-    def main() -> None:
-        """test app"""
-
-    register(app)
-    return app
-
-
 def test_check_command_prints_selection_counts_or_one_error_line(tmp_path: Path) -> None:
     runner = CliRunner()
     mesh = tmp_path / "flag.obj"
-    write_obj(mesh, grid_mesh(8, 5, size=(2.0, 1.0)))
+    write_grid(mesh, 8, 5, size=(2.0, 1.0))
     recipe = tmp_path / "r.toml"
     recipe.write_text(
         "[[pins]]\nselect = { box = { min = [0, 0.99, 0], max = [1, 1, 1] }, relative = true }\n"
         "[[tears]]\nselect = { indices = [3, 4, 5] }\nmax_stretch = 1.5\n"
     )
-    result = runner.invoke(_app(), ["check", str(recipe), "--mesh", str(mesh)])
+    result = runner.invoke(command_app(register), ["check", str(recipe), "--mesh", str(mesh)])
     assert result.exit_code == 0, result.output
     assert result.stdout.startswith(f"OK {recipe}")
     assert re.search(r"pins\[0\]\.select\s+8 vertices", result.stdout)
@@ -332,21 +319,21 @@ def test_check_command_prints_selection_counts_or_one_error_line(tmp_path: Path)
 
     bad = tmp_path / "bad.toml"
     bad.write_text("[simulation]\nframes = -1\n")
-    result = runner.invoke(_app(), ["check", str(bad)])
+    result = runner.invoke(command_app(register), ["check", str(bad)])
     assert result.exit_code == 2
     assert result.stdout == ""
     assert result.stderr.strip() == f"error: {bad}: simulation.frames (line 2): must be at least 1, got -1"
 
     empty = tmp_path / "empty.toml"
     empty.write_text("[[pins]]\nselect = { sphere = { center = [9, 9, 9], radius = 0.1 } }\n")
-    result = runner.invoke(_app(), ["check", str(empty), "--mesh", str(mesh)])
+    result = runner.invoke(command_app(register), ["check", str(empty), "--mesh", str(mesh)])
     assert result.exit_code == 2
     assert "pins[0].select (line 2): selects no vertex of flag.obj (40 vertices)" in result.stderr
 
 
 def test_build_maps_recipe_onto_model_scene_and_settings() -> None:
     r = parse_recipe(FULL, "full.toml")
-    built = build_simulation(r, grid_mesh(6, 6))
+    built = build_simulation(r, grid_sheet(6))
     assert built.settings.solver == "verlet" and built.settings.substeps == 4 and built.settings.fps == 30.0
     options = built.settings.options  # the verlet solver's own options
     assert type(options).__name__ == "VerletOptions" and options.iterations == 5 and options.tethers == 1.05
@@ -414,7 +401,7 @@ def test_recipes_pickle_for_worker_processes() -> None:
     assert copy.label == "full.toml" and copy.line_of(("pins", 0, "select")) == 23
     assert copy.simulation.solver_options() == r.simulation.solver_options()
     with pytest.raises(RecipeError, match=r"^command line: --pin 'indices:30': .*out of range"):
-        build_simulation(copy, grid_mesh(3, 3))
+        build_simulation(copy, grid_sheet(3))
 
 
 @pytest.mark.parametrize(
@@ -551,10 +538,10 @@ def test_switching_solver_on_the_command_line_names_the_option_for_a_foreign_fla
 
 def test_tearing_runs_without_the_solvers_tethers_unless_the_table_asks_for_them() -> None:
     tears = "[[tears]]\nmax_stretch = 1.5\n"
-    default = build_simulation(parse_recipe(tears), grid_mesh(4, 4)).settings.options
-    asked = build_simulation(parse_recipe("[simulation.xpbd]\ntethers = 1.2\n" + tears), grid_mesh(4, 4))
+    default = build_simulation(parse_recipe(tears), grid_sheet(4)).settings.options
+    asked = build_simulation(parse_recipe("[simulation.xpbd]\ntethers = 1.2\n" + tears), grid_sheet(4))
     assert default.tethers is None and asked.settings.options.tethers == 1.2
-    assert build_simulation(parse_recipe(""), grid_mesh(4, 4)).settings.options.tethers == 1.0
+    assert build_simulation(parse_recipe(""), grid_sheet(4)).settings.options.tethers == 1.0
 
 
 def test_the_deprecation_line_goes_to_stderr_once_and_into_the_batch_log(tmp_path: Path) -> None:
@@ -563,8 +550,8 @@ def test_the_deprecation_line_goes_to_stderr_once_and_into_the_batch_log(tmp_pat
 
     assets = tmp_path / "assets"
     assets.mkdir()
-    write_obj(assets / "a.obj", grid_mesh(3, 3))
-    write_obj(assets / "b.obj", grid_mesh(3, 3))
+    write_grid(assets / "a.obj", 3)
+    write_grid(assets / "b.obj", 3)
     recipe = tmp_path / "flat.toml"
     recipe.write_text(FLAT + "frames = 2\n[[assets]]\nglob = 'a.obj'\nmaterial = { density = 0.3 }\n")
     expected = parse_recipe(recipe.read_text(), str(recipe)).deprecation

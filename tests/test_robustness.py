@@ -31,6 +31,14 @@ def test_sample_spans_every_category() -> None:
     assert {case.category for case in CASES} == set(corpus.CATEGORIES)
 
 
+def test_corpus_draws_every_registered_solver_and_only_registered_formats() -> None:
+    from meshdeform.export import EXPORTERS
+    from meshdeform.solvers import SOLVERS
+
+    assert set(corpus.SOLVERS) == set(SOLVERS)
+    assert set(corpus.RECIPE_FORMATS) <= set(EXPORTERS)
+
+
 def test_corpus_is_deterministic() -> None:
     again = corpus.generate(len(CASES), SEED, weighted=False)
     assert [(c.argv, c.files, c.links) for c in again] == [(c.argv, c.files, c.links) for c in CASES]

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+from factories import grid_cloth
 
-from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene import (
     Box,
@@ -23,7 +23,7 @@ from meshdeform.scene import (
 
 
 def test_every_item_with_per_vertex_data_is_remappable_and_listed_once() -> None:
-    model = SpringModel.from_mesh(grid_mesh(4, 4))
+    model = grid_cloth(4).model
     plastic = Plasticity(model, stiffness=10.0, yield_distance=0.01, rate=1.0)
     wind = Wind((1.0, 0.0, 0.0))
     impact = Impact(time=0.0, radius=0.5, strength=1.0, duration=0.1, point=(0, 0, 1))

@@ -6,9 +6,9 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from factories import grid_sheet
 
 from meshdeform.errors import SelectionError
-from meshdeform.mesh import grid_mesh
 from meshdeform.selection import (
     AllOf,
     AnyOf,
@@ -27,7 +27,7 @@ from meshdeform.selection import (
 @pytest.fixture
 def grid():
     """11 x 6 vertices over 2 x 1 m in the XY plane: vertex (i, j) at (0.2 i, 0.2 j, 0)."""
-    mesh = grid_mesh(11, 6, size=(2.0, 1.0))
+    mesh = grid_sheet(11, 6, size=(2.0, 1.0))
     faces_left = np.flatnonzero(np.arange(mesh.face_count) % 10 < 2)  # first two columns of quads
     weight = mesh.positions[:, 1].copy()  # 0 at the bottom, 1 at the top
     color = np.stack([mesh.positions[:, 0] / 2.0, 1.0 - mesh.positions[:, 0] / 2.0, np.zeros(66)], axis=1)
@@ -117,7 +117,7 @@ def test_flat_axes_use_the_largest_extent() -> None:
 def test_selection_of_a_large_mesh_is_vectorised() -> None:
     import time
 
-    mesh = grid_mesh(400, 400)
+    mesh = grid_sheet(400)
     start = time.perf_counter()
     mask = resolve(AllOf((Sphere((0.5, 0.5, 0), 0.3, relative=True), Not(Box((0, 0, 0), (0.5, 1, 1))))), mesh)
     assert time.perf_counter() - start < 1.0

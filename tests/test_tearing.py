@@ -15,13 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from factories import grid_cloth, grid_pins, grid_sheet
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from meshdeform.errors import RecipeError
+from meshdeform.export import EXPORTERS
 from meshdeform.io import load
-from meshdeform.mesh import grid_mesh
-from meshdeform.model import SpringModel, State
+from meshdeform.model import State
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers import solver_class
 from meshdeform.tearing import Cut, Tearer, TearRegion, TearSettings, split_vertices
@@ -238,12 +239,12 @@ def test_tearing_is_deterministic_bit_for_bit(pulled: Path, tmp_path: Path) -> N
 
 
 # ---------------------------------------------------------------------------------------------
-# point caches
+# formats that need a fixed topology (point caches, xdmf, npz)
 # ---------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("fmt", ["pc2", "mdd"])
-def test_point_caches_are_refused_on_a_tearing_recipe_before_anything_runs(tmp_path: Path, fmt: str) -> None:
+@pytest.mark.parametrize("fmt", [name for name, cls in EXPORTERS.items() if not cls.supports_topology_change])
+def test_fixed_topology_formats_are_refused_on_a_tearing_recipe_before_anything_runs(tmp_path: Path, fmt: str) -> None:
     from typer.testing import CliRunner
 
     from pipeline.cli import app
@@ -273,12 +274,6 @@ def test_point_cache_in_the_recipe_file_is_named_with_its_line(tmp_path: Path) -
 # ---------------------------------------------------------------------------------------------
 
 
-def hanging_grid(n: int = 12):
-    mesh = grid_mesh(n, n)
-    top = mesh.positions[:, 1] > 1 - 1e-9
-    return mesh, SpringModel.from_mesh(mesh, pinned_input=top)
-
-
 def run(model, scene, frames=12, substeps=8, solver="xpbd"):
     options = solver_class(solver).options_class(tethers=None)
     settings = Settings(solver=solver, frames=frames, substeps=substeps, options=options)
@@ -286,7 +281,7 @@ def run(model, scene, frames=12, substeps=8, solver="xpbd"):
 
 
 def test_split_vertices_groups_corners_by_side_and_appends_copies() -> None:
-    mesh = grid_mesh(3, 3)  # 4 quads around vertex 4
+    mesh = grid_sheet(3)  # 4 quads around vertex 4
     cv = mesh.face_indices.copy()
     centroid_x = np.repeat(mesh.positions[mesh.face_indices, 0].reshape(-1, 4).mean(axis=1), 4)
     side = (centroid_x > 0.5).astype(np.int8)
@@ -301,7 +296,7 @@ def test_split_vertices_groups_corners_by_side_and_appends_copies() -> None:
 
 
 def test_plane_cut_separates_a_hanging_sheet_and_the_piece_falls() -> None:
-    mesh, model = hanging_grid()
+    mesh, model, _ = grid_cloth(12, pins=("top",))
     cut = Cut.plane(0.1, point=[0, 0.45, 0], normal=[0, 1, 0])
     tearer = Tearer(mesh, model, None, [cut])
     frames = run(model, Scene(gravity=(0, -9.81, 0), tearing=tearer))
@@ -321,7 +316,7 @@ def test_plane_cut_separates_a_hanging_sheet_and_the_piece_falls() -> None:
 
 
 def test_polyline_cut_opens_a_slit_only_where_the_polyline_runs() -> None:
-    mesh, model = hanging_grid(13)
+    mesh, model, _ = grid_cloth(13, pins=("top",))
     # a short slit across the middle, seen along z: it does not reach the sides
     cut = Cut.polyline(0.05, [[0.3, 0.5, 0], [0.7, 0.5, 0]], direction=[0, 0, 1])
     tearer = Tearer(mesh, model, None, [cut])
@@ -337,7 +332,7 @@ def test_polyline_cut_opens_a_slit_only_where_the_polyline_runs() -> None:
 def test_a_cut_through_animated_pins_keeps_both_copies_on_their_target() -> None:
     from meshdeform.scene.pins import HardPinMotion, Keyframe, Keyframes
 
-    mesh, model = hanging_grid(11)
+    mesh, model, _ = grid_cloth(11, pins=("top",))
     top = np.flatnonzero(model.pinned)
     keys = Keyframes([Keyframe(0.0, (0, 0, 0)), Keyframe(0.5, (0.2, 0, 0))], (0, 0, 0))
     tearer = Tearer(mesh, model, None, [Cut.plane(0.05, point=[0.5, 0, 0], normal=[1, 0, 0])])
@@ -354,9 +349,7 @@ def test_a_cut_through_animated_pins_keeps_both_copies_on_their_target() -> None
 def test_a_torn_off_piece_falls_onto_a_collider() -> None:
     from meshdeform.scene.colliders import Collider, Plane
 
-    mesh = grid_mesh(10, 10, plane="xz")
-    mesh = mesh.with_positions(mesh.positions + [0, 0.3, 0])
-    model = SpringModel.from_mesh(mesh, pinned_input=mesh.positions[:, 0] < 1e-9)
+    mesh, model, _ = grid_cloth(10, plane="xz", offset=(0.0, 0.3, 0.0), pins=("left",))
     tearer = Tearer(mesh, model, None, [Cut.plane(0.02, point=[0.5, 0, 0], normal=[1, 0, 0])])
     ground = Collider(Plane([0, 0, 0], [0, 1, 0]), friction=0.5, thickness=0.01)
     frames = run(model, Scene(constraints=[ground], tearing=tearer), frames=30)
@@ -368,10 +361,9 @@ def test_a_torn_off_piece_falls_onto_a_collider() -> None:
 
 
 def test_non_tearable_springs_all_survive_and_tearing_is_repeatable() -> None:
-    mesh = grid_mesh(16, 16)
+    mesh, model, _ = grid_cloth(16, pins=("left", "right"))
+    left, right = grid_pins(16, 16, ["left"]), grid_pins(16, 16, ["right"])
     x = mesh.positions[:, 0]
-    left, right = x < 1e-9, x > 1 - 1e-9
-    model = SpringModel.from_mesh(mesh, pinned_input=left | right)
     band = (x > 0.3) & (x < 0.7)
 
     def scene() -> tuple[Scene, Tearer]:
@@ -422,8 +414,7 @@ def test_non_tearable_springs_all_survive_and_tearing_is_repeatable() -> None:
 
 
 def test_averaging_keeps_a_one_substep_spike_from_tearing() -> None:
-    mesh = grid_mesh(4, 4)
-    model = SpringModel.from_mesh(mesh)
+    mesh, model, _ = grid_cloth(4)
 
     def spike(average: int) -> int:
         settings = TearSettings.from_regions(model, [TearRegion(max_stretch=1.5, average=average)])
@@ -474,7 +465,7 @@ def test_tear_and_cut_recipe_keys_are_validated() -> None:
 def test_build_makes_the_tearer_and_checks_selections() -> None:
     from pipeline.build import build_simulation
 
-    mesh = grid_mesh(6, 6)
+    mesh = grid_sheet(6)
     built = build_simulation(parse_recipe("[[tears]]\nmax_stretch = 1.4\n"), mesh)
     assert built.scene.tearing is not None and built.scene.tearing.settings.tearable.all()
     assert built.settings.options.tethers is None  # off by default when tearing

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from factories import grid_sheet
 
-from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
+from meshdeform.mesh import Mesh, polygons_to_csr
 from meshdeform.topology import (
     SpringKind,
     boundary_edge_count,
@@ -28,12 +29,12 @@ def expected_grid_counts(n: int, m: int) -> dict[str, int]:
 
 @pytest.mark.parametrize(("n", "m"), [(2, 2), (2, 5), (3, 3), (7, 4), (17, 11), (64, 64)])
 def test_quad_grid_spring_counts_match_formulas(n: int, m: int) -> None:
-    _, springs = build_springs(grid_mesh(n, m))
+    _, springs = build_springs(grid_sheet(n, m))
     assert springs.counts() == expected_grid_counts(n, m)
 
 
 def test_springs_are_unique_and_never_self_loops() -> None:
-    _, springs = build_springs(grid_mesh(9, 6))
+    _, springs = build_springs(grid_sheet(9, 6))
     pairs = springs.pairs
     assert (pairs[:, 0] < pairs[:, 1]).all()
     keys = pairs[:, 0].astype(np.int64) * 1000 + pairs[:, 1]
@@ -43,7 +44,7 @@ def test_springs_are_unique_and_never_self_loops() -> None:
 def test_grid_spring_geometry_by_kind() -> None:
     """Structural springs are grid edges, shear the quad diagonals, bending span two edges in a line."""
     n, m = 6, 5
-    mesh = grid_mesh(n, m, size=(n - 1.0, m - 1.0))  # unit spacing
+    mesh = grid_sheet(n, m, size=(n - 1.0, m - 1.0))  # unit spacing
     welding, springs = build_springs(mesh)
     p = mesh.positions[welding.representative]
     length = np.linalg.norm(p[springs.pairs[:, 1]] - p[springs.pairs[:, 0]], axis=1)
@@ -55,7 +56,7 @@ def test_grid_spring_geometry_by_kind() -> None:
 def test_curved_grid_keeps_bending_springs() -> None:
     """A grid rolled into a half cylinder still has its straightest continuations."""
     n, m = 24, 6
-    mesh = grid_mesh(n, m)
+    mesh = grid_sheet(n, m)
     angle = mesh.positions[:, 0] * np.pi
     curved = np.stack([np.cos(angle), mesh.positions[:, 1], np.sin(angle)], axis=1)
     _, springs = build_springs(mesh.with_positions(curved))
@@ -65,7 +66,7 @@ def test_curved_grid_keeps_bending_springs() -> None:
 def test_uv_seam_copies_share_springs() -> None:
     """Splitting a grid's middle column into two copies (a UV seam) changes no spring."""
     n, m = 6, 4
-    mesh = grid_mesh(n, m)
+    mesh = grid_sheet(n, m)
     seam_col = 3
     copies = np.arange(m) * n + seam_col
     new_index = mesh.vertex_count + np.arange(m)
@@ -95,11 +96,7 @@ def test_weld_keeps_first_seen_order_and_treats_negative_zero_as_zero() -> None:
 
 def test_triangulated_grid_shear_pairs_cross_every_interior_edge() -> None:
     n, m = 8, 5
-    quads = grid_mesh(n, m)
-    q = quads.face_indices.reshape(-1, 4)
-    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
-    flat, offsets = polygons_to_csr(list(tris))
-    mesh = Mesh(positions=quads.positions, face_indices=flat, face_offsets=offsets)
+    mesh = grid_sheet(n, m, triangles=True, uvs=False)
     _, springs = build_springs(mesh)
     edges = n * (m - 1) + m * (n - 1) + (n - 1) * (m - 1)
     boundary = 2 * (n - 1) + 2 * (m - 1)
@@ -153,7 +150,7 @@ def test_topology_stats_on_cube_with_extra_triangle() -> None:
 
 
 def test_two_pieces_are_counted() -> None:
-    a = grid_mesh(3, 3)
+    a = grid_sheet(3)
     shifted = a.positions + [5.0, 0, 0]
     positions = np.concatenate([a.positions, shifted])
     faces = np.concatenate([a.face_indices, a.face_indices + a.vertex_count])
@@ -166,7 +163,7 @@ def test_two_pieces_are_counted() -> None:
 def test_edge_incidence_boundary_and_closed_surfaces() -> None:
     """A grid's boundary is its outline; a tetrahedron is closed; opening a face opens three edges."""
     n, m = 5, 4
-    mesh = grid_mesh(n, m)
+    mesh = grid_sheet(n, m)
     edges = boundary_edges(mesh.face_indices, mesh.face_indices[mesh.corner_next], mesh.vertex_count)
     assert edges.shape == (2 * (n - 1) + 2 * (m - 1), 2)
     assert (edges[:, 0] < edges[:, 1]).all()

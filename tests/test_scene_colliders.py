@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from factories import grid_cloth, grid_sheet
 
-from meshdeform.mesh import grid_mesh
-from meshdeform.model import SpringModel, State
+from meshdeform.model import State
 from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Sphere, TriangleMesh, closest_points_on_triangles
 from meshdeform.scene.pins import Keyframe, Keyframes
 from meshdeform.simulate import Scene, Settings, simulate
@@ -16,12 +16,6 @@ from pipeline.build import build_simulation
 from pipeline.recipe import parse_recipe
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
-
-
-def sheet(n: int = 12, size: float = 1.0, height: float = 1.0):
-    """An n x n cloth in the XZ plane, centred over the origin at `height`."""
-    mesh = grid_mesh(n, n, size=(size, size), plane="xz")
-    return mesh.with_positions(mesh.positions + [-size / 2, height, -size / 2])
 
 
 def test_primitive_signed_distances_and_normals() -> None:
@@ -80,7 +74,8 @@ friction = 0.5
 
 def test_cloth_dropped_on_a_sphere_and_the_ground_never_gets_inside() -> None:
     thickness = 0.02
-    built = build_simulation(parse_recipe(DROP.format(thickness=thickness)), sheet(14, 1.4, 1.0))
+    sheet = grid_sheet(14, size=1.4, plane="xz", centred=True, offset=(0.0, 1.0, 0.0))  # 1 m above the floor
+    built = build_simulation(parse_recipe(DROP.format(thickness=thickness)), sheet)
     lowest = []
     for frame in simulate(built.model, built.scene, built.settings):
         p = frame.positions
@@ -102,7 +97,8 @@ def test_cloth_on_a_triangle_mesh_collider_stays_outside(tmp_path) -> None:
     recipe_path.write_text(text)
     from pipeline.recipe import load_recipe
 
-    built = build_simulation(load_recipe(recipe_path), sheet(10, 1.4, 1.0))
+    sheet = grid_sheet(10, size=1.4, plane="xz", centred=True, offset=(0.0, 1.0, 0.0))
+    built = build_simulation(load_recipe(recipe_path), sheet)
     shape = built.scene.constraints[0].shape
     for frame in simulate(built.model, built.scene, built.settings):
         d, _ = shape.query(frame.positions)
@@ -110,7 +106,7 @@ def test_cloth_on_a_triangle_mesh_collider_stays_outside(tmp_path) -> None:
 
 
 def single_vertex_state(prev, now):
-    model = SpringModel.from_mesh(grid_mesh(2, 2))
+    model = grid_cloth(2).model
     state = State.at_rest(model)
     state.previous[:] = prev
     state.positions[:] = now
@@ -128,7 +124,7 @@ def test_fast_vertex_does_not_tunnel_through_a_thin_box() -> None:
 
 
 def test_thin_open_mesh_keeps_each_vertex_on_its_side() -> None:
-    sheet_mesh = grid_mesh(5, 5, size=(2, 2), plane="xz")
+    sheet_mesh = grid_sheet(5, size=2.0, plane="xz")
     shape = TriangleMesh(sheet_mesh.positions - [1, 0, 1], sheet_mesh.triangles)
     assert not shape.solid
     floor = Collider(shape, friction=0.0, thickness=0.01)
@@ -144,7 +140,7 @@ def test_thin_open_mesh_keeps_each_vertex_on_its_side() -> None:
 def test_friction_slows_sliding() -> None:
     speeds = []
     for friction in (0.0, 0.5):
-        model = SpringModel.from_mesh(grid_mesh(2, 2, plane="xz"))
+        model = grid_cloth(2, plane="xz").model
         state = State.at_rest(model)
         state.velocities[:] = (1.0, 0.0, 0.0)
         state.previous[:] = state.positions - state.velocities * 0.01
@@ -158,7 +154,7 @@ def test_friction_slows_sliding() -> None:
 
 
 def test_animated_collider_pushes_cloth_and_nothing_gets_inside() -> None:
-    model = SpringModel.from_mesh(sheet(10, 1.0, 0.3))
+    model = grid_cloth(10, plane="xz", centred=True, offset=(0.0, 0.3, 0.0)).model
     keys = Keyframes([Keyframe(0.0, translate=(0, 0, 0)), Keyframe(0.5, translate=(0, 0.6, 0))], pivot=(0, 0, 0))
     ball = Collider(Sphere((0, 0, 0), 0.25), friction=0.5, thickness=0.01, keys=keys)
     scene = Scene(gravity=(0, -9.81, 0), constraints=[ball])
@@ -174,8 +170,7 @@ def test_animated_collider_pushes_cloth_and_nothing_gets_inside() -> None:
 def test_static_ground_handles_a_vertex_that_crossed_it_within_a_substep() -> None:
     """A vertex that starts the substep below a static ground and ends above it is still swept-tested
     (the plane's normals must be a writable per-vertex array, not a broadcast view)."""
-    mesh = sheet(n=2, size=1.0, height=0.0)
-    model = SpringModel.from_mesh(mesh)
+    model = grid_cloth(2, plane="xz", centred=True).model
     state = State.at_rest(model)
     state.previous[:] = state.positions
     state.previous[:, 1] = -0.5

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from factories import grid_cloth, grid_sheet
 
 from meshdeform.errors import RecipeError
 from meshdeform.material import KindMaterial, Material
-from meshdeform.mesh import Mesh, grid_mesh, polygons_to_csr
+from meshdeform.mesh import Mesh, polygons_to_csr
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.effects import NearestPinTethers, Plasticity, Pressure, enclosed_volume
 from meshdeform.simulate import simulate
@@ -76,11 +77,11 @@ def test_pressure_keeps_a_ball_dropped_on_the_ground_near_its_volume() -> None:
 def test_pressure_needs_a_closed_mesh() -> None:
     recipe = parse_recipe("[material.pressure]\nstiffness = 10\n", "p.toml")
     with pytest.raises(RecipeError, match=r"^p\.toml: material\.pressure \(line 1\): pressure needs a closed mesh"):
-        build_simulation(recipe, grid_mesh(4, 4))
+        build_simulation(recipe, grid_sheet(4))
 
 
 def test_plastic_rest_copy_creeps_only_past_the_yield_distance() -> None:
-    model = SpringModel.from_mesh(grid_mesh(3, 3))
+    model = grid_cloth(3).model
     effect = Plasticity(model, stiffness=100.0, yield_distance=0.1, rate=1e6)
     state = State.at_rest(model)
     state.positions[0] += [0.0, 0.0, 0.05]  # elastic
@@ -118,7 +119,7 @@ falloff = "smooth"
 
 
 def test_impacts_leave_dents_with_plasticity_and_none_without() -> None:
-    mesh = grid_mesh(9, 9)
+    mesh = grid_sheet(9)
     centre = 40
     dents = []
     for rate in (20.0, 0.0):
@@ -131,7 +132,7 @@ def test_impacts_leave_dents_with_plasticity_and_none_without() -> None:
 
 
 def test_tethers_limit_distance_from_the_pins() -> None:
-    mesh = grid_mesh(8, 12, size=(0.7, 1.1))
+    mesh = grid_sheet(8, 12, size=(0.7, 1.1))
     text = """
 [simulation]
 solver = "verlet"
@@ -160,10 +161,8 @@ select = {{ box = {{ min = [0, 0.99, 0], max = [1, 1, 1] }}, relative = true }}
 
 
 def test_tether_anchor_is_the_nearest_pin_along_the_mesh() -> None:
-    model = SpringModel.from_mesh(
-        grid_mesh(5, 2, size=(4.0, 1.0)),
-        Material(shear=KindMaterial(enabled=False), bending=KindMaterial(enabled=False)),
-    )
+    material = Material(shear=KindMaterial(enabled=False), bending=KindMaterial(enabled=False))
+    model = grid_cloth(5, 2, size=(4.0, 1.0), material=material).model
     tethers = NearestPinTethers(model, np.array([0, 4]), max_stretch=1.5)
     anchor = dict(zip(tethers.vertices.tolist(), tethers.anchor.tolist(), strict=True))
     assert anchor[1] == 0 and anchor[3] == 4 and anchor[6] == 0 and anchor[8] == 4

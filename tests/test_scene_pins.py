@@ -6,8 +6,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from factories import grid_sheet
 
-from meshdeform.mesh import grid_mesh
 from meshdeform.scene.pins import SOFT_PIN_RATE, Keyframe, Keyframes, SoftPins
 from meshdeform.simulate import simulate
 from pipeline.build import build_simulation
@@ -59,10 +59,10 @@ animate = [
 
 
 def test_hard_pins_follow_their_animation_exactly() -> None:
-    built = build_simulation(parse_recipe(SWING), grid_mesh(6, 5))
+    built = build_simulation(parse_recipe(SWING), grid_sheet(6, 5))
     pinned = built.model.pinned_input_mask()
     assert pinned.sum() == 6
-    rest = grid_mesh(6, 5).positions[pinned]
+    rest = grid_sheet(6, 5).positions[pinned]
     for frame in simulate(built.model, built.scene, built.settings):
         t = frame.time
         shift = 0.4 * min(t / 0.5, 1.0)
@@ -89,17 +89,17 @@ damping = 0.5
 
 
 def test_soft_pin_sags_g_over_k_below_its_target() -> None:
-    built = build_simulation(parse_recipe(SOFT.format(stiffness=0.5, animate="")), grid_mesh(5, 5))
+    built = build_simulation(parse_recipe(SOFT.format(stiffness=0.5, animate="")), grid_sheet(5))
     assert not built.model.pinned.any() and isinstance(built.scene.constraints[0], SoftPins)
     frames = list(simulate(built.model, built.scene, built.settings))
-    sag = grid_mesh(5, 5).positions[:, 1] - frames[-1].positions[:, 1]
+    sag = grid_sheet(5).positions[:, 1] - frames[-1].positions[:, 1]
     k = SOFT_PIN_RATE * 0.5 / (1 - 0.5)
     np.testing.assert_allclose(sag, 9.81 / k, rtol=0.05)
 
 
 def test_soft_pin_follows_its_animated_target_within_the_expected_distance() -> None:
     animate = "animate = [ { time = 0.0 }, { time = 1.0, translate = [0.5, 0, 0] }, { time = 2.0 } ]"
-    built = build_simulation(parse_recipe(SOFT.format(stiffness=0.9, animate=animate)), grid_mesh(5, 5))
+    built = build_simulation(parse_recipe(SOFT.format(stiffness=0.9, animate=animate)), grid_sheet(5))
     pin = built.scene.constraints[0]
     k = SOFT_PIN_RATE * 0.9 / (1 - 0.9)
     worst = 0.0
@@ -112,7 +112,7 @@ def test_soft_pin_follows_its_animated_target_within_the_expected_distance() -> 
 
 
 def test_pin_weights_from_a_vertex_property_scale_the_stiffness() -> None:
-    mesh = grid_mesh(4, 4)
+    mesh = grid_sheet(4)
     weight = np.zeros(16)
     weight[[0, 1]] = 1.0  # hard
     weight[[2, 3]] = 0.5  # soft

@@ -1,4 +1,5 @@
-"""`meshdeform preview RESULT_DIR` and reading a result folder's frames back (OBJ, PLY, npz, USD)."""
+"""Previews of a result folder: `meshdeform preview RESULT_DIR`, each kind of folder's frames read back
+(meshdeform.preview.results), and a run's previews from its frames in memory (meshdeform.preview.live)."""
 
 from __future__ import annotations
 
@@ -13,13 +14,15 @@ import imageio.v3 as iio  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import typer  # noqa: E402
+from factories import command_app, grid_cloth, grid_pins, grid_sheet, slit_grid  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
 from meshdeform.errors import MeshLoadError  # noqa: E402
-from meshdeform.export import ExportContext, ExportSession, FrameData  # noqa: E402
+from meshdeform.export import UP_AXES, ExportContext, ExportSession, FrameData  # noqa: E402
 from meshdeform.io import save  # noqa: E402
-from meshdeform.mesh import Mesh, grid_mesh  # noqa: E402
+from meshdeform.mesh import Mesh  # noqa: E402
 from meshdeform.preview import open_result, render_result_previews  # noqa: E402
+from meshdeform.preview.results import SOURCES  # noqa: E402
 from pipeline.commands.preview import parse_frames, parse_size, register  # noqa: E402
 
 FRAMES = 8
@@ -34,11 +37,11 @@ def motion(mesh: Mesh, i: int) -> np.ndarray:
 
 def make_result(folder: Path, formats: list[str], report: bool = True, up_axis: str = "y") -> Mesh:
     """A result folder as a run writes it: exported frames plus report.json naming the input."""
-    mesh = grid_mesh(10, 10)
+    mesh = grid_sheet(10)
     folder.mkdir(parents=True, exist_ok=True)
     input_path = folder.parent / "input.obj"
     save(input_path, mesh)
-    pinned = (mesh.positions[:, 1] > 0.99).astype(np.uint8)
+    pinned = grid_pins(10, 10, ["top"]).astype(np.uint8)
     ctx = ExportContext(mesh=mesh, out_dir=folder, fps=12.0, frame_count=FRAMES, up_axis=up_axis)
     with ExportSession(formats, ctx) as session:
         for i in range(1, FRAMES + 1):
@@ -50,14 +53,7 @@ def make_result(folder: Path, formats: list[str], report: bool = True, up_axis: 
 
 @pytest.fixture
 def app() -> typer.Typer:
-    app = typer.Typer()
-
-    @app.callback()
-    def main() -> None:
-        """Test app."""
-
-    register(app)
-    return app
+    return command_app(register)
 
 
 def test_preview_command_renders_pngs_sheet_and_gif(app: typer.Typer, tmp_path: Path) -> None:
@@ -97,12 +93,12 @@ def test_parsers() -> None:
 
 @pytest.mark.parametrize(
     ("formats", "up_axis"),
-    [(["ply"], "y"), (["npz"], "y"), (["usd"], "z"), (["vtk"], "y"), (["pc2"], "y"), (["pc2"], "z"), (["mdd"], "z")],
+    [pytest.param([name], up, id=f"{name}-{up}") for source in SOURCES for name in source.formats for up in UP_AXES],
 )
 def test_open_result_reads_each_kind_of_folder(tmp_path: Path, formats: list[str], up_axis: str) -> None:
     mesh = make_result(tmp_path / "r", formats, up_axis=up_axis)
     seq = open_result(tmp_path / "r")
-    assert seq.source.split(".")[-1].strip("*/") in {"ply", "npz", "usdc", "vtp", "pc2", "mdd"}
+    assert list((tmp_path / "r").glob(seq.source))  # it names the files it read
     assert seq.frame_numbers == list(range(1, FRAMES + 1))
     assert seq.fps == 12.0
     assert seq.mesh.face_count == mesh.face_count
@@ -116,7 +112,7 @@ def test_open_result_reads_each_kind_of_folder(tmp_path: Path, formats: list[str
 def test_open_result_without_report_uses_the_first_frame_as_rest(tmp_path: Path) -> None:
     make_result(tmp_path / "r", ["obj"], report=False)
     seq = open_result(tmp_path / "r")
-    np.testing.assert_allclose(seq.rest_positions, motion(grid_mesh(10, 10), 1))
+    np.testing.assert_allclose(seq.rest_positions, motion(grid_sheet(10), 1))
     with pytest.raises(MeshLoadError, match="no frames found"):
         open_result(tmp_path)  # the parent holds only input.obj
 
@@ -155,23 +151,11 @@ def test_preview_never_replaces_a_preview_file_meshdeform_did_not_write(app: typ
 # a run's previews from its frames in memory: the same bytes as from its files read back
 
 
-def torn_copy(mesh: Mesh) -> tuple[Mesh, np.ndarray]:
-    """The 10 x 10 grid cut between columns 4 and 5 over its lowest three rows of quads: the right side
-    of the cut gets copies of four vertices (appended). Returns the torn mesh and the copied vertices."""
-    copies = np.arange(4) * 10 + 5
-    new_index = {int(v): 100 + k for k, v in enumerate(copies)}
-    faces = mesh.face_indices.reshape(-1, 4).copy()
-    quad_col, quad_row = np.tile(np.arange(9), 9), np.repeat(np.arange(9), 9)
-    for f in np.flatnonzero((quad_col >= 5) & (quad_row < 3)):
-        faces[f] = [new_index.get(int(v), int(v)) for v in faces[f]]
-    positions = np.vstack([mesh.positions, mesh.positions[copies]])
-    return Mesh(positions=positions, face_indices=faces.ravel(), face_offsets=mesh.face_offsets), copies
-
-
 def run_frames(mesh: Mesh, tear_at: int | None) -> list[FrameData]:
     """Frames as a run hands them to its exporters; from `tear_at` on the cloth is torn (the copies
-    drift apart), the torn mesh given with that frame only."""
-    torn, copies = torn_copy(mesh)
+    drift apart), the torn mesh given with that frame only. The tear: the 10 x 10 grid cut along
+    column 5 over its lowest three rows of quads, four vertices copied (the tip's too)."""
+    torn, copies = slit_grid(mesh, 10, column=5, quad_rows=3, open_tip=True)
     out = []
     for i in range(1, FRAMES + 1):
         pos = motion(mesh, i)
@@ -217,11 +201,9 @@ def test_a_runs_previews_from_memory_are_those_read_back_from_its_files(
 ) -> None:
     """`RunPreview` (what run_job renders) gives the same files, byte for byte, and the same errors as
     rendering the folder the run wrote, read back, before its report.json exists (what run_job did)."""
-    from meshdeform.model import SpringModel
     from meshdeform.preview.live import RunPreview
 
-    mesh = grid_mesh(10, 10)
-    model = SpringModel.from_mesh(mesh, pinned_input=mesh.positions[:, 1] > 0.99)
+    mesh, model, _ = grid_cloth(10, pins=("top",))
     ctx = ExportContext(mesh=mesh, out_dir=tmp_path / "run", fps=12.0, frame_count=FRAMES, up_axis=up_axis)
     live = RunPreview(options, ctx, formats, model)
     with ExportSession(formats, ctx) as session:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from factories import grid_cloth, grid_sheet
 
-from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene import gravity_vector
 from meshdeform.scene.forces import Impact, Turbulence, Wind, falloff, ray_hit
@@ -18,7 +18,7 @@ pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 @pytest.fixture
 def sheet() -> tuple[SpringModel, State]:
-    model = SpringModel.from_mesh(grid_mesh(11, 11))  # 1 x 1 m in the XY plane
+    model = grid_cloth(11).model  # 1 x 1 m in the XY plane
     return model, State.at_rest(model)
 
 
@@ -153,7 +153,7 @@ turbulence = 0.5
 
 
 def run(recipe_text: str) -> np.ndarray:
-    built = build_simulation(parse_recipe(recipe_text), grid_mesh(9, 6, size=(1.6, 1.0)))
+    built = build_simulation(parse_recipe(recipe_text), grid_sheet(9, 6, size=(1.6, 1.0)))
     return np.stack([f.positions for f in simulate(built.model, built.scene, built.settings)])
 
 

@@ -1,0 +1,29 @@
+"""Checks the tests share: what a refused input must look like.
+
+Plain functions beside conftest.py, imported by name (`from checks import refused`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from meshdeform.errors import MeshLoadError
+from meshdeform.io import load
+
+
+def one_line_about(path: Path, error: BaseException) -> str:
+    """The text of `error`, checked to be one line that starts with the path it is about."""
+    text = str(error)
+    assert text.startswith(f"{path}: ") and "\n" not in text, text
+    return text
+
+
+def refused(path: Path, message: str | None = None, *, read: Callable[[Path], object] = load) -> str:
+    """The error `read` refuses the file `path` with: a MeshLoadError matching the regular expression
+    `message` (any, if None), in one line that starts with the path (`one_line_about`)."""
+    with pytest.raises(MeshLoadError, match=message) as info:
+        read(path)
+    return one_line_about(path, info.value)

@@ -1,0 +1,185 @@
+"""What the tests build: cloth grids (the sheet, its pins, its spring model, an OBJ file of it, a
+slit in it) and a command-line app holding one command.
+
+Every grid is `meshdeform.mesh.grid_mesh`: nx x ny vertices, vertex (i, j) at index `j * nx + i`,
+i along x and j along y (plane "xy", a hanging sheet with Y up) or along z (plane "xz", a
+horizontal sheet), spread evenly over `size` metres from the origin, quads (i, j), (i+1, j),
+(i+1, j+1), (i, j+1), with per-vertex UVs (i / (nx - 1), j / (ny - 1)).
+
+Pins are named by the grid's own sides, so that they mean the same vertices in either plane:
+
+    left    i = 0           right   i = nx - 1
+    bottom  j = 0           top     j = ny - 1
+    top-left, top-right, bottom-left, bottom-right: the four corners
+
+(in "xy" the top row is the one at y = size[1]; in "xz" it is the row at z = size[1]). A pin may
+also be a vertex index. `TOP_CORNERS` is the usual hanging cloth: pinned at its two top corners.
+
+The functions are plain (import them: `from factories import grid_cloth`), so that module-level
+helpers and parametrised tests can call them with any size; tests/conftest.py says where they are.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Literal, NamedTuple
+
+import numpy as np
+import typer
+
+from meshdeform.io import write_obj
+from meshdeform.material import Material
+from meshdeform.mesh import Mesh, grid_mesh
+from meshdeform.model import SpringModel
+
+Plane = Literal["xy", "xz"]
+#: a side or corner of the grid (see the module docstring) or a vertex index
+Pin = str | int
+
+TOP_CORNERS: tuple[str, str] = ("top-left", "top-right")
+
+_SIDES = {
+    "left": lambda i, j, nx, ny: i == 0,
+    "right": lambda i, j, nx, ny: i == nx - 1,
+    "bottom": lambda i, j, nx, ny: j == 0,
+    "top": lambda i, j, nx, ny: j == ny - 1,
+}
+
+
+def grid_sheet(
+    nx: int,
+    ny: int | None = None,
+    *,
+    size: float | tuple[float, float] = 1.0,
+    plane: Plane = "xy",
+    triangles: bool = False,
+    uvs: bool = True,
+    centred: bool = False,
+    offset: Sequence[float] | None = None,
+) -> Mesh:
+    """A grid of nx x ny vertices (ny defaults to nx) over `size` metres (one number: a square).
+
+    triangles: each quad split along its (i, j)-(i+1, j+1) diagonal; the triangles (0, 1, 2) of
+        every quad come first, then the triangles (0, 2, 3), quad order kept in each half.
+    uvs: False drops the UVs (a mesh of positions and polygons only).
+    centred: the sheet centred on the origin in its plane (from -size / 2 to size / 2).
+    offset: (3,) metres added to every position (the sheet moved, e.g. lifted above a ground).
+    """
+    ny = nx if ny is None else ny
+    width, height = (size, size) if isinstance(size, int | float) else size
+    mesh = grid_mesh(nx, ny, size=(float(width), float(height)), plane=plane)
+    if triangles:
+        quads = mesh.face_indices.reshape(-1, 4)
+        flat = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]).ravel()
+        offsets = np.arange(0, flat.size + 1, 3, dtype=np.int64)
+        mesh = Mesh(
+            positions=mesh.positions,
+            face_indices=flat,
+            face_offsets=offsets,
+            uvs=mesh.uvs,
+            face_uv_indices=flat.copy(),
+        )
+    if not uvs:
+        mesh = Mesh(positions=mesh.positions, face_indices=mesh.face_indices, face_offsets=mesh.face_offsets)
+    if centred or offset is not None:
+        shift = np.zeros(3) if offset is None else np.array(offset, dtype=np.float64)
+        if centred:
+            shift[[0, 1 if plane == "xy" else 2]] -= [width / 2, height / 2]
+        mesh = mesh.with_positions(mesh.positions + shift)
+    return mesh
+
+
+def grid_pins(nx: int, ny: int, pins: Iterable[Pin]) -> np.ndarray:
+    """(nx * ny,) bool mask of the pinned vertices: the union of the named sides and corners
+    (module docstring) and the vertex indices in `pins`."""
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny))
+    i, j = i.ravel(), j.ravel()
+    mask = np.zeros(nx * ny, dtype=bool)
+    for pin in pins:
+        if isinstance(pin, int | np.integer):
+            mask[int(pin)] = True
+            continue
+        sides = pin.split("-")
+        if not sides or any(side not in _SIDES for side in sides):
+            raise ValueError(f"unknown pin {pin!r}: a vertex index or one of {', '.join(_SIDES)} or a corner")
+        mask |= np.logical_and.reduce([_SIDES[side](i, j, nx, ny) for side in sides])
+    return mask
+
+
+class Cloth(NamedTuple):
+    """A grid sheet and its spring model: `mesh` (V input vertices), `model`, `pinned` (V,) bool."""
+
+    mesh: Mesh
+    model: SpringModel
+    pinned: np.ndarray
+
+
+def grid_cloth(
+    nx: int,
+    ny: int | None = None,
+    *,
+    pins: Iterable[Pin] = (),
+    material: Material | None = None,
+    **sheet: object,
+) -> Cloth:
+    """`grid_sheet(nx, ny, **sheet)` built into a `SpringModel` (default material) pinned at `pins`.
+
+    `grid_cloth(8, pins=TOP_CORNERS).model` is the usual 1 m cloth hanging from two corners.
+    """
+    ny = nx if ny is None else ny
+    mesh = grid_sheet(nx, ny, **sheet)  # type: ignore[arg-type]
+    pinned = grid_pins(nx, ny, pins)
+    return Cloth(mesh, SpringModel.from_mesh(mesh, material, pinned_input=pinned), pinned)
+
+
+def write_grid(path: Path, nx: int, ny: int | None = None, **sheet: object) -> Path:
+    """`grid_sheet(nx, ny, **sheet)` written to the OBJ file `path` (its folder made); returns `path`."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_obj(path, grid_sheet(nx, ny, **sheet))  # type: ignore[arg-type]
+    return path
+
+
+def slit_grid(
+    mesh: Mesh,
+    nx: int,
+    column: int,
+    quad_rows: int,
+    *,
+    open_tip: bool = False,
+    shift: Sequence[float] | None = None,
+) -> tuple[Mesh, np.ndarray]:
+    """The grid `mesh` (nx vertices a row, quads) cut open along vertex column `column` through its
+    lowest `quad_rows` rows of quads, as tearing leaves it: the quads right of the cut take copies
+    of the column's vertices, appended after the V input vertices in row order.
+
+    The copies are of the vertices of rows 0 .. quad_rows - 1, so the vertex at the cut's tip
+    (row quad_rows) stays shared; open_tip copies it too. shift: (3,) metres added to the copies.
+    Returns the torn mesh (positions and polygons, no UVs) and the copied vertices (K,) int64.
+    """
+    vertex_count = mesh.vertex_count
+    copies = np.arange(quad_rows + 1 if open_tip else quad_rows, dtype=np.int64) * nx + column
+    lookup = np.arange(vertex_count, dtype=np.int64)
+    lookup[copies] = vertex_count + np.arange(copies.size)
+    faces = mesh.face_indices.reshape(-1, 4).copy()
+    quad = np.arange(faces.shape[0])
+    right = (quad % (nx - 1) >= column) & (quad // (nx - 1) < quad_rows)
+    faces[right] = lookup[faces[right]]
+    moved = mesh.positions[copies] if shift is None else mesh.positions[copies] + np.asarray(shift, dtype=np.float64)
+    torn = Mesh(
+        positions=np.vstack([mesh.positions, moved]), face_indices=faces.ravel(), face_offsets=mesh.face_offsets
+    )
+    return torn, copies
+
+
+def command_app(register: Callable[[typer.Typer], None]) -> typer.Typer:
+    """A Typer app holding only the command(s) `register(app)` adds (a `pipeline.commands` module's
+    `register`); its callback keeps a single command a named subcommand, as in the real app."""
+    app = typer.Typer()
+
+    @app.callback()
+    def main() -> None:
+        """Test app."""
+
+    register(app)
+    return app
