@@ -27,3 +27,15 @@ def refused(path: Path, message: str | None = None, *, read: Callable[[Path], ob
     with pytest.raises(MeshLoadError, match=message) as info:
         read(path)
     return one_line_about(path, info.value)
+
+
+def reader_kinds() -> list[tuple[object, tuple[str, ...]]]:
+    """Each kind of result files previews read back, as (its `ResultReading`, the registered formats that
+    write those files), in search order, from the export registry."""
+    from meshdeform.export import EXPORTERS
+    from meshdeform.preview.results import search_order
+
+    def writers(looks_for: str) -> tuple[str, ...]:
+        return tuple(n for n, cls in EXPORTERS.items() if (r := cls.reading()) is not None and r.looks_for == looks_for)
+
+    return [(reading, writers(reading.looks_for)) for reading in search_order()]

@@ -656,15 +656,16 @@ def test_two_threads_opening_their_first_usd_stages_do_not_deadlock() -> None:
 
 
 def test_each_reader_reads_back_its_own_files_only(mesh: Mesh, tmp_path: Path) -> None:
-    """Every kind of files a preview reads (`SOURCES`), written alone: its reader finds the frames and
+    """Every kind of files a preview reads (`checks.reader_kinds`), written alone: its reader finds the frames and
     names files that are there, every other reader finds nothing; no reader finds frames in an empty
     folder nor in one of the formats no preview reads."""
-    from meshdeform.preview.results import SOURCES
+    from checks import reader_kinds
 
-    unread = [name for name in ALL if not any(name in source.formats for source in SOURCES)]
-    folders = {source: tmp_path / source.formats[0] for source in SOURCES}
+    kinds = dict(reader_kinds())
+    unread = [name for name in ALL if not any(name in formats for formats in kinds.values())]
+    folders = {source: tmp_path / formats[0] for source, formats in kinds.items()}
     for source, folder in folders.items():
-        export(list(source.formats), mesh, folder)
+        export(list(kinds[source]), mesh, folder)
     for folder in (tmp_path / "none", tmp_path / "unread"):
         folder.mkdir()
     if unread:
@@ -675,4 +676,4 @@ def test_each_reader_reads_back_its_own_files_only(mesh: Mesh, tmp_path: Path) -
         assert found.base is mesh  # the input mesh: same vertex count (and polygons for vtk)
         np.testing.assert_allclose(np.asarray(found.frames[FRAMES - 1]), wave(mesh, FRAMES), atol=1e-6)
         for elsewhere in [*(f for s, f in folders.items() if s is not source), tmp_path / "none", tmp_path / "unread"]:
-            assert source.read(elsewhere, mesh, "y") is None, (source.formats, elsewhere.name)
+            assert source.read(elsewhere, mesh, "y") is None, (kinds[source], elsewhere.name)

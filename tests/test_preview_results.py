@@ -14,6 +14,7 @@ import imageio.v3 as iio  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import typer  # noqa: E402
+from checks import reader_kinds  # noqa: E402
 from factories import command_app, grid_cloth, grid_pins, grid_sheet, slit_grid  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
@@ -22,7 +23,6 @@ from meshdeform.export import UP_AXES, ExportContext, ExportSession, FrameData  
 from meshdeform.io import save  # noqa: E402
 from meshdeform.mesh import Mesh  # noqa: E402
 from meshdeform.preview import open_result, render_result_previews  # noqa: E402
-from meshdeform.preview.results import SOURCES  # noqa: E402
 from pipeline.commands.preview import parse_frames, parse_size, register  # noqa: E402
 
 FRAMES = 8
@@ -93,7 +93,7 @@ def test_parsers() -> None:
 
 @pytest.mark.parametrize(
     ("formats", "up_axis"),
-    [pytest.param([name], up, id=f"{name}-{up}") for source in SOURCES for name in source.formats for up in UP_AXES],
+    [pytest.param([name], up, id=f"{name}-{up}") for _, kind in reader_kinds() for name in kind for up in UP_AXES],
 )
 def test_open_result_reads_each_kind_of_folder(tmp_path: Path, formats: list[str], up_axis: str) -> None:
     mesh = make_result(tmp_path / "r", formats, up_axis=up_axis)
