@@ -11,7 +11,7 @@ hash, merged-recipe hash and tool version and every output it lists exists.
 Folders are checked before anything runs (`check_out`): OUT may not be, contain or lie inside the
 assets folder, nor be or contain the recipe's folder, and a non-empty OUT must be a previous batch's
 (its manifest) unless `overwrite`. Each asset folder is then checked as `simulate` checks --out
-(`pipeline.job.check_output_folder`): one holding files meshdeform did not write fails that asset alone.
+(`pipeline.output_folder.check_output_folder`): one holding files meshdeform did not write fails that asset alone.
 """
 
 from __future__ import annotations
@@ -34,12 +34,12 @@ from meshdeform.io import MESH_SUFFIXES  # the suffixes a batch picks up (case-i
 from pipeline import __version__
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
 from pipeline.hashing import file_sha256
-from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
+from pipeline.output_folder import STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
 
 LOG_NAME = "batch.log"
 LOCK_NAME = ".meshdeform-batch.lock"
-#: atomic temp files of the manifest (staging folders: `pipeline.job.STAGE_PATTERN`)
+#: atomic temp files of the manifest (staging folders: `pipeline.output_folder.STAGE_PATTERN`)
 _STALE_MANIFEST = re.compile(r"^\.manifest\..+\.part\.json$")
 #: why `discover` did not follow a symlink (the manifest's "reason" of its "skipped" entry)
 OUTSIDE_LINK = "symlink to a path outside the assets folder"

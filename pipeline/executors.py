@@ -179,8 +179,8 @@ def one_line(exc: BaseException) -> tuple[str, str]:
 
 
 def remove_stale_stages(out_dir: Path) -> None:
-    """Delete the staging folders a killed job left beside `out_dir` (`pipeline.job.is_stage_of`)."""
-    from pipeline.job import is_stage_of
+    """Delete the staging folders a killed job left beside `out_dir` (`pipeline.output_folder.is_stage_of`)."""
+    from pipeline.output_folder import is_stage_of
 
     parent = out_dir.parent
     if not parent.is_dir():

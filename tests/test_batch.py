@@ -28,8 +28,8 @@ from pipeline.batch import (
     select,
 )
 from pipeline.hashing import file_sha256
-from pipeline.job import stage_path, staged_directory
 from pipeline.manifest import MANIFEST_TIMING_KEYS, drop_keys
+from pipeline.output_folder import stage_path, staged_directory
 from pipeline.recipe import recipe_hash
 
 RECIPE = """

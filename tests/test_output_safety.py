@@ -26,7 +26,7 @@ from typer.testing import CliRunner
 from meshdeform.io.obj import write_obj
 from meshdeform.mesh import grid_mesh
 from pipeline.cli import app
-from pipeline.job import MARKER_NAME, output_lock
+from pipeline.output_folder import MARKER_NAME, output_lock
 
 runner = CliRunner()
 RECIPE = '[simulation]\nsolver = "verlet"\nframes = 2\n'
