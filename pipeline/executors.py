@@ -62,7 +62,7 @@ class AssetTask:
     key: the asset's name in the manifest (its path relative to the assets folder).
     mesh_path / out_dir: absolute paths (the same on every machine of a Dask cluster).
     recipe: the merged per-asset Recipe, or an object whose `load()` returns it (built in the
-        worker from the files: `pipeline.batch.AssetRecipe`).
+        worker from the files: `pipeline.assets.AssetRecipe`).
     job: the job function; None means `pipeline.job.run_job` (tests inject fakes).
     """
 
