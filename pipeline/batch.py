@@ -30,7 +30,7 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from meshdeform.errors import MeshdeformError
 from pipeline import __version__
@@ -38,7 +38,18 @@ from pipeline.assets import Asset, AssetRecipe, discover, load_base_recipe, outp
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
 from pipeline.hashing import file_sha256
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
-from pipeline.output_folder import REPORT_NAME, STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
+from pipeline.output_folder import (
+    REPORT_NAME,
+    STAGE_PATTERN,
+    OutputFolderError,
+    check_output_folder,
+    entry_count,
+    exclusive_lock,
+    holds_folder_of,
+)
+
+if TYPE_CHECKING:
+    from pipeline.recipe import Recipe
 
 LOG_NAME = "batch.log"
 LOCK_NAME = ".meshdeform-batch.lock"
@@ -135,18 +146,15 @@ def check_out(out: Path, assets_dir: Path, recipe_path: Path, *, overwrite: bool
         raise BatchError(
             f"{out}: is inside the assets folder {assets_dir} (its frames would be inputs); choose an --out outside it"
         )
-    recipe_folders = {Path(os.path.realpath(recipe_path.parent)), Path(os.path.realpath(recipe_path)).parent}
-    for folder in sorted(recipe_folders):
-        if folder == real_out or real_out in folder.parents:
-            where = "is the folder of" if folder == real_out else "contains"
-            raise BatchError(f"{out}: {where} the recipe {recipe_path}; choose another --out")
+    if (clash := holds_folder_of(real_out, "recipe", recipe_path)) is not None:
+        raise BatchError(f"{out}: {clash}; choose another --out")
     if os.path.lexists(real_out) and not real_out.is_dir():
         raise BatchError(f"{out}: exists and is not a folder; choose another --out")
     if real_out.is_dir() and not overwrite and not is_batch_folder(real_out):
         names = sorted(os.listdir(real_out))
-        count = f"{len(names)} entr{'y' if len(names) == 1 else 'ies'}"
         raise BatchError(
-            f"{out}: folder exists and is not a meshdeform batch output ({count}, e.g. {names[0]!r}); "
+            f"{out}: folder exists and is not a meshdeform batch output ({entry_count(len(names))}, "
+            f"e.g. {names[0]!r}); "
             "choose another --out or pass --overwrite"
         )
 
@@ -246,6 +254,29 @@ def _close_log(logger: logging.Logger) -> None:
         logger.removeHandler(handler)
 
 
+@dataclass(frozen=True)
+class _Batch:
+    """What `run_batch` settled before it takes OUT's lock (folders absolute, options resolved).
+
+    base: the batch recipe. every: every asset key under `assets_dir` (a previous manifest's entries of
+    those not selected are kept). assets: the selected ones, in discovery order. links: the skipped
+    symlinks the selection keeps, key -> reason. jobs: the job count (resolved from the cores when not
+    given). job: the job function (None: `run_job`), bound to overwrite=True under `overwrite`.
+    """
+
+    assets_dir: Path
+    out: Path
+    base: Recipe
+    every: tuple[str, ...]
+    assets: tuple[Asset, ...]
+    links: dict[str, str]
+    jobs: int
+    dask: str | None
+    force: bool
+    overwrite: bool
+    job: JobFunction | None
+
+
 def run_batch(
     assets_dir: Path,
     recipe_path: Path,
@@ -292,7 +323,7 @@ def run_batch(
 
         job = functools.partial(job or run_job, overwrite=True)
     folders = output_folders(every)  # on every asset, so names do not change with the selection
-    assets = [Asset(key=k, path=assets_dir / k, output=folders[k][0], note=folders[k][1]) for k in keys]
+    assets = tuple(Asset(key=k, path=assets_dir / k, output=folders[k][0], note=folders[k][1]) for k in keys)
     jobs = available_cores() if jobs is None else jobs
     if executor is not None:
         runner = executor
@@ -301,50 +332,32 @@ def run_batch(
             runner = make_executor(jobs, dask)
         except (OSError, ValueError) as exc:  # a Dask scheduler that cannot be reached
             raise BatchError(f"cannot connect to the Dask scheduler at {dask}: {' '.join(str(exc).split())}") from None
+    batch = _Batch(
+        assets_dir=assets_dir,
+        out=out,
+        base=base,
+        every=tuple(every),
+        assets=assets,
+        links=links,
+        jobs=jobs,
+        dask=dask,
+        force=force,
+        overwrite=overwrite,
+        job=job,
+    )
     try:
-        return _run(
-            assets_dir,
-            assets,
-            every,
-            keys,
-            base,
-            out,
-            runner,
-            started,
-            links=links,
-            jobs=jobs,
-            dask=dask,
-            force=force,
-            overwrite=overwrite,
-            progress=progress,
-            job=job,
-        )
+        return _run(batch, runner, progress, started)
     finally:
         if executor is None:
             runner.close()
 
 
-def _run(
-    assets_dir: Path,
-    assets: Sequence[Asset],
-    every: Sequence[str],
-    keys: Sequence[str],
-    base: Any,
-    out: Path,
-    runner: Executor,
-    started: float,
-    *,
-    links: dict[str, str],
-    jobs: int,
-    dask: str | None,
-    force: bool,
-    overwrite: bool,
-    progress: BatchProgress | None,
-    job: JobFunction | None,
-) -> BatchResult:
-    """The locked part of `run_batch`: plan, run, keep the manifest current."""
+def _run(batch: _Batch, runner: Executor, progress: BatchProgress | None, started: float) -> BatchResult:
+    """The locked part of `run_batch`: plan, run, keep the manifest current (`started`: its
+    `time.perf_counter()` at the start, for the manifest's total_seconds)."""
     from pipeline.recipe import recipe_hash
 
+    assets_dir, out, base, assets = batch.assets_dir, batch.out, batch.base, batch.assets
     out.mkdir(parents=True, exist_ok=True)
     with out_lock(out):
         removed = remove_stale(out)
@@ -361,8 +374,8 @@ def _run(
             },
         )
         if previous:
-            chosen = set(keys)
-            existing = set(every)
+            chosen = {asset.key for asset in assets}
+            existing = set(batch.every)
             for entry in previous["assets"]:
                 key = entry.get("input") if isinstance(entry, dict) else None
                 if key in existing and key not in chosen:
@@ -373,18 +386,18 @@ def _run(
                 assets_dir,
                 out,
                 base.label,
-                len(keys),
-                len(every),
-                ", --force" if force else "",
+                len(assets),
+                len(batch.every),
+                ", --force" if batch.force else "",
             )
             if base.deprecation is not None:
                 log.warning("%s", base.deprecation)
             if removed:
                 log.info("removed %d stale staging folder(s) of interrupted runs", len(removed))
-            for key, reason in links.items():
+            for key, reason in batch.links.items():
                 manifest.add(new_entry(key, None, version=__version__, status="skipped", reason=reason))
                 log.info("skipped %s: %s", key, reason)
-            tasks = _plan(assets, base, out, manifest, log, force=force, overwrite=overwrite, job=job)
+            tasks = _plan(batch, manifest, log)
             manifest.write(force=True)
             if progress is not None:
                 progress.begin(len(assets), len(assets) - len(tasks))
@@ -397,8 +410,8 @@ def _run(
                     "running %d asset(s) with the %s executor (jobs=%s%s)",
                     len(tasks),
                     name,
-                    jobs,
-                    f", dask={dask}" if dask else "",
+                    batch.jobs,
+                    f", dask={batch.dask}" if batch.dask else "",
                 )
                 runner.run(tasks, _Recorder(manifest, log, progress))
             manifest.complete = True
@@ -427,24 +440,15 @@ def _run(
     )
 
 
-def _plan(
-    assets: Sequence[Asset],
-    base: Any,
-    out: Path,
-    manifest: Manifest,
-    log: logging.Logger,
-    *,
-    force: bool,
-    overwrite: bool,
-    job: JobFunction | None,
-) -> list[AssetTask]:
+def _plan(batch: _Batch, manifest: Manifest, log: logging.Logger) -> list[AssetTask]:
     """Resolve each asset's recipe, record skips, recipe failures and asset folders that may not be
     written (holding files meshdeform did not write, unless `overwrite`), and return the tasks to run."""
     from pipeline.recipe import recipe_hash
 
+    base = batch.base
     tasks: list[AssetTask] = []
-    for index, asset in enumerate(assets):
-        out_dir = out / asset.output
+    for index, asset in enumerate(batch.assets):
+        out_dir = batch.out / asset.output
         try:
             recipe, layers = resolve_recipe(base, asset)
         except Exception as exc:  # a bad sidecar or rule fails this asset only
@@ -454,7 +458,7 @@ def _plan(
         entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, overrides=layers, note=asset.note))
         sha = recipe_hash(recipe)
         entry["recipe_sha256"] = sha
-        report = None if force else read_report(out_dir)
+        report = None if batch.force else read_report(out_dir)
         if report is not None and up_to_date(report, out_dir, asset.path, sha):
             entry.update(
                 status="skipped",
@@ -467,7 +471,7 @@ def _plan(
             log.info("skipped %s: up to date in %s", asset.key, asset.output)
             continue
         try:
-            check_output_folder(out_dir, overwrite=overwrite)
+            check_output_folder(out_dir, overwrite=batch.overwrite)
         except OutputFolderError as exc:  # that folder holds someone's files: this asset fails alone
             _fail_before_running(entry, asset, exc, log)
             continue
@@ -478,7 +482,7 @@ def _plan(
                 mesh_path=str(asset.path),
                 out_dir=str(out_dir),
                 recipe=AssetRecipe(base=str(base.source), key=asset.key, mesh=str(asset.path)),
-                job=job,
+                job=batch.job,
             )
         )
     return tasks

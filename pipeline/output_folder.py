@@ -140,8 +140,28 @@ def inspect_folder(target: Path) -> FolderState:
     return FolderState(path, "mixed" if foreign else "result", listed, tuple(foreign))
 
 
-def _entries(count: int) -> str:
+def entry_count(count: int) -> str:
+    """`count` folder entries in words ("1 entry", "3 entries"), for the refusals' lines."""
     return f"{count} entr{'y' if count == 1 else 'ies'}"
+
+
+def _resolved(target: Path, label: str) -> Path:
+    """`target` with symlinks resolved; a symlink to a missing path is refused (OutputFolderError)."""
+    if os.path.islink(target) and not os.path.exists(target):
+        raise OutputFolderError(f"{label}: is a symbolic link to a missing path; choose another --out")
+    return Path(os.path.realpath(target))
+
+
+def holds_folder_of(real: Path, what: str, path: Path | str) -> str | None:
+    """Why the folder `real` (symlinks resolved) may not be written for the file `path` (a `what`:
+    "input", "recipe"): "is the folder of" or "contains" the file's folder, found by the file's own path
+    or the one it links to ("..", trailing slashes resolved); None when it holds neither."""
+    folders = {Path(os.path.realpath(Path(os.path.abspath(path)).parent)), Path(os.path.realpath(path)).parent}
+    for folder in sorted(folders):
+        if folder.is_relative_to(real):
+            where = "is the folder of" if folder == real else "contains"
+            return f"{where} the {what} {path}"
+    return None
 
 
 def refusal(label: str, state: FolderState, overwrite: bool) -> str | None:
@@ -152,12 +172,12 @@ def refusal(label: str, state: FolderState, overwrite: bool) -> str | None:
         return None
     if state.kind == "foreign":
         return (
-            f"{label}: folder exists and is not a meshdeform result ({_entries(len(state.foreign))}, "
+            f"{label}: folder exists and is not a meshdeform result ({entry_count(len(state.foreign))}, "
             f"e.g. {state.foreign[0]!r}); choose another --out or pass --overwrite"
         )
     if state.kind == "mixed":
         return (
-            f"{label}: folder holds a meshdeform result and {_entries(len(state.foreign))} meshdeform did not "
+            f"{label}: folder holds a meshdeform result and {entry_count(len(state.foreign))} meshdeform did not "
             f"write (e.g. {state.foreign[0]!r}); choose another --out or pass --overwrite to keep them"
         )
     return None
@@ -181,9 +201,7 @@ def check_output_folder(
     is at the target.
     """
     label = label or str(target)
-    if os.path.islink(target) and not os.path.exists(target):
-        raise OutputFolderError(f"{label}: is a symbolic link to a missing path; choose another --out")
-    real = Path(os.path.realpath(target))
+    real = _resolved(target, label)
     if real.parent == real:
         raise OutputFolderError(f"{label}: is a file system root; choose a folder of its own for --out")
     if refuse_cwd:
@@ -192,13 +210,8 @@ def check_output_folder(
             where = "is" if cwd == real else "contains"
             raise OutputFolderError(f"{label}: {where} the current folder; choose a folder of its own for --out")
     for what, path in (protect or {}).items():
-        if path is None:
-            continue
-        folders = {Path(os.path.realpath(Path(os.path.abspath(path)).parent)), Path(os.path.realpath(path)).parent}
-        for folder in sorted(folders):
-            if folder.is_relative_to(real):
-                where = "is the folder of" if folder == real else "contains"
-                raise OutputFolderError(f"{label}: {where} the {what} {path}; choose another --out")
+        if path is not None and (clash := holds_folder_of(real, what, path)) is not None:
+            raise OutputFolderError(f"{label}: {clash}; choose another --out")
     above = real.parent
     while not os.path.lexists(above):
         above = above.parent
@@ -264,9 +277,7 @@ def output_lock(target: Path, label: str | None = None) -> Iterator[None]:
     folders are created, and removed again when the run leaves them empty.
     """
     label = label or str(target)
-    if os.path.islink(target) and not os.path.exists(target):
-        raise OutputFolderError(f"{label}: is a symbolic link to a missing path; choose another --out")
-    real = Path(os.path.realpath(target))
+    real = _resolved(target, label)
     created = _make_folders(real.parent, label)
     path = real.parent / f".{real.name}{LOCK_SUFFIX}"
     try:
