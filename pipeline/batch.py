@@ -14,7 +14,8 @@ hash, merged-recipe hash and tool version and every output it lists exists.
 Folders are checked before anything runs (`check_out`): OUT may not be, contain or lie inside the
 assets folder, nor be or contain the recipe's folder, and a non-empty OUT must be a previous batch's
 (its manifest) unless `overwrite`. Each asset folder is then checked as `simulate` checks --out
-(`pipeline.output_folder.check_output_folder`): one holding files meshdeform did not write fails that asset alone.
+(`pipeline.output_folder.check_output_folder`): one holding files meshdeform did not write fails that
+asset alone.
 """
 
 from __future__ import annotations
@@ -87,6 +88,9 @@ def up_to_date(report: dict[str, Any] | None, out_dir: Path, mesh: Path, recipe_
         return report.get("input_sha256") == file_sha256(mesh)
     except OSError:
         return False
+
+
+# -- the output folder OUT ---------------------------------------------------------------------
 
 
 def remove_stale(out: Path) -> list[Path]:

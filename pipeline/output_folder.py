@@ -70,6 +70,9 @@ class FolderState:
     foreign: tuple[str, ...] = ()
 
 
+# -- the marker --------------------------------------------------------------------------------
+
+
 def _is_safe_relative(name: str) -> bool:
     """A marker entry meshdeform could have written: a plain relative POSIX path inside the folder."""
     pure = PurePosixPath(name)
@@ -91,6 +94,65 @@ def read_marker(folder: Path) -> frozenset[str] | None:
         if isinstance(files, list) and all(isinstance(f, str) and _is_safe_relative(f) for f in files):
             return frozenset(files) | ({REPORT_NAME} if name == REPORT_NAME else frozenset())
     return None
+
+
+def _files_under(folder: Path) -> list[str]:
+    """Relative POSIX paths of the files under `folder`, sorted."""
+    found = []
+    for here, _dirs, files in os.walk(folder):
+        base = Path(here).relative_to(folder).as_posix()
+        found += [name if base == "." else f"{base}/{name}" for name in files]
+    return sorted(found)
+
+
+def file_sizes(root: Path, files: Sequence[str]) -> dict[str, int]:
+    """Byte sizes of the `files` (relative POSIX) that exist under `root`."""
+    sizes: dict[str, int] = {}
+    for name in files:
+        with contextlib.suppress(OSError):
+            sizes[name] = os.stat(root / name).st_size
+    return sizes
+
+
+def write_marker(folder: Path, files: Sequence[str], sizes: Mapping[str, int] | None = None) -> None:
+    """Write MARKER_NAME: tool, version, the files meshdeform wrote into `folder` and their sizes in bytes
+    (`sizes`, else read from `folder`), so a listed file the user changed since is not taken for
+    meshdeform's. Deterministic: the same outputs give the same bytes (no times)."""
+    listed = sorted(set(files) - {MARKER_NAME})
+    sizes = file_sizes(folder, listed) if sizes is None else sizes
+    stamp = {
+        "tool": "meshdeform",
+        "version": __version__,
+        "files": listed,
+        # (not report.json's: its timings change its length from run to run, and the marker stays the same bytes)
+        "sizes": {name: sizes[name] for name in listed if name in sizes and name != REPORT_NAME},
+    }
+    write_text_atomic(folder / MARKER_NAME, json.dumps(stamp, indent=2) + "\n")
+
+
+def marker_sizes(folder: Path) -> dict[str, int]:
+    """The sizes `write_marker` recorded in `folder`'s marker ({} for none, or for an older marker)."""
+    try:
+        data = json.loads((folder / MARKER_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    sizes = data.get("sizes") if isinstance(data, dict) else None
+    if not isinstance(sizes, dict):
+        return {}
+    return {k: v for k, v in sizes.items() if isinstance(k, str) and isinstance(v, int) and _is_safe_relative(k)}
+
+
+def _changed_since_written(folder: Path) -> list[str]:
+    """Listed files whose size is no longer the one the marker recorded: the user changed them."""
+    changed = []
+    for name, size in marker_sizes(folder).items():
+        with contextlib.suppress(OSError):
+            if os.lstat(folder / name).st_size != size:
+                changed.append(name)
+    return sorted(changed)
+
+
+# -- what is at a path -------------------------------------------------------------------------
 
 
 def _own_leftover(name: str) -> bool:
@@ -138,6 +200,9 @@ def inspect_folder(target: Path) -> FolderState:
         return FolderState(path, "foreign", foreign=tuple(names))
     foreign = sorted({*_foreign_in_result(path, listed), *_changed_since_written(path)})
     return FolderState(path, "mixed" if foreign else "result", listed, tuple(foreign))
+
+
+# -- may it be written -------------------------------------------------------------------------
 
 
 def entry_count(count: int) -> str:
@@ -224,6 +289,9 @@ def check_output_folder(
     return state
 
 
+# -- locks -------------------------------------------------------------------------------------
+
+
 def _make_folders(folder: Path, label: str) -> list[Path]:
     """Create `folder` and its missing parents; return those created, outermost first."""
     missing: list[Path] = []
@@ -291,60 +359,7 @@ def output_lock(target: Path, label: str | None = None) -> Iterator[None]:
         _remove_if_empty(created)
 
 
-def _files_under(folder: Path) -> list[str]:
-    """Relative POSIX paths of the files under `folder`, sorted."""
-    found = []
-    for here, _dirs, files in os.walk(folder):
-        base = Path(here).relative_to(folder).as_posix()
-        found += [name if base == "." else f"{base}/{name}" for name in files]
-    return sorted(found)
-
-
-def file_sizes(root: Path, files: Sequence[str]) -> dict[str, int]:
-    """Byte sizes of the `files` (relative POSIX) that exist under `root`."""
-    sizes: dict[str, int] = {}
-    for name in files:
-        with contextlib.suppress(OSError):
-            sizes[name] = os.stat(root / name).st_size
-    return sizes
-
-
-def write_marker(folder: Path, files: Sequence[str], sizes: Mapping[str, int] | None = None) -> None:
-    """Write MARKER_NAME: tool, version, the files meshdeform wrote into `folder` and their sizes in bytes
-    (`sizes`, else read from `folder`), so a listed file the user changed since is not taken for
-    meshdeform's. Deterministic: the same outputs give the same bytes (no times)."""
-    listed = sorted(set(files) - {MARKER_NAME})
-    sizes = file_sizes(folder, listed) if sizes is None else sizes
-    stamp = {
-        "tool": "meshdeform",
-        "version": __version__,
-        "files": listed,
-        # (not report.json's: its timings change its length from run to run, and the marker stays the same bytes)
-        "sizes": {name: sizes[name] for name in listed if name in sizes and name != REPORT_NAME},
-    }
-    write_text_atomic(folder / MARKER_NAME, json.dumps(stamp, indent=2) + "\n")
-
-
-def marker_sizes(folder: Path) -> dict[str, int]:
-    """The sizes `write_marker` recorded in `folder`'s marker ({} for none, or for an older marker)."""
-    try:
-        data = json.loads((folder / MARKER_NAME).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    sizes = data.get("sizes") if isinstance(data, dict) else None
-    if not isinstance(sizes, dict):
-        return {}
-    return {k: v for k, v in sizes.items() if isinstance(k, str) and isinstance(v, int) and _is_safe_relative(k)}
-
-
-def _changed_since_written(folder: Path) -> list[str]:
-    """Listed files whose size is no longer the one the marker recorded: the user changed them."""
-    changed = []
-    for name, size in marker_sizes(folder).items():
-        with contextlib.suppress(OSError):
-            if os.lstat(folder / name).st_size != size:
-                changed.append(name)
-    return sorted(changed)
+# -- staging, then rename or merge -------------------------------------------------------------
 
 
 def _blocked(target: Path, relative: str) -> str | None:
