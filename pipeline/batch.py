@@ -4,6 +4,9 @@
     -> per-asset recipe (base <- [[assets]] rules <- sidecar NAME.toml) -> up to date? skip
     -> executor (serial / processes / Dask) -> manifest.json updated as assets finish.
 
+Which assets, their output folders and their recipes: `pipeline.assets`. This module plans and runs
+them (`run_batch`), keeps OUT's manifest and log, and guards OUT itself.
+
 The per-asset `report.json` (written by `run_job` together with the outputs, renamed into place
 in one step) is what a rerun trusts: an asset is skipped when its report names the same input
 hash, merged-recipe hash and tool version and every output it lists exists.
@@ -11,7 +14,8 @@ hash, merged-recipe hash and tool version and every output it lists exists.
 Folders are checked before anything runs (`check_out`): OUT may not be, contain or lie inside the
 assets folder, nor be or contain the recipe's folder, and a non-empty OUT must be a previous batch's
 (its manifest) unless `overwrite`. Each asset folder is then checked as `simulate` checks --out
-(`pipeline.job.check_output_folder`): one holding files meshdeform did not write fails that asset alone.
+(`pipeline.output_folder.check_output_folder`): one holding files meshdeform did not write fails that
+asset alone.
 """
 
 from __future__ import annotations
@@ -26,23 +30,32 @@ import shutil
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
-from typing import Any, Protocol
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
-from meshdeform.errors import MeshdeformError, RecipeError
-from meshdeform.io import MESH_SUFFIXES  # the suffixes a batch picks up (case-insensitive)
+from meshdeform.errors import MeshdeformError
 from pipeline import __version__
+from pipeline.assets import Asset, AssetRecipe, discover, load_base_recipe, output_folders, resolve_recipe, select
 from pipeline.executors import AssetOutcome, AssetTask, Executor, JobFunction, make_executor, one_line
 from pipeline.hashing import file_sha256
-from pipeline.job import STAGE_PATTERN, OutputFolderError, check_output_folder, exclusive_lock
 from pipeline.manifest import MANIFEST_NAME, Manifest, new_entry, read_manifest
+from pipeline.output_folder import (
+    REPORT_NAME,
+    STAGE_PATTERN,
+    OutputFolderError,
+    check_output_folder,
+    entry_count,
+    exclusive_lock,
+    holds_folder_of,
+)
+
+if TYPE_CHECKING:
+    from pipeline.recipe import Recipe
 
 LOG_NAME = "batch.log"
 LOCK_NAME = ".meshdeform-batch.lock"
-#: atomic temp files of the manifest (staging folders: `pipeline.job.STAGE_PATTERN`)
+#: atomic temp files of the manifest (staging folders: `pipeline.output_folder.STAGE_PATTERN`)
 _STALE_MANIFEST = re.compile(r"^\.manifest\..+\.part\.json$")
-#: why `discover` did not follow a symlink (the manifest's "reason" of its "skipped" entry)
-OUTSIDE_LINK = "symlink to a path outside the assets folder"
 #: the manifest's "reason" of an asset skipped because its outputs are current
 UP_TO_DATE = "up to date"
 
@@ -51,229 +64,13 @@ class BatchError(MeshdeformError):
     """The batch cannot start: missing folder, no assets, output folder busy (a usage error)."""
 
 
-# -- globs -------------------------------------------------------------------------------------
-
-
-def glob_match(pattern: str, relative: str) -> bool:
-    """Does the asset path `relative` (POSIX, relative to the assets folder) match `pattern`?
-
-    The same rule as the recipe's [[assets]] globs (`pipeline.recipe.AssetRule.matches`): fnmatch
-    on the whole relative path, and a pattern without "/" also matches the file name alone.
-    """
-    from pipeline.recipe import AssetRule
-
-    return AssetRule(pattern.strip().removeprefix("./"), {}).matches(relative)
-
-
-# -- discovery ---------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Asset:
-    """One mesh of the batch.
-
-    key: its path relative to the assets folder, POSIX (the manifest's `input`).
-    path: absolute path of the mesh file.
-    output: its output folder relative to OUT (POSIX): the key without suffix, or with it when
-        two assets would share a folder (`note` then says so).
-    """
-
-    key: str
-    path: Path
-    output: str
-    note: str | None = None
-
-
-def _sort_key(relative: str) -> tuple[str, ...]:
-    return tuple(relative.split("/"))
-
-
-@dataclass(frozen=True)
-class Discovery:
-    """What `discover` found under an assets folder.
-
-    keys: relative POSIX paths of the meshes, sorted folder by folder.
-    skipped: symlinks not followed, relative path (a folder's with a trailing "/") -> why.
-    """
-
-    keys: list[str]
-    skipped: dict[str, str]
-
-
-def _inside(path: Path, real_root: Path) -> bool:
-    """Does `path`, symlinks resolved (loops included: realpath stops on them), lie in `real_root`?"""
-    return Path(os.path.realpath(path)).is_relative_to(real_root)
-
-
-def discover(root: Path) -> Discovery:
-    """Every .obj/.ply under `root`, hidden names left out.
-
-    Symlinks are not followed out of the folder: a linked mesh or folder whose target lies outside
-    `root` is `skipped` with the reason. A linked mesh inside `root` is an asset under the link's name;
-    a linked folder is never entered (a target inside `root` is searched under its own path anyway, so
-    no loop and no asset twice).
-    """
-    root = Path(root)
-    real_root = Path(os.path.realpath(root))
-    found: list[str] = []
-    skipped: dict[str, str] = {}
-    for folder, dirs, files in os.walk(root):  # followlinks=False: linked folders are listed, never entered
-        here = Path(folder)
-        kept = []
-        for name in dirs:
-            if name.startswith("."):
-                continue
-            if not (here / name).is_symlink():
-                kept.append(name)
-            elif not _inside(here / name, real_root):
-                skipped[(here / name).relative_to(root).as_posix() + "/"] = OUTSIDE_LINK
-        dirs[:] = kept
-        for name in files:
-            if name.startswith(".") or not name.lower().endswith(MESH_SUFFIXES):
-                continue
-            key = (here / name).relative_to(root).as_posix()
-            if (here / name).is_symlink() and not _inside(here / name, real_root):
-                skipped[key] = OUTSIDE_LINK
-            else:
-                found.append(key)
-    return Discovery(sorted(found, key=_sort_key), dict(sorted(skipped.items(), key=lambda kv: _sort_key(kv[0]))))
-
-
-def select(keys: Sequence[str], include: Sequence[str] = (), exclude: Sequence[str] = ()) -> list[str]:
-    """Keys matching any --include (all when none is given) and no --exclude."""
-    return [
-        key
-        for key in keys
-        if (not include or any(glob_match(p, key) for p in include)) and not any(glob_match(p, key) for p in exclude)
-    ]
-
-
-def output_folders(keys: Sequence[str]) -> dict[str, tuple[str, str | None]]:
-    """Output folder (relative, POSIX) and note for each key: the key without its suffix, unless that
-    folder would be shared (`a.obj` and `a.ply`, or names equal but for case): then every asset of the
-    clash keeps its suffix (`a.obj/`, `a.ply/`); or unless it would contain another asset's folder
-    (`a.obj` beside a folder `a/` of assets: replacing `a/` would delete theirs): then it keeps its
-    suffix. Deterministic: it depends on the set of keys only."""
-    full = {key: False for key in keys}  # True: this key keeps its suffix
-    holders: dict[str, str] = {}  # the folder that would hold another asset's folder -> that asset
-    while True:
-        names = {key: key if keep else str(PurePosixPath(key).with_suffix("")) for key, keep in full.items()}
-        groups: dict[str, list[str]] = {}
-        for key, name in names.items():
-            groups.setdefault(name.casefold(), []).append(key)
-        clashes = [group for group in groups.values() if len(group) > 1 and not all(full[k] for k in group)]
-        parents: dict[str, str] = {}  # every folder above an output folder -> the first asset below it
-        for key in sorted(names, key=_sort_key):
-            for parent in PurePosixPath(names[key]).parents:
-                parents.setdefault(str(parent).casefold(), key)
-        nesting = [key for key, name in names.items() if not full[key] and name.casefold() in parents]
-        if not clashes and not nesting:
-            break
-        for group in clashes:
-            for key in group:
-                full[key] = True
-        for key in nesting:
-            full[key] = True
-            holders.setdefault(key, parents[names[key].casefold()])
-    result: dict[str, tuple[str, str | None]] = {}
-    for key in keys:
-        note = None
-        if full[key]:
-            plain = str(PurePosixPath(key).with_suffix(""))
-            others = sorted(
-                k for k in keys if k != key and str(PurePosixPath(k).with_suffix("")).casefold() == plain.casefold()
-            )
-            if others or key not in holders:
-                note = f"output folder keeps the suffix: {', '.join([key, *others])} would share {plain}/"
-            else:
-                note = f"output folder keeps the suffix: {plain}/ would hold the output folder of {holders[key]}"
-        result[key] = (names[key], note)
-    return result
-
-
-# -- recipes -------------------------------------------------------------------------------------
-
-
-def load_base_recipe(path: Path) -> Any:
-    """Load and validate the batch's recipe (with its [[assets]] rules); RecipeError is a usage error."""
-    from pipeline.recipe import load_recipe
-
-    return load_recipe(path)
-
-
-def sidecar_path(mesh: Path) -> Path:
-    """`NAME.toml` next to `NAME.obj` / `NAME.ply`: that asset's own recipe overrides."""
-    return mesh.with_suffix(".toml")
-
-
-def resolve_recipe(base: Any, asset: Asset) -> tuple[Any, list[str]]:
-    """The merged recipe of one asset and the layers applied over the base, in order.
-
-    base <- every matching [[assets]] rule in recipe order (`Recipe.for_asset`) <- the sidecar
-    `NAME.toml`. Tables merge deeply, arrays replace. Raises RecipeError naming the file when a
-    layer is invalid (the asset then fails alone).
-    """
-    layers = [
-        f"[[assets]] #{n} {rule.glob!r}" for n, rule in enumerate(base.asset_rules, start=1) if rule.matches(asset.key)
-    ]
-    recipe = base.for_asset(asset.key)
-    sidecar = sidecar_path(asset.path)
-    if not sidecar.is_file() or (base.source is not None and sidecar.resolve() == Path(base.source).resolve()):
-        return recipe, layers
-    assets_root = Path(os.path.realpath(asset.path.parents[len(PurePosixPath(asset.key).parts) - 1]))
-    if not Path(os.path.realpath(sidecar)).is_relative_to(assets_root):
-        raise RecipeError(f"{sidecar}: sidecar recipe is a symlink to a path outside the assets folder; not read")
-    recipe = apply_sidecar(recipe, sidecar)
-    return recipe, [*layers, f"sidecar {sidecar.name}"]
-
-
-@functools.lru_cache(maxsize=8)
-def _load_cached(path: str, mtime_ns: int, size: int) -> Any:
-    return load_base_recipe(Path(path))
-
-
-@dataclass(frozen=True)
-class AssetRecipe:
-    """How a worker rebuilds one asset's merged recipe: the batch recipe's path, the asset's key and
-    mesh path: rebuilding from the files keeps every error's file, key path and line (and a small
-    task to send). The base is parsed once per worker."""
-
-    base: str
-    key: str
-    mesh: str
-
-    def load(self) -> Any:
-        stat = os.stat(self.base)
-        base = _load_cached(self.base, stat.st_mtime_ns, stat.st_size)
-        return resolve_recipe(base, Asset(key=self.key, path=Path(self.mesh), output=""))[0]
-
-
-def apply_sidecar(recipe: Any, sidecar: Path) -> Any:
-    """`recipe` with a sidecar file merged over it. The sidecar is first validated alone, so its
-    mistakes are reported with its own name, key path and line; relative paths in it (mesh
-    colliders) are, as in [[assets]] rules, relative to the batch recipe."""
-    from pipeline import recipe as recipe_module
-
-    try:
-        text = sidecar.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RecipeError(f"{sidecar}: cannot read sidecar recipe: {exc}") from None
-    partial = recipe_module.parse_recipe(text, str(sidecar))
-    if partial.assets:
-        raise RecipeError(f"{sidecar}: [[assets]] rules belong in the batch recipe, not in a sidecar")
-    data = recipe_module.merge_recipe_data(recipe.raw, partial.raw)
-    label = f"{recipe.label} + {sidecar}"
-    # no line numbers: the keys come from two files; the message names both and the key path
-    return recipe_module.recipe_from_data(data, label, recipe.source)
-
-
 # -- resume ------------------------------------------------------------------------------------
 
 
 def read_report(out_dir: Path) -> dict[str, Any] | None:
     """The report.json of a finished job in `out_dir`, or None."""
     try:
-        data = json.loads((out_dir / "report.json").read_text(encoding="utf-8"))
+        data = json.loads((out_dir / REPORT_NAME).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     return data if isinstance(data, dict) else None
@@ -291,6 +88,9 @@ def up_to_date(report: dict[str, Any] | None, out_dir: Path, mesh: Path, recipe_
         return report.get("input_sha256") == file_sha256(mesh)
     except OSError:
         return False
+
+
+# -- the output folder OUT ---------------------------------------------------------------------
 
 
 def remove_stale(out: Path) -> list[Path]:
@@ -350,18 +150,15 @@ def check_out(out: Path, assets_dir: Path, recipe_path: Path, *, overwrite: bool
         raise BatchError(
             f"{out}: is inside the assets folder {assets_dir} (its frames would be inputs); choose an --out outside it"
         )
-    recipe_folders = {Path(os.path.realpath(recipe_path.parent)), Path(os.path.realpath(recipe_path)).parent}
-    for folder in sorted(recipe_folders):
-        if folder == real_out or real_out in folder.parents:
-            where = "is the folder of" if folder == real_out else "contains"
-            raise BatchError(f"{out}: {where} the recipe {recipe_path}; choose another --out")
+    if (clash := holds_folder_of(real_out, "recipe", recipe_path)) is not None:
+        raise BatchError(f"{out}: {clash}; choose another --out")
     if os.path.lexists(real_out) and not real_out.is_dir():
         raise BatchError(f"{out}: exists and is not a folder; choose another --out")
     if real_out.is_dir() and not overwrite and not is_batch_folder(real_out):
         names = sorted(os.listdir(real_out))
-        count = f"{len(names)} entr{'y' if len(names) == 1 else 'ies'}"
         raise BatchError(
-            f"{out}: folder exists and is not a meshdeform batch output ({count}, e.g. {names[0]!r}); "
+            f"{out}: folder exists and is not a meshdeform batch output ({entry_count(len(names))}, "
+            f"e.g. {names[0]!r}); "
             "choose another --out or pass --overwrite"
         )
 
@@ -461,6 +258,29 @@ def _close_log(logger: logging.Logger) -> None:
         logger.removeHandler(handler)
 
 
+@dataclass(frozen=True)
+class _Batch:
+    """What `run_batch` settled before it takes OUT's lock (folders absolute, options resolved).
+
+    base: the batch recipe. every: every asset key under `assets_dir` (a previous manifest's entries of
+    those not selected are kept). assets: the selected ones, in discovery order. links: the skipped
+    symlinks the selection keeps, key -> reason. jobs: the job count (resolved from the cores when not
+    given). job: the job function (None: `run_job`), bound to overwrite=True under `overwrite`.
+    """
+
+    assets_dir: Path
+    out: Path
+    base: Recipe
+    every: tuple[str, ...]
+    assets: tuple[Asset, ...]
+    links: dict[str, str]
+    jobs: int
+    dask: str | None
+    force: bool
+    overwrite: bool
+    job: JobFunction | None
+
+
 def run_batch(
     assets_dir: Path,
     recipe_path: Path,
@@ -507,7 +327,7 @@ def run_batch(
 
         job = functools.partial(job or run_job, overwrite=True)
     folders = output_folders(every)  # on every asset, so names do not change with the selection
-    assets = [Asset(key=k, path=assets_dir / k, output=folders[k][0], note=folders[k][1]) for k in keys]
+    assets = tuple(Asset(key=k, path=assets_dir / k, output=folders[k][0], note=folders[k][1]) for k in keys)
     jobs = available_cores() if jobs is None else jobs
     if executor is not None:
         runner = executor
@@ -516,50 +336,32 @@ def run_batch(
             runner = make_executor(jobs, dask)
         except (OSError, ValueError) as exc:  # a Dask scheduler that cannot be reached
             raise BatchError(f"cannot connect to the Dask scheduler at {dask}: {' '.join(str(exc).split())}") from None
+    batch = _Batch(
+        assets_dir=assets_dir,
+        out=out,
+        base=base,
+        every=tuple(every),
+        assets=assets,
+        links=links,
+        jobs=jobs,
+        dask=dask,
+        force=force,
+        overwrite=overwrite,
+        job=job,
+    )
     try:
-        return _run(
-            assets_dir,
-            assets,
-            every,
-            keys,
-            base,
-            out,
-            runner,
-            started,
-            links=links,
-            jobs=jobs,
-            dask=dask,
-            force=force,
-            overwrite=overwrite,
-            progress=progress,
-            job=job,
-        )
+        return _run(batch, runner, progress, started)
     finally:
         if executor is None:
             runner.close()
 
 
-def _run(
-    assets_dir: Path,
-    assets: Sequence[Asset],
-    every: Sequence[str],
-    keys: Sequence[str],
-    base: Any,
-    out: Path,
-    runner: Executor,
-    started: float,
-    *,
-    links: dict[str, str],
-    jobs: int,
-    dask: str | None,
-    force: bool,
-    overwrite: bool,
-    progress: BatchProgress | None,
-    job: JobFunction | None,
-) -> BatchResult:
-    """The locked part of `run_batch`: plan, run, keep the manifest current."""
+def _run(batch: _Batch, runner: Executor, progress: BatchProgress | None, started: float) -> BatchResult:
+    """The locked part of `run_batch`: plan, run, keep the manifest current (`started`: its
+    `time.perf_counter()` at the start, for the manifest's total_seconds)."""
     from pipeline.recipe import recipe_hash
 
+    assets_dir, out, base, assets = batch.assets_dir, batch.out, batch.base, batch.assets
     out.mkdir(parents=True, exist_ok=True)
     with out_lock(out):
         removed = remove_stale(out)
@@ -576,8 +378,8 @@ def _run(
             },
         )
         if previous:
-            chosen = set(keys)
-            existing = set(every)
+            chosen = {asset.key for asset in assets}
+            existing = set(batch.every)
             for entry in previous["assets"]:
                 key = entry.get("input") if isinstance(entry, dict) else None
                 if key in existing and key not in chosen:
@@ -588,18 +390,18 @@ def _run(
                 assets_dir,
                 out,
                 base.label,
-                len(keys),
-                len(every),
-                ", --force" if force else "",
+                len(assets),
+                len(batch.every),
+                ", --force" if batch.force else "",
             )
             if base.deprecation is not None:
                 log.warning("%s", base.deprecation)
             if removed:
                 log.info("removed %d stale staging folder(s) of interrupted runs", len(removed))
-            for key, reason in links.items():
+            for key, reason in batch.links.items():
                 manifest.add(new_entry(key, None, version=__version__, status="skipped", reason=reason))
                 log.info("skipped %s: %s", key, reason)
-            tasks = _plan(assets, base, out, manifest, log, force=force, overwrite=overwrite, job=job)
+            tasks = _plan(batch, manifest, log)
             manifest.write(force=True)
             if progress is not None:
                 progress.begin(len(assets), len(assets) - len(tasks))
@@ -612,8 +414,8 @@ def _run(
                     "running %d asset(s) with the %s executor (jobs=%s%s)",
                     len(tasks),
                     name,
-                    jobs,
-                    f", dask={dask}" if dask else "",
+                    batch.jobs,
+                    f", dask={batch.dask}" if batch.dask else "",
                 )
                 runner.run(tasks, _Recorder(manifest, log, progress))
             manifest.complete = True
@@ -642,24 +444,15 @@ def _run(
     )
 
 
-def _plan(
-    assets: Sequence[Asset],
-    base: Any,
-    out: Path,
-    manifest: Manifest,
-    log: logging.Logger,
-    *,
-    force: bool,
-    overwrite: bool,
-    job: JobFunction | None,
-) -> list[AssetTask]:
+def _plan(batch: _Batch, manifest: Manifest, log: logging.Logger) -> list[AssetTask]:
     """Resolve each asset's recipe, record skips, recipe failures and asset folders that may not be
     written (holding files meshdeform did not write, unless `overwrite`), and return the tasks to run."""
     from pipeline.recipe import recipe_hash
 
+    base = batch.base
     tasks: list[AssetTask] = []
-    for index, asset in enumerate(assets):
-        out_dir = out / asset.output
+    for index, asset in enumerate(batch.assets):
+        out_dir = batch.out / asset.output
         try:
             recipe, layers = resolve_recipe(base, asset)
         except Exception as exc:  # a bad sidecar or rule fails this asset only
@@ -669,7 +462,7 @@ def _plan(
         entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, overrides=layers, note=asset.note))
         sha = recipe_hash(recipe)
         entry["recipe_sha256"] = sha
-        report = None if force else read_report(out_dir)
+        report = None if batch.force else read_report(out_dir)
         if report is not None and up_to_date(report, out_dir, asset.path, sha):
             entry.update(
                 status="skipped",
@@ -682,7 +475,7 @@ def _plan(
             log.info("skipped %s: up to date in %s", asset.key, asset.output)
             continue
         try:
-            check_output_folder(out_dir, overwrite=overwrite)
+            check_output_folder(out_dir, overwrite=batch.overwrite)
         except OutputFolderError as exc:  # that folder holds someone's files: this asset fails alone
             _fail_before_running(entry, asset, exc, log)
             continue
@@ -693,7 +486,7 @@ def _plan(
                 mesh_path=str(asset.path),
                 out_dir=str(out_dir),
                 recipe=AssetRecipe(base=str(base.source), key=asset.key, mesh=str(asset.path)),
-                job=job,
+                job=batch.job,
             )
         )
     return tasks

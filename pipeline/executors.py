@@ -62,7 +62,7 @@ class AssetTask:
     key: the asset's name in the manifest (its path relative to the assets folder).
     mesh_path / out_dir: absolute paths (the same on every machine of a Dask cluster).
     recipe: the merged per-asset Recipe, or an object whose `load()` returns it (built in the
-        worker from the files: `pipeline.batch.AssetRecipe`).
+        worker from the files: `pipeline.assets.AssetRecipe`).
     job: the job function; None means `pipeline.job.run_job` (tests inject fakes).
     """
 
@@ -179,8 +179,8 @@ def one_line(exc: BaseException) -> tuple[str, str]:
 
 
 def remove_stale_stages(out_dir: Path) -> None:
-    """Delete the staging folders a killed job left beside `out_dir` (`pipeline.job.is_stage_of`)."""
-    from pipeline.job import is_stage_of
+    """Delete the staging folders a killed job left beside `out_dir` (`pipeline.output_folder.is_stage_of`)."""
+    from pipeline.output_folder import is_stage_of
 
     parent = out_dir.parent
     if not parent.is_dir():

@@ -2,7 +2,7 @@
 
 In the CLI process (`handling_signals`, installed once by `pipeline.cli` around every command) the
 first signal raises `Interrupted` in the main thread: the job's staging folder is removed on the
-way out (`pipeline.job.staged_directory` removes it on any BaseException), the batch stops its
+way out (`pipeline.output_folder.staged_directory` removes it on any BaseException), the batch stops its
 workers and writes its manifest, and the CLI edge prints one line and exits with 128 + the signal
 number (130 for Ctrl-C, 143 for `kill`). Further signals are ignored while that cleanup runs, so a
 second Ctrl-C cannot leave it half done.

@@ -17,19 +17,11 @@ import pytest
 
 from meshdeform.errors import ExportError, MeshLoadError, RecipeError, SimulationDiverged
 from pipeline import __version__
-from pipeline.batch import (
-    BatchError,
-    discover,
-    glob_match,
-    out_lock,
-    output_folders,
-    remove_stale,
-    run_batch,
-    select,
-)
+from pipeline.assets import discover, glob_match, output_folders, select
+from pipeline.batch import BatchError, out_lock, remove_stale, run_batch
 from pipeline.hashing import file_sha256
-from pipeline.job import stage_path, staged_directory
 from pipeline.manifest import MANIFEST_TIMING_KEYS, drop_keys
+from pipeline.output_folder import stage_path, staged_directory
 from pipeline.recipe import recipe_hash
 
 RECIPE = """

@@ -28,7 +28,7 @@ from pipeline.executors import (
     execute_task,
     threads_per_job,
 )
-from pipeline.job import stage_path
+from pipeline.output_folder import stage_path
 
 
 @dataclass

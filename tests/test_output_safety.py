@@ -25,7 +25,7 @@ from robustness_corpus import snapshot
 from typer.testing import CliRunner
 
 from pipeline.cli import app
-from pipeline.job import MARKER_NAME, output_lock
+from pipeline.output_folder import MARKER_NAME, output_lock
 
 runner = CliRunner()
 RECIPE = '[simulation]\nsolver = "verlet"\nframes = 2\n'

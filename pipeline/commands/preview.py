@@ -50,7 +50,7 @@ _PREVIEW_ENTRIES = ("preview", "preview.mp4", "preview.gif")
 def refuse_foreign_previews(folder: Path) -> None:
     """Refuse (one line, exit 2) to render into `folder` where a preview file of the same name exists
     that meshdeform did not write: previews replace only their own files."""
-    from pipeline.job import inspect_folder
+    from pipeline.output_folder import inspect_folder
 
     state = inspect_folder(folder)
     clash = [entry for entry in state.foreign if entry.split("/", 1)[0] in _PREVIEW_ENTRIES]
@@ -64,7 +64,7 @@ def refuse_foreign_previews(folder: Path) -> None:
 def record_previews(folder: Path, files: list[Path]) -> None:
     """Add the preview files just written to `folder`'s marker (made if it has none), so a later
     preview or run knows them as meshdeform's."""
-    from pipeline.job import file_sizes, marker_sizes, read_marker, write_marker
+    from pipeline.output_folder import file_sizes, marker_sizes, read_marker, write_marker
 
     real = Path(os.path.realpath(folder))
     written = [Path(os.path.realpath(f)).relative_to(real).as_posix() for f in files]

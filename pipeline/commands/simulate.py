@@ -90,7 +90,8 @@ def register(app: typer.Typer) -> None:
         """Simulate MESH with a recipe and write frames/frame_0001.obj ... and report.json into --out."""
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-        from pipeline.job import check_output_folder, output_lock, run_job
+        from pipeline.job import run_job
+        from pipeline.output_folder import check_output_folder, output_lock
         from pipeline.recipe import apply_overrides, load_recipe
 
         with cli_errors():
