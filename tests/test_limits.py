@@ -25,7 +25,8 @@ from meshdeform.io import load
 from pipeline import estimate
 from pipeline.cli import app
 from pipeline.estimate import InsufficientDiskSpace, estimate_run, output_bytes, require_disk_space
-from pipeline.job import MARKER_NAME, REPORT_NAME, run_job
+from pipeline.job import run_job
+from pipeline.output_folder import MARKER_NAME, REPORT_NAME
 from pipeline.recipe import LIMITS, apply_overrides, load_recipe, parse_recipe
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "recipes.md"
