@@ -4,18 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from factories import TOP_CORNERS, Pin, grid_cloth
 
-from meshdeform.mesh import grid_mesh
-from meshdeform.model import SpringModel, State
+from meshdeform.model import State
 from meshdeform.solvers import Control, make_solver
 from meshdeform.solvers.implicit import ImplicitSolver
 
-
-def cloth(n: int, pins: list[int]) -> SpringModel:
-    mesh = grid_mesh(n, n, plane="xy")
-    pinned = np.zeros(n * n, dtype=bool)
-    pinned[pins] = True
-    return SpringModel.from_mesh(mesh, pinned_input=pinned)
+CORNERS = ("bottom-left", "bottom-right", *TOP_CORNERS)
 
 
 def dense_matrix(solver: ImplicitSolver, dt: float) -> np.ndarray:
@@ -42,22 +37,23 @@ def factor_solve(solver: ImplicitSolver, rhs: np.ndarray) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize(("n", "pins"), [(7, [42, 48]), (9, [0, 8, 40, 72, 80]), (5, [])])
-def test_factor_matches_a_dense_solve(n: int, pins: list[int]) -> None:
-    model = cloth(n, pins)
+@pytest.mark.parametrize(("n", "pins", "pinned"), [(7, TOP_CORNERS, 2), (9, (*CORNERS, 40), 5), (5, (), 0)])
+def test_factor_matches_a_dense_solve(n: int, pins: tuple[Pin, ...], pinned: int) -> None:
+    """Hanging from two corners, held at four corners and the centre (vertex 40), free."""
+    model = grid_cloth(n, pins=pins).model
     solver = make_solver("implicit")
     assert isinstance(solver, ImplicitSolver)
     dt = 1.0 / 24.0
     solver._prepare(model)
     solver._factorise(dt)
-    assert solver.free_vertices.shape[0] == n * n - len(pins)
+    assert solver.free_vertices.shape[0] == n * n - pinned
     rhs = np.random.default_rng(n).standard_normal((solver.free_vertices.shape[0], 3)) * 10.0
     expected = np.linalg.solve(dense_matrix(solver, dt), rhs)
     np.testing.assert_allclose(factor_solve(solver, rhs), expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
 
 
 def test_a_new_time_step_refactorises() -> None:
-    model = cloth(6, [30, 35])
+    model = grid_cloth(6, pins=TOP_CORNERS).model
     solver = make_solver("implicit")
     assert isinstance(solver, ImplicitSolver)
     state = State.at_rest(model)
@@ -71,7 +67,7 @@ def test_a_new_time_step_refactorises() -> None:
 
 
 def test_all_vertices_pinned_steps_without_a_factor() -> None:
-    model = cloth(3, list(range(9)))
+    model = grid_cloth(3, pins=range(9)).model
     solver = make_solver("implicit")
     assert isinstance(solver, ImplicitSolver)
     state = State.at_rest(model)
