@@ -1,4 +1,5 @@
-"""Physics checks against analytic values, for every solver (small meshes, fast)."""
+"""Physics checks against analytic values, for every solver (small meshes, fast): single springs
+(`spring_line`) and 1 m cloths (`factories.grid_cloth`; hanging ones pinned at `TOP_CORNERS`)."""
 
 from __future__ import annotations
 
@@ -7,10 +8,11 @@ import math
 
 import numpy as np
 import pytest
+from factories import TOP_CORNERS, grid_cloth
 
 from meshdeform.errors import SimulationDiverged
 from meshdeform.material import KindMaterial, Material
-from meshdeform.mesh import Mesh, grid_mesh
+from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers import SOLVERS, Control, SpringsOptions, XPBDOptions, make_solver, solver_class
@@ -19,19 +21,10 @@ SOLVER_NAMES = sorted(SOLVERS)
 G = 9.81
 
 
-def hanging_cloth(n: int = 10, material: Material | None = None) -> tuple[Mesh, SpringModel, np.ndarray]:
-    """A 1 m vertical cloth (XY, Y up) pinned at its two top corners."""
-    mesh = grid_mesh(n, n, plane="xy")
-    pinned = np.zeros(n * n, dtype=bool)
-    pinned[[n * (n - 1), n * n - 1]] = True
-    return mesh, SpringModel.from_mesh(mesh, material, pinned_input=pinned), pinned
-
-
 @pytest.mark.parametrize("name", SOLVER_NAMES)
 def test_free_fall_matches_analytic(name: str) -> None:
     """An unpinned mesh falls y0 - g t^2 / 2 (no air damping) with every solver."""
-    mesh = grid_mesh(4, 4, plane="xz")
-    model = SpringModel.from_mesh(mesh)
+    mesh, model, _ = grid_cloth(4, plane="xz")
     settings = Settings(solver=name, fps=24, frames=24, options=solver_class(name).options_class(damping=0.0))
     frames = list(simulate(model, Scene(gravity=(0.0, -G, 0.0)), settings))
     t = frames[-1].time
@@ -111,7 +104,7 @@ def sag(iterations: int) -> float:
         shear=KindMaterial(stiffness=0.02),
         bending=KindMaterial(stiffness=0.002),
     )
-    mesh, model, _ = hanging_cloth(12, material)
+    mesh, model, _ = grid_cloth(12, pins=TOP_CORNERS, material=material)
     # tethers off: they cap stretch along pin paths; this checks the compliance alone
     settings = Settings(solver="xpbd", frames=96, options=XPBDOptions(iterations=iterations, tethers=None))
     last = list(simulate(model, Scene(), settings))[-1]
@@ -234,7 +227,7 @@ def test_xpbd_spring_between_two_pins_never_moves_them() -> None:
 
 @pytest.mark.parametrize("name", SOLVER_NAMES)
 def test_pinned_vertices_bit_identical(name: str) -> None:
-    mesh, model, pinned = hanging_cloth(8)
+    mesh, model, pinned = grid_cloth(8, pins=TOP_CORNERS)
     for frame in simulate(model, Scene(), Settings(solver=name, frames=12)):
         assert np.array_equal(frame.positions[pinned], mesh.positions[pinned])
         assert np.isfinite(frame.positions).all()
@@ -242,7 +235,7 @@ def test_pinned_vertices_bit_identical(name: str) -> None:
 
 def test_strain_limit_keeps_structural_springs_within_ratio() -> None:
     soft = Material(stretch_modulus=5.0)
-    _, model, _ = hanging_cloth(10, soft)
+    model = grid_cloth(10, pins=TOP_CORNERS, material=soft).model
     free = [f.max_stretch for f in simulate(model, Scene(), Settings(solver="springs", frames=24))]
     assert max(free) > 1.15  # without the limit this soft cloth stretches beyond it
     limited = Settings(solver="springs", frames=24, options=SpringsOptions(strain_limit=1.1))
@@ -254,7 +247,7 @@ def test_strain_limit_keeps_structural_springs_within_ratio() -> None:
 @pytest.mark.parametrize("name", SOLVER_NAMES)
 def test_hanging_cloth_comes_to_rest(name: str) -> None:
     """Default settings: max vertex speed below 1e-4 m/s within a few (5) simulated seconds."""
-    _, model, _ = hanging_cloth(10)
+    model = grid_cloth(10, pins=TOP_CORNERS).model
     frames = list(simulate(model, Scene(), Settings(solver=name, frames=24 * 6)))
     last = frames[-1]
     assert last.at_rest and last.max_speed < 1e-4
@@ -275,7 +268,7 @@ class PoisonAfter:
 
 @pytest.mark.parametrize("name", SOLVER_NAMES)
 def test_guard_names_the_frame_of_a_non_finite_blow_up(name: str) -> None:
-    _, model, _ = hanging_cloth(6)
+    model = grid_cloth(6, pins=TOP_CORNERS).model
     yielded = []
     with pytest.raises(SimulationDiverged) as info:
         for frame in simulate(model, Scene(forces=[PoisonAfter(0.5)]), Settings(solver=name, frames=24)):
@@ -293,7 +286,7 @@ def test_guard_stops_an_absurd_gravity_on_a_tethered_cloth(name: str) -> None:
 
     (The tethers once projected the overflowed vertices onto their pins: finite, calm, wrong.)
     """
-    _, model, _ = hanging_cloth(8)
+    model = grid_cloth(8, pins=TOP_CORNERS).model
     with pytest.raises(SimulationDiverged) as info:
         list(simulate(model, Scene(gravity=(0.0, -1e300, 0.0)), Settings(solver=name, frames=3)))
     assert info.value.frame == 1 and info.value.solver == name
@@ -301,7 +294,7 @@ def test_guard_stops_an_absurd_gravity_on_a_tethered_cloth(name: str) -> None:
 
 def test_guard_stops_an_unstable_explicit_setup() -> None:
     """Explicit springs far too stiff for the step, stability splitting off: stopped, never yields NaN."""
-    _, model, _ = hanging_cloth(8, Material(stretch_modulus=1e5))
+    model = grid_cloth(8, pins=TOP_CORNERS, material=Material(stretch_modulus=1e5)).model
     settings = Settings(solver="springs", frames=48, substeps=1, options=SpringsOptions(stable_substeps=False))
     yielded = []
     with pytest.raises(SimulationDiverged) as info:
