@@ -1,4 +1,5 @@
-"""Physics checks against analytic values, for every solver (small meshes, fast)."""
+"""Physics checks against analytic values, for every solver (small meshes, fast): single springs
+(`spring_line`) and 1 m cloths (`factories.grid_cloth`; hanging ones pinned at `TOP_CORNERS`)."""
 
 from __future__ import annotations
 
@@ -7,31 +8,23 @@ import math
 
 import numpy as np
 import pytest
+from factories import TOP_CORNERS, grid_cloth
 
 from meshdeform.errors import SimulationDiverged
 from meshdeform.material import KindMaterial, Material
-from meshdeform.mesh import Mesh, grid_mesh
+from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
-from meshdeform.solvers import SOLVERS, SpringsOptions, XPBDOptions, solver_class
+from meshdeform.solvers import SOLVERS, Control, SpringsOptions, XPBDOptions, make_solver, solver_class
 
 SOLVER_NAMES = sorted(SOLVERS)
 G = 9.81
 
 
-def hanging_cloth(n: int = 10, material: Material | None = None) -> tuple[Mesh, SpringModel, np.ndarray]:
-    """A 1 m vertical cloth (XY, Y up) pinned at its two top corners."""
-    mesh = grid_mesh(n, n, plane="xy")
-    pinned = np.zeros(n * n, dtype=bool)
-    pinned[[n * (n - 1), n * n - 1]] = True
-    return mesh, SpringModel.from_mesh(mesh, material, pinned_input=pinned), pinned
-
-
 @pytest.mark.parametrize("name", SOLVER_NAMES)
 def test_free_fall_matches_analytic(name: str) -> None:
     """An unpinned mesh falls y0 - g t^2 / 2 (no air damping) with every solver."""
-    mesh = grid_mesh(4, 4, plane="xz")
-    model = SpringModel.from_mesh(mesh)
+    mesh, model, _ = grid_cloth(4, plane="xz")
     settings = Settings(solver=name, fps=24, frames=24, options=solver_class(name).options_class(damping=0.0))
     frames = list(simulate(model, Scene(gravity=(0.0, -G, 0.0)), settings))
     t = frames[-1].time
@@ -42,21 +35,41 @@ def test_free_fall_matches_analytic(name: str) -> None:
     assert frames[-1].max_stretch == pytest.approx(1.0, abs=1e-6)
 
 
-def spring_period(name: str, substeps: int | None) -> tuple[float, float]:
-    """Measured and analytic period of one Hooke spring: pinned end, point mass m, k = s * modulus."""
-    m, s, modulus, rest = 0.05, 0.8, 2.5, 1.0
+#: the single springs below: vertex mass (kg) and stretch modulus (N/m); stiffness 0.8 makes k = 2 N/m
+M, MODULUS = 0.05, 2.5
+
+
+def spring_line(
+    points: list[list[float]],
+    pins: list[int],
+    *,
+    stiffness: float = 0.8,
+    compression: float | None = None,
+    damping: float = 0.0,
+) -> SpringModel:
+    """A polyline through `points` ((N, 3) m) with one structural spring between consecutive
+    points (k = stiffness * MODULUS N/m under tension, compression * MODULUS when shorter than
+    rest, `damping` its damping ratio), every vertex of mass M kg, the vertices `pins` pinned."""
+    count = len(points)
     mesh = Mesh(
-        positions=np.array([[0.0, 0.0, 0.0], [rest, 0.0, 0.0]]),
+        positions=np.array(points, dtype=np.float64),
         face_indices=np.zeros(0, np.int64),
         face_offsets=np.zeros(1, np.int64),
-        line_indices=np.array([0, 1], np.int64),
-        line_offsets=np.array([0, 2], np.int64),
+        line_indices=np.arange(count, dtype=np.int64),
+        line_offsets=np.array([0, count], np.int64),
     )
-    material = Material(
-        structural=KindMaterial(stiffness=s, damping=0.0), vertex_mass=m, stretch_modulus=modulus
-    )
-    model = SpringModel.from_mesh(mesh, material, pinned_input=np.array([True, False]))
-    k = material.spring_constant(s)
+    kind = KindMaterial(stiffness=stiffness, compression=compression, damping=damping)
+    material = Material(structural=kind, vertex_mass=M, stretch_modulus=MODULUS)
+    pinned = np.zeros(count, dtype=bool)
+    pinned[pins] = True
+    return SpringModel.from_mesh(mesh, material, pinned_input=pinned)
+
+
+def spring_period(name: str, substeps: int | None) -> tuple[float, float]:
+    """Measured and analytic period of one Hooke spring: pinned end, point mass M, k = 0.8 * MODULUS."""
+    rest = 1.0
+    model = spring_line([[0.0, 0.0, 0.0], [rest, 0.0, 0.0]], [0])
+    k = model.material.spring_constant(0.8)
     state = State.at_rest(model)
     state.positions[1, 0] += 0.05
     state.previous[1, 0] += 0.05
@@ -71,7 +84,7 @@ def spring_period(name: str, substeps: int | None) -> tuple[float, float]:
     up = np.flatnonzero((ext[:-1] < 0) & (ext[1:] >= 0))
     crossings = times[up] + (times[up + 1] - times[up]) * (-ext[up] / (ext[up + 1] - ext[up]))
     measured = float(np.mean(np.diff(crossings)))
-    return measured, 2.0 * math.pi * math.sqrt(m / k)
+    return measured, 2.0 * math.pi * math.sqrt(M / k)
 
 
 @pytest.mark.parametrize(
@@ -86,9 +99,12 @@ def test_hooke_spring_period(name: str, substeps: int | None, tolerance: float) 
 
 
 def sag(iterations: int) -> float:
-    material = Material(structural=KindMaterial(stiffness=0.05), shear=KindMaterial(stiffness=0.02),
-                        bending=KindMaterial(stiffness=0.002))
-    mesh, model, _ = hanging_cloth(12, material)
+    material = Material(
+        structural=KindMaterial(stiffness=0.05),
+        shear=KindMaterial(stiffness=0.02),
+        bending=KindMaterial(stiffness=0.002),
+    )
+    mesh, model, _ = grid_cloth(12, pins=TOP_CORNERS, material=material)
     # tethers off: they cap stretch along pin paths; this checks the compliance alone
     settings = Settings(solver="xpbd", frames=96, options=XPBDOptions(iterations=iterations, tethers=None))
     last = list(simulate(model, Scene(), settings))[-1]
@@ -101,9 +117,117 @@ def test_xpbd_sag_independent_of_iterations() -> None:
     assert abs(few - many) / many < 0.05
 
 
+# xpbd's per-spring constants (compliances, denominators, damping factor: `kernels.XPBD_SPRING`)
+# decide the behaviour below; each check fails when one of them is wrong. Tethers are off so
+# that the springs act alone.
+
+
+def xpbd_settle(model: SpringModel, substeps: int | None = None, iterations: int | None = None) -> np.ndarray:
+    """Welded positions (W, 3) after 6 s under gravity with xpbd (air damping at its default): at rest."""
+    options = XPBDOptions(iterations=iterations, tethers=None)
+    frames = list(simulate(model, Scene(), Settings(solver="xpbd", frames=6 * 24, substeps=substeps, options=options)))
+    assert frames[-1].max_speed < 1e-6
+    return frames[-1].welded_positions
+
+
+@pytest.mark.parametrize(("substeps", "iterations"), [(1, 1), (2, 1), (22, 2), (8, 5)])
+def test_xpbd_hanging_spring_settles_at_m_g_over_k(substeps: int, iterations: int) -> None:
+    """A mass M on a spring of k = 2 N/m below a pin settles M g / k = 0.245 m below rest length,
+    whatever the step (1/24 to 1/528 s) and the iteration count, with spring damping on.
+
+    One sweep solves a single spring's constraint exactly, so with one sweep a step stops where
+    that sweep leaves it: at M g / k only with the compliance alpha~ = 1 / (k dt^2) and the
+    denominator (1 + gamma) w + alpha~ of XPBD (without alpha~ in it the spring would not stretch
+    at all, without the 1 + gamma it would settle gamma g dt^2 short).
+    """
+    model = spring_line([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0]], [0], damping=0.5)
+    extension = -1.0 - xpbd_settle(model, substeps, iterations)[1, 1]
+    assert extension == pytest.approx(M * G / model.material.spring_constant(0.8), rel=1e-6)
+
+
+def test_xpbd_tension_and_compression_stiffness_act_separately() -> None:
+    """Stiffness 0.8 under tension, 0.4 under compression: a mass hanging below its pin stretches
+    the spring by M g / (0.8 MODULUS), one standing on top of it compresses it by M g / (0.4 MODULUS)."""
+    kt, kc = 0.8 * MODULUS, 0.4 * MODULUS
+    hanging = spring_line([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0]], [0], compression=0.4, damping=0.5)
+    standing = spring_line([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [0], compression=0.4, damping=0.5)
+    assert -1.0 - xpbd_settle(hanging)[1, 1] == pytest.approx(M * G / kt, rel=1e-6)
+    top = xpbd_settle(standing)[1]
+    assert 1.0 - top[1] == pytest.approx(M * G / kc, rel=1e-6)
+    assert top[0] == 0.0 and top[2] == 0.0  # straight down its axis: nothing tips it over
+
+
+@pytest.mark.parametrize(("stiffness", "compression", "start"), [(0.8, 0.0, 0.5), (0.0, 0.8, 1.5)])
+def test_xpbd_spring_without_stiffness_one_way_exerts_nothing_that_way(
+    stiffness: float, compression: float, start: float
+) -> None:
+    """Compression 0 (stiffness 0) removes the constraint when shorter (longer) than rest: a spring
+    let go compressed to half (stretched to 1.5 times) its length, without gravity, leaves its free
+    end exactly where it is; with stiffness that way as well it springs back."""
+
+    def free_end(stiffness: float, compression: float) -> list[float]:
+        model = spring_line(
+            [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], [0], stiffness=stiffness, compression=compression, damping=0.3
+        )
+        state = State.at_rest(model)
+        state.positions[1, 0] = state.previous[1, 0] = start
+        settings = Settings(solver="xpbd", frames=24, options=XPBDOptions(tethers=None))
+        return [f.welded_positions[1, 0] for f in simulate(model, Scene(gravity=(0, 0, 0)), settings, state=state)]
+
+    assert free_end(stiffness, compression) == [start] * 24
+    assert abs(free_end(0.8, 0.8)[5] - start) > 0.05
+
+
+def decay_rate(damping: float) -> float:
+    """Decay rate (1/s) of the oscillation of a mass M on a spring of k = 2 N/m and damping ratio
+    `damping` under xpbd, let go 5 cm from rest (no gravity, no air damping): the slope of the log
+    of its peak extensions over 4 s, sampled at 240 frames/s of 2 substeps (dt = 1/480 s)."""
+    model = spring_line([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], [0], damping=damping)
+    state = State.at_rest(model)
+    state.positions[1, 0] += 0.05
+    state.previous[1, 0] += 0.05
+    fps = 240
+    settings = Settings(
+        solver="xpbd", fps=fps, frames=4 * fps, substeps=2, options=XPBDOptions(damping=0.0, tethers=None)
+    )
+    ext = np.array(
+        [f.welded_positions[1, 0] - 1.0 for f in simulate(model, Scene(gravity=(0, 0, 0)), settings, state=state)]
+    )
+    peaks = np.flatnonzero((ext[1:-1] > ext[:-2]) & (ext[1:-1] >= ext[2:])) + 1
+    assert peaks.size >= 3
+    return -float(np.polyfit((peaks + 1) / fps, np.log(ext[peaks]), 1)[0])
+
+
+def test_xpbd_damping_ratio_sets_the_decay_of_a_damped_oscillator() -> None:
+    """A spring of damping ratio z decays as exp(-z omega0 t), omega0 = sqrt(k / M) = 6.32 rad/s,
+    on top of the step's own numerical damping (measured with z = 0: omega0^2 dt / 2 = 0.042/s,
+    that of implicit Euler)."""
+    omega0 = math.sqrt(MODULUS * 0.8 / M)
+    numerical = decay_rate(0.0)
+    assert numerical == pytest.approx(omega0**2 / 480 / 2, rel=0.05)
+    for z in (0.05, 0.2):
+        assert decay_rate(z) - numerical == pytest.approx(z * omega0, rel=0.02)
+
+
+def test_xpbd_spring_between_two_pins_never_moves_them() -> None:
+    """A damped spring stretched 30 % between two pinned vertices (the second also holding a free
+    one under gravity) leaves both exactly in place, at zero velocity, step after step (the
+    solver itself: `simulate` would put pins back after each frame)."""
+    model = spring_line([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, -1.0, 0.0]], [0, 1], damping=0.3)
+    state = State.at_rest(model)
+    state.positions[1, 0] = state.previous[1, 0] = 1.3
+    held = state.positions[:2].copy()
+    solver = make_solver("xpbd", XPBDOptions(tethers=None))
+    control = Control(np.tile([0.0, -G, 0.0], (model.vertex_count, 1)))
+    for _ in range(48):
+        solver.step(model, state, 1.0 / 96.0, control)
+        assert np.array_equal(state.positions[:2], held) and not state.velocities[:2].any()
+    assert np.isfinite(state.positions).all() and state.positions[2, 1] < -1.0  # the free one hangs
+
+
 @pytest.mark.parametrize("name", SOLVER_NAMES)
 def test_pinned_vertices_bit_identical(name: str) -> None:
-    mesh, model, pinned = hanging_cloth(8)
+    mesh, model, pinned = grid_cloth(8, pins=TOP_CORNERS)
     for frame in simulate(model, Scene(), Settings(solver=name, frames=12)):
         assert np.array_equal(frame.positions[pinned], mesh.positions[pinned])
         assert np.isfinite(frame.positions).all()
@@ -111,7 +235,7 @@ def test_pinned_vertices_bit_identical(name: str) -> None:
 
 def test_strain_limit_keeps_structural_springs_within_ratio() -> None:
     soft = Material(stretch_modulus=5.0)
-    _, model, _ = hanging_cloth(10, soft)
+    model = grid_cloth(10, pins=TOP_CORNERS, material=soft).model
     free = [f.max_stretch for f in simulate(model, Scene(), Settings(solver="springs", frames=24))]
     assert max(free) > 1.15  # without the limit this soft cloth stretches beyond it
     limited = Settings(solver="springs", frames=24, options=SpringsOptions(strain_limit=1.1))
@@ -123,7 +247,7 @@ def test_strain_limit_keeps_structural_springs_within_ratio() -> None:
 @pytest.mark.parametrize("name", SOLVER_NAMES)
 def test_hanging_cloth_comes_to_rest(name: str) -> None:
     """Default settings: max vertex speed below 1e-4 m/s within a few (5) simulated seconds."""
-    _, model, _ = hanging_cloth(10)
+    model = grid_cloth(10, pins=TOP_CORNERS).model
     frames = list(simulate(model, Scene(), Settings(solver=name, frames=24 * 6)))
     last = frames[-1]
     assert last.at_rest and last.max_speed < 1e-4
@@ -144,7 +268,7 @@ class PoisonAfter:
 
 @pytest.mark.parametrize("name", SOLVER_NAMES)
 def test_guard_names_the_frame_of_a_non_finite_blow_up(name: str) -> None:
-    _, model, _ = hanging_cloth(6)
+    model = grid_cloth(6, pins=TOP_CORNERS).model
     yielded = []
     with pytest.raises(SimulationDiverged) as info:
         for frame in simulate(model, Scene(forces=[PoisonAfter(0.5)]), Settings(solver=name, frames=24)):
@@ -162,7 +286,7 @@ def test_guard_stops_an_absurd_gravity_on_a_tethered_cloth(name: str) -> None:
 
     (The tethers once projected the overflowed vertices onto their pins: finite, calm, wrong.)
     """
-    _, model, _ = hanging_cloth(8)
+    model = grid_cloth(8, pins=TOP_CORNERS).model
     with pytest.raises(SimulationDiverged) as info:
         list(simulate(model, Scene(gravity=(0.0, -1e300, 0.0)), Settings(solver=name, frames=3)))
     assert info.value.frame == 1 and info.value.solver == name
@@ -170,7 +294,7 @@ def test_guard_stops_an_absurd_gravity_on_a_tethered_cloth(name: str) -> None:
 
 def test_guard_stops_an_unstable_explicit_setup() -> None:
     """Explicit springs far too stiff for the step, stability splitting off: stopped, never yields NaN."""
-    _, model, _ = hanging_cloth(8, Material(stretch_modulus=1e5))
+    model = grid_cloth(8, pins=TOP_CORNERS, material=Material(stretch_modulus=1e5)).model
     settings = Settings(solver="springs", frames=48, substeps=1, options=SpringsOptions(stable_substeps=False))
     yielded = []
     with pytest.raises(SimulationDiverged) as info:

@@ -16,7 +16,6 @@ from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers import Control, common, make_solver, solver_class
 from meshdeform.solvers.layout import SpringLayout, inherited_layout, spring_layout
-from meshdeform.solvers.xpbd import kernels
 from meshdeform.tearing import Tearer, TearRegion, TearSettings
 
 N = 32  # 32 x 32 has more springs than AUTO_PARALLEL_SPRINGS: two slabs and a separator
@@ -98,48 +97,6 @@ def test_a_model_not_descending_from_the_layout_is_refused() -> None:
     assert inherited_layout(lay, model, same, parent) is not None
     assert inherited_layout(lay, model, same, np.roll(parent, 1)) is None  # springs joining other vertices
     assert inherited_layout(lay, model, same[::-1].copy(), parent) is None  # kept vertices renumbered
-
-
-def test_xpbd_records_are_the_numpy_formulas_bit_for_bit() -> None:
-    """`kernels.xpbd_constants` against the XPBD docstring's expressions, with k and the damping
-    coefficient c from the definitions every force-based solver shares (`solvers.common`)."""
-    from dataclasses import replace
-
-    from meshdeform.solvers.common import damping_coefficients, spring_constants
-
-    mesh = grid_mesh(12, 12)
-    pinned = np.zeros(mesh.vertex_count, dtype=bool)
-    pinned[[0, 11]] = True
-    base = SpringModel.from_mesh(mesh, pinned_input=pinned)
-    rng = np.random.default_rng(3)
-    model = replace(
-        base,
-        stiffness=rng.uniform(-0.1, 1.0, base.spring_count),  # some <= 0: no constraint that way
-        compression=rng.uniform(-0.1, 1.0, base.spring_count),
-        damping=rng.uniform(0.0, 0.5, base.spring_count),
-    )
-    order = rng.permutation(model.spring_count)
-    dt, modulus = 1.0 / 528, float(model.material.stretch_modulus)
-    records = np.zeros(model.spring_count, dtype=kernels.XPBD_SPRING)
-    damped = kernels.xpbd_constants(
-        order, model.springs, model.rest_lengths, model.stiffness, model.compression, model.damping,
-        model.inv_mass, modulus, dt, records,
-    )
-    kt_all, kc_all = spring_constants(model)
-    c = damping_coefficients(model, kt_all)[order]
-    kt, kc = kt_all[order], kc_all[order]
-    springs = np.asarray(model.springs)[order]
-    w = model.inv_mass[springs[:, 0]] + model.inv_mass[springs[:, 1]]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        at = np.where(kt > 0.0, (1.0 / (dt * dt)) / kt, 0.0)
-        ac = np.where(kc > 0.0, (1.0 / (dt * dt)) / kc, 0.0)
-        g = np.where(kt > 0.0, c / (kt * dt), 0.0)
-        it = np.where((kt > 0.0) & ((1.0 + g) * w + at > 0.0), 1.0 / ((1.0 + g) * w + at), 0.0)
-        ic = np.where((kc > 0.0) & ((1.0 + g) * w + ac > 0.0), 1.0 / ((1.0 + g) * w + ac), 0.0)
-    expected_fields = {"rest": model.rest_lengths[order], "at": at, "ac": ac, "g": g, "it": it, "ic": ic}
-    for field, expected in expected_fields.items():
-        assert records[field].tobytes() == expected.tobytes(), field
-    assert damped == bool((g > 0.0).any())
 
 
 @pytest.mark.parametrize("solver", ["xpbd", "verlet"])

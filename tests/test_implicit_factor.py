@@ -1,0 +1,77 @@
+"""The implicit solver's prefactored global matrix: the sparse Cholesky factor against dense solves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from factories import TOP_CORNERS, Pin, grid_cloth
+
+from meshdeform.model import State
+from meshdeform.solvers import Control, make_solver
+from meshdeform.solvers.implicit import ImplicitSolver
+
+CORNERS = ("bottom-left", "bottom-right", *TOP_CORNERS)
+
+
+def dense_matrix(solver: ImplicitSolver, dt: float) -> np.ndarray:
+    """M / b^2 + sum_s w_s (e_a - e_b)(e_a - e_b)^T over the free vertices, built entry by entry."""
+    nf = solver.free_vertices.shape[0]
+    matrix = np.diag(solver.free_mass / (2.0 * dt / 3.0) ** 2)
+    fa, fb = solver.free[solver.a], solver.free[solver.b]
+    for i, j, w in zip(fa, fb, solver.weight, strict=True):
+        if i >= 0:
+            matrix[i, i] += w
+        if j >= 0:
+            matrix[j, j] += w
+        if i >= 0 and j >= 0:
+            matrix[i, j] -= w
+            matrix[j, i] -= w
+    assert matrix.shape == (nf, nf)
+    return matrix
+
+
+def factor_solve(solver: ImplicitSolver, rhs: np.ndarray) -> np.ndarray:
+    assert solver.factor is not None
+    out = np.empty_like(rhs)
+    solver.factor.solve(np.ascontiguousarray(rhs), out)
+    return out
+
+
+@pytest.mark.parametrize(("n", "pins", "pinned"), [(7, TOP_CORNERS, 2), (9, (*CORNERS, 40), 5), (5, (), 0)])
+def test_factor_matches_a_dense_solve(n: int, pins: tuple[Pin, ...], pinned: int) -> None:
+    """Hanging from two corners, held at four corners and the centre (vertex 40), free."""
+    model = grid_cloth(n, pins=pins).model
+    solver = make_solver("implicit")
+    assert isinstance(solver, ImplicitSolver)
+    dt = 1.0 / 24.0
+    solver._prepare(model)
+    solver._factorise(dt)
+    assert solver.free_vertices.shape[0] == n * n - pinned
+    rhs = np.random.default_rng(n).standard_normal((solver.free_vertices.shape[0], 3)) * 10.0
+    expected = np.linalg.solve(dense_matrix(solver, dt), rhs)
+    np.testing.assert_allclose(factor_solve(solver, rhs), expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+
+
+def test_a_new_time_step_refactorises() -> None:
+    model = grid_cloth(6, pins=TOP_CORNERS).model
+    solver = make_solver("implicit")
+    assert isinstance(solver, ImplicitSolver)
+    state = State.at_rest(model)
+    control = Control(np.tile([0.0, -9.81, 0.0], (model.vertex_count, 1)))
+    solver.step(model, state, 1.0 / 24.0, control)
+    solver.step(model, state, 1.0 / 96.0, control)
+    rhs = np.random.default_rng(1).standard_normal((solver.free_vertices.shape[0], 3))
+    expected = np.linalg.solve(dense_matrix(solver, 1.0 / 96.0), rhs)
+    np.testing.assert_allclose(factor_solve(solver, rhs), expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+    assert np.isfinite(state.positions).all()
+
+
+def test_all_vertices_pinned_steps_without_a_factor() -> None:
+    model = grid_cloth(3, pins=range(9)).model
+    solver = make_solver("implicit")
+    assert isinstance(solver, ImplicitSolver)
+    state = State.at_rest(model)
+    before = state.positions.copy()
+    solver.step(model, state, 1.0 / 24.0, Control(np.tile([0.0, -9.81, 0.0], (9, 1))))
+    assert solver.factor is None
+    np.testing.assert_array_equal(state.positions, before)
