@@ -28,6 +28,29 @@ FrameItem = np.ndarray | Mesh
 _NUMBER = re.compile(r"(\d+)$")
 
 
+class LazyFrames(Sequence[FrameItem]):
+    """A result's frames read one file at a time: a frame is its positions (V, 3) when
+    `same_topology(frame, base)`, else its own Mesh (the mesh changed: tearing).
+
+    paths: the frame files in frame order; read: file -> Mesh (the format's reader).
+    """
+
+    def __init__(
+        self, paths: list[Path], base: Mesh, read: Callable[[Path], Mesh], same_topology: Callable[[Mesh, Mesh], bool]
+    ) -> None:
+        self.paths = paths
+        self.base = base
+        self.read = read
+        self.same_topology = same_topology
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, k: int) -> FrameItem:  # type: ignore[override]
+        frame = self.read(self.paths[k])
+        return frame.positions if self.same_topology(frame, self.base) else frame
+
+
 @dataclass
 class ResultFrames:
     """The frames one reader found in a result folder.

@@ -11,7 +11,6 @@ the writer to the new mesh from that frame on. `read_frame_files` reads the fram
 from __future__ import annotations
 
 import shutil
-from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -20,7 +19,15 @@ import numpy as np
 
 from meshdeform.atomic import atomic_path
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, frame_file_name
-from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, ResultReading, numbered_files, prefer_input
+from meshdeform.export.results import (
+    FrameItem,
+    LazyFrames,
+    ReadBack,
+    ResultFrames,
+    ResultReading,
+    numbered_files,
+    prefer_input,
+)
 from meshdeform.io.obj import material_libraries
 from meshdeform.mesh import Mesh
 
@@ -72,26 +79,13 @@ def copy_material_libraries(mesh: Mesh, folder: Path) -> list[Path]:
     return copied
 
 
-class FileFrames(Sequence[FrameItem]):
-    """Lazily loaded per-frame OBJ/PLY files: positions when the topology is the base's, else a Mesh."""
-
-    def __init__(self, paths: list[Path], base: Mesh) -> None:
-        self.paths = paths
-        self.base = base
-
-    def __len__(self) -> int:
-        return len(self.paths)
-
-    def __getitem__(self, k: int) -> FrameItem:  # type: ignore[override]
-        from meshdeform.io import load
-
-        frame = load(self.paths[k])
-        same = (
-            frame.vertex_count == self.base.vertex_count
-            and np.array_equal(frame.face_offsets, self.base.face_offsets)
-            and np.array_equal(frame.face_indices, self.base.face_indices)
-        )
-        return frame.positions if same else frame
+def _same_polygons(frame: Mesh, base: Mesh) -> bool:
+    """Whether a loaded OBJ/PLY frame has the base's vertex count and polygons."""
+    return (
+        frame.vertex_count == base.vertex_count
+        and np.array_equal(frame.face_offsets, base.face_offsets)
+        and np.array_equal(frame.face_indices, base.face_indices)
+    )
 
 
 def read_frame_files(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
@@ -105,7 +99,12 @@ def read_frame_files(root: Path, input_mesh: Mesh | None) -> ResultFrames | None
     suffix = files[0][1].suffix.lower()
     files = [(n, p) for n, p in files if p.suffix.lower() == suffix]
     base = prefer_input(load(files[0][1]), input_mesh)
-    return ResultFrames(base, FileFrames([p for _, p in files], base), [n for n, _ in files], f"{FOLDER}/*{suffix}")
+    return ResultFrames(
+        base,
+        LazyFrames([p for _, p in files], base, load, _same_polygons),
+        [n for n, _ in files],
+        f"{FOLDER}/*{suffix}",
+    )
 
 
 class FrameFilesReadBack(ReadBack):
@@ -135,7 +134,7 @@ class FrameFilesReadBack(ReadBack):
     def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
         base = self.base
         assert base is not None
-        if self._same[0] is not mesh:  # as FileFrames compares a loaded frame with the base
+        if self._same[0] is not mesh:  # as read_frame_files compares a loaded frame with the base
             same = (
                 mesh.vertex_count == base.vertex_count
                 and np.array_equal(mesh.face_offsets, base.face_offsets)

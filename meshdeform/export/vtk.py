@@ -10,7 +10,6 @@ carries its own. `read_vtk_result` reads the frames back (`meshdeform.export.res
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 from xml.sax.saxutils import quoteattr
@@ -27,7 +26,7 @@ from meshdeform.export.base import (
     frame_file_name,
     uvs_have_seams,
 )
-from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, ResultReading, numbered_files
+from meshdeform.export.results import FrameItem, LazyFrames, ReadBack, ResultFrames, ResultReading, numbered_files
 from meshdeform.mesh import Mesh
 
 FOLDER = "vtk"
@@ -213,22 +212,9 @@ def read_vtp(path: Path) -> Mesh:
     )
 
 
-class VtpFrames(Sequence[FrameItem]):
-    """Lazily read `vtk/frame_*.vtp` files: positions when the topology is the base's, else a Mesh."""
-
-    def __init__(self, paths: list[Path], base: Mesh) -> None:
-        self.paths = paths
-        self.base = base
-
-    def __len__(self) -> int:
-        return len(self.paths)
-
-    def __getitem__(self, k: int) -> FrameItem:  # type: ignore[override]
-        frame = read_vtp(self.paths[k])
-        same = frame.vertex_count == self.base.vertex_count and np.array_equal(
-            frame.face_indices, self.base.face_indices
-        )
-        return frame.positions if same else frame
+def _same_cells(frame: Mesh, base: Mesh) -> bool:
+    """Whether a read `.vtp` frame has the base's vertex count and polygon corners."""
+    return frame.vertex_count == base.vertex_count and np.array_equal(frame.face_indices, base.face_indices)
 
 
 def read_vtk_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
@@ -241,7 +227,9 @@ def read_vtk_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
     base = first
     if input_mesh is not None and np.array_equal(input_mesh.face_indices, first.face_indices):
         base = input_mesh
-    return ResultFrames(base, VtpFrames([p for _, p in files], base), [n for n, _ in files], f"{FOLDER}/*.vtp")
+    return ResultFrames(
+        base, LazyFrames([p for _, p in files], base, read_vtp, _same_cells), [n for n, _ in files], f"{FOLDER}/*.vtp"
+    )
 
 
 def vtp_pinned(root: Path, n: int) -> np.ndarray | None:
@@ -291,7 +279,7 @@ class VtkReadBack(ReadBack):
     def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
         base = self.base
         assert base is not None
-        if self._same[0] is not mesh:  # as VtpFrames compares a read frame with the base
+        if self._same[0] is not mesh:  # as read_vtk_result compares a read frame with the base
             same = mesh.vertex_count == base.vertex_count and np.array_equal(mesh.face_indices, base.face_indices)
             self._same = (mesh, same)
         return kept.astype(np.float64) if self._same[1] else self._as_read(mesh, kept)
