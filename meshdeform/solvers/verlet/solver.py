@@ -20,11 +20,9 @@ fully stiff relaxation here and raise the stretch).
 
 A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
 bytes either way: `dispatch.KernelPicker` chooses), and so is a whole frame when nothing happens
-between its substeps (`advance`: the vertices stay in the scratch, previous positions beside it
-in kernel numbering, the same bytes as substep by substep). Per spring the factors k w_a / w and
-k w_b / w (tension and compression) are precomputed into one `kernels.RELAX_SPRING` row, so the
-scratch vertex needs only its position and inverse mass (`sweep_kernels.POINT`, 32 bytes: twice
-as many vertices per cache line as xpbd's records).
+between its substeps (`advance`: the vertices stay in the scratch, `sweep_kernels.VERTEX`
+records as xpbd's, the same bytes as substep by substep). Per spring the factors k w_a / w and
+k w_b / w (tension and compression) are precomputed into one `kernels.RELAX_SPRING` row.
 """
 
 from __future__ import annotations
@@ -39,7 +37,7 @@ from meshdeform.solvers.common import LayoutCache, kernel_tethers
 from meshdeform.solvers.dispatch import KernelPicker
 from meshdeform.solvers.layout import kernel_chunks
 from meshdeform.solvers.options import VerletOptions
-from meshdeform.solvers.sweep_kernels import POINT
+from meshdeform.solvers.sweep_kernels import VERTEX
 from meshdeform.solvers.verlet import kernels
 
 
@@ -86,10 +84,9 @@ class VerletSolver(LayoutCache, Solver):
         p["ac"] = self.kc * share_a
         p["bc"] = self.kc * share_b
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers)
-        self.scratch = self._buffer("scratch", model.vertex_count, POINT)
+        self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
-        self.previous = self._buffer("previous", 3 * model.vertex_count, np.float64).reshape(-1, 3)  # kernel numbering
         self.substep.allow_parallel(lay.parts > 1)
         self._dt = -1.0
 
@@ -107,7 +104,7 @@ class VerletSolver(LayoutCache, Solver):
         lay = self.layout
         args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
-            self.retention, dt, self.scratch, self.previous, lay.vertex_rank, lay.vertex_order, self.params,
+            self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params,
             self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
         )
         self.substep.call_substeps(count, *args)
