@@ -3,7 +3,7 @@
 The position-based solvers sweep springs in a levelled, partitioned order on a scratch copy
 of the vertices, in one compiled call per substep (serial or parallel build). None of that may
 change results with the number of Numba threads: a batch worker with one thread and a run
-with two must write byte-identical frames.
+with two must write byte-identical frames, whether the parallel build is asked for or not.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers import Control, Solver, solver_class
+from meshdeform.solvers.dispatch import PARALLEL_SUBSTEPS
 from meshdeform.solvers.layout import AUTO_PARALLEL_SPRINGS, resolve_parts, spring_layout
 
 two_threads = pytest.mark.skipif(nb.config.NUMBA_NUM_THREADS < 2, reason="needs 2 Numba threads")
@@ -48,9 +49,14 @@ def test_auto_partitions_ignore_the_thread_count(monkeypatch: pytest.MonkeyPatch
 
 
 @two_threads
+@pytest.mark.parametrize("parallel", ["0", "1"])
 @pytest.mark.parametrize("solver", ["xpbd", "verlet"])
 @pytest.mark.parametrize("partitions", [0, 1, 2, 3])
-def test_results_bit_identical_with_one_or_two_threads(solver: str, partitions: int) -> None:
+def test_results_bit_identical_with_one_or_two_threads(
+    solver: str, partitions: int, parallel: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With parallel substeps asked for, two threads run the parallel build (on 2 or 3 slabs)."""
+    monkeypatch.setenv(PARALLEL_SUBSTEPS, parallel)
     model = cloth(20)
     one = run(model, solver, 1, partitions)
     two = run(model, solver, 2, partitions)
@@ -59,8 +65,10 @@ def test_results_bit_identical_with_one_or_two_threads(solver: str, partitions: 
 
 
 @two_threads
-def test_auto_layout_above_the_parallel_threshold_is_thread_independent() -> None:
-    """A model big enough for two automatic slabs: 1 and 2 threads give the same bytes."""
+def test_auto_layout_above_the_parallel_threshold_is_thread_independent(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A model big enough for two automatic slabs: 1 and 2 threads (the serial and the parallel
+    build) give the same bytes."""
+    monkeypatch.setenv(PARALLEL_SUBSTEPS, "1")
     n = int(np.ceil(np.sqrt(AUTO_PARALLEL_SPRINGS / 5.6))) + 2
     model = cloth(n)
     assert model.spring_count >= AUTO_PARALLEL_SPRINGS

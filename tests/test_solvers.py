@@ -166,7 +166,7 @@ def test_tethers_hold_at_rest_and_reach_each_pin_group() -> None:
     assert set(np.unique(t.pin)) == set(np.flatnonzero(model.pinned))
 
 
-def test_parallel_and_serial_sweeps_agree_in_quality() -> None:
+def test_one_or_two_slabs_agree_in_quality() -> None:
     model = cloth(24)
     last = {}
     for parts in (1, 2):
@@ -175,7 +175,7 @@ def test_parallel_and_serial_sweeps_agree_in_quality() -> None:
     assert np.allclose(last[1].welded_positions, last[2].welded_positions, atol=0.02)
 
 
-def test_parallel_runs_are_reproducible() -> None:
+def test_slabbed_runs_are_reproducible() -> None:
     model = cloth(24)
     settings = Settings(solver="verlet", frames=6, options=VerletOptions(partitions=2))
     a = list(simulate(model, Scene(), settings))[-1].welded_positions

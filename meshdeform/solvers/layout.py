@@ -102,10 +102,13 @@ class KernelChunks:
     tethers: np.ndarray
 
 
+def chunk_bounds(count: int, parts: int) -> np.ndarray:
+    """(parts + 1,) uint64 bounds splitting 0..count-1 into `parts` near-equal ranges."""
+    return (np.arange(parts + 1, dtype=np.uint64) * np.uint64(count)) // np.uint64(max(parts, 1))
+
+
 def kernel_chunks(layout: SpringLayout, tether_vertices: np.ndarray) -> KernelChunks:
     """Vertex and tether chunks, one of each per slab (see `KernelChunks`)."""
-    from meshdeform.solvers.dispatch import chunk_bounds
-
     vertices = chunk_bounds(layout.vertex_order.shape[0], layout.parts)
     tethers = np.searchsorted(np.asarray(tether_vertices, dtype=np.int64), vertices.astype(np.int64), side="left")
     return KernelChunks(vertices=vertices, tethers=tethers.astype(np.uint64))

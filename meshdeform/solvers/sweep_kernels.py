@@ -1,18 +1,19 @@
 """Numba pieces shared by the position-based solvers (`verlet`, `xpbd`): scratch records, tethers.
 
-verlet and xpbd run a whole substep in one compiled call on a scratch copy of the vertices in
-the layout's kernel numbering, one record per vertex (`VERTEX`: position, inverse mass and
+verlet and xpbd run whole substeps in one compiled call on a scratch copy of the vertices in
+the layout's kernel numbering, one `VERTEX` record per vertex: position, inverse mass and
 previous position in one 64-byte cache line, so the two positions a spring reads arrive
-together; `POINT`: position and inverse mass, 32 bytes). Per spring one record of precomputed
-constants (see each solver's kernels), so a projection does one square root and one division
-and no gather of masses. Record fields compile to constant offsets and unsigned indices need no
-negative-index wraparound, which keeps the loops short. Only free vertices are written back:
-pinned positions stay bit-identical.
+together (xpbd's damping reads both ends' previous positions; verlet's relaxation does not, and
+the previous position rides along to the next substep's prediction and the write-back). Per
+spring one record of precomputed constants (see each solver's kernels), so a projection does one
+square root and one division and no gather of masses. Record fields compile to constant offsets
+and unsigned indices need no negative-index wraparound, which keeps the loops short. Only free
+vertices are written back: pinned positions stay bit-identical.
 
-All take spring data in a `SpringLayout` order: slabs 0..P-1 are swept in parallel (`prange`
-over slabs, they share no vertex), the separator after them. Positions and velocities are the
-State's (W, 3) float64 arrays, updated in place. Everything here is inlined into the solvers'
-substep kernels.
+All take spring data in a `SpringLayout` order: slabs 0..P-1 (swept one after the other, or in
+parallel by a solver's parallel build: they share no vertex), the separator after them.
+Positions and velocities are the State's (W, 3) float64 arrays, updated in place. Everything
+here is inlined into the solvers' substep kernels.
 """
 
 from __future__ import annotations
@@ -32,9 +33,6 @@ VERTEX = np.dtype(
     [("x", "f8"), ("y", "f8"), ("z", "f8"), ("w", "f8"), ("px", "f8"), ("py", "f8"), ("pz", "f8"), ("pad", "f8")],
     align=True,
 )
-#: verlet scratch vertex: position and inverse mass (32 bytes; the relaxation needs no previous
-#: position, and the write-back takes it from the State's positions before overwriting them)
-POINT = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("w", "f8")], align=True)
 #: tether: kernel vertex, kernel pin vertex, largest distance
 TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
 
@@ -77,35 +75,6 @@ def load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  #
 
 
 @nb.njit(inline="always", **JIT)
-def load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi, keep):  # pragma: no cover - compiled
-    """`load_vertices` for `POINT` records: predicted positions of free vertices, pinned ones as they are.
-
-    keep: also keep each free vertex's position before the prediction in XP (kernel numbering),
-    for a call that runs more than one substep (`predict_points`, `store_points`).
-    """
-    for i in range(lo, hi):
-        k = rank[i]
-        r = X[k]
-        w = inv_mass[i]
-        x0 = x[i, 0]
-        x1 = x[i, 1]
-        x2 = x[i, 2]
-        r.w = w
-        if w == 0.0:
-            r.x = x0
-            r.y = x1
-            r.z = x2
-        else:
-            r.x = _verlet(x0, prev[i, 0], accel[i, 0], retention, dt2)
-            r.y = _verlet(x1, prev[i, 1], accel[i, 1], retention, dt2)
-            r.z = _verlet(x2, prev[i, 2], accel[i, 2], retention, dt2)
-            if keep:
-                XP[k, 0] = x0
-                XP[k, 1] = x1
-                XP[k, 2] = x2
-
-
-@nb.njit(inline="always", **JIT)
 def predict_vertices(X, accel, order, retention, dt2, lo, hi):  # pragma: no cover - compiled
     """The next substep's prediction inside `VERTEX` records, kernel vertices lo..hi-1 (a call
     running several substeps): x' = x + (x - px) retention + a dt^2, px = x, as in `load_vertices`.
@@ -126,70 +95,31 @@ def predict_vertices(X, accel, order, retention, dt2, lo, hi):  # pragma: no cov
 
 
 @nb.njit(inline="always", **JIT)
-def predict_points(X, XP, accel, order, retention, dt2, lo, hi):  # pragma: no cover - compiled
-    """`predict_vertices` for `POINT` records, the previous positions in XP (kernel numbering)."""
-    for k in range(lo, hi):
-        r = X[k]
-        if r.w != 0.0:
-            i = order[k]
-            x0 = r.x
-            x1 = r.y
-            x2 = r.z
-            r.x = _verlet(x0, XP[k, 0], accel[i, 0], retention, dt2)
-            r.y = _verlet(x1, XP[k, 1], accel[i, 1], retention, dt2)
-            r.z = _verlet(x2, XP[k, 2], accel[i, 2], retention, dt2)
-            XP[k, 0] = x0
-            XP[k, 1] = x1
-            XP[k, 2] = x2
-
-
-@nb.njit(inline="always", **JIT)
-def _put(x, prev, v, i, x0, x1, x2, p0, p1, p2, inv_dt):  # pragma: no cover - compiled
-    """x[i] = (x0, x1, x2), prev[i] = (p0, p1, p2), v[i] = (x - prev) / dt."""
-    x[i, 0] = x0
-    x[i, 1] = x1
-    x[i, 2] = x2
-    prev[i, 0] = p0
-    prev[i, 1] = p1
-    prev[i, 2] = p2
-    v[i, 0] = (x0 - p0) * inv_dt
-    v[i, 1] = (x1 - p1) * inv_dt
-    v[i, 2] = (x2 - p2) * inv_dt
-
-
-@nb.njit(inline="always", **JIT)
-def _put_pinned(x, prev, v, i, inv_dt):  # pragma: no cover - compiled
-    """A pinned vertex keeps x and prev bit for bit; v = (x - prev) / dt."""
-    v[i, 0] = (x[i, 0] - prev[i, 0]) * inv_dt
-    v[i, 1] = (x[i, 1] - prev[i, 1]) * inv_dt
-    v[i, 2] = (x[i, 2] - prev[i, 2]) * inv_dt
-
-
-@nb.njit(inline="always", **JIT)
 def store_vertices(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
     """Model vertices lo..hi-1 back from `VERTEX` records: x = the record, prev = its position
-    before the last substep (px), v = (x - prev) / dt; pinned ones keep x and prev."""
+    before the last substep (px), v = (x - prev) / dt; pinned ones keep x and prev bit for bit."""
     for i in range(lo, hi):
         r = X[rank[i]]
         if r.w != 0.0:
-            _put(x, prev, v, i, r.x, r.y, r.z, r.px, r.py, r.pz, inv_dt)
+            x0 = r.x
+            x1 = r.y
+            x2 = r.z
+            p0 = r.px
+            p1 = r.py
+            p2 = r.pz
+            x[i, 0] = x0
+            x[i, 1] = x1
+            x[i, 2] = x2
+            prev[i, 0] = p0
+            prev[i, 1] = p1
+            prev[i, 2] = p2
+            v[i, 0] = (x0 - p0) * inv_dt
+            v[i, 1] = (x1 - p1) * inv_dt
+            v[i, 2] = (x2 - p2) * inv_dt
         else:
-            _put_pinned(x, prev, v, i, inv_dt)
-
-
-@nb.njit(inline="always", **JIT)
-def store_points(X, XP, x, prev, v, rank, inv_dt, lo, hi, kept):  # pragma: no cover - compiled
-    """`store_vertices` for `POINT` records: prev from XP when `kept` (several substeps), else the State's
-    positions before they are overwritten (one substep: they are the positions it started from)."""
-    for i in range(lo, hi):
-        k = rank[i]
-        r = X[k]
-        if r.w == 0.0:
-            _put_pinned(x, prev, v, i, inv_dt)
-        elif kept:
-            _put(x, prev, v, i, r.x, r.y, r.z, XP[k, 0], XP[k, 1], XP[k, 2], inv_dt)
-        else:
-            _put(x, prev, v, i, r.x, r.y, r.z, x[i, 0], x[i, 1], x[i, 2], inv_dt)
+            v[i, 0] = (x[i, 0] - prev[i, 0]) * inv_dt
+            v[i, 1] = (x[i, 1] - prev[i, 1]) * inv_dt
+            v[i, 2] = (x[i, 2] - prev[i, 2]) * inv_dt
 
 
 @nb.njit(inline="always", **SWEEP)

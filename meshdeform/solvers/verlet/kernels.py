@@ -6,7 +6,14 @@ import numba as nb
 import numpy as np
 
 from meshdeform.solvers.jit import SWEEP
-from meshdeform.solvers.sweep_kernels import apply_tethers, load_points, predict_points, pull, span, store_points
+from meshdeform.solvers.sweep_kernels import (
+    apply_tethers,
+    load_vertices,
+    predict_vertices,
+    pull,
+    span,
+    store_vertices,
+)
 
 #: verlet spring: ends (kernel numbering), rest length, k w_a / w and k w_b / w under tension and compression
 RELAX_SPRING = np.dtype(
@@ -46,17 +53,16 @@ def _relax_range(X, P, lo, hi, backward):  # pragma: no cover - compiled
 
 @nb.njit(**SWEEP)
 def verlet_substep(
-    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, order, P, offsets, parts, iterations, tethers,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, offsets, parts, iterations, tethers,
     vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
     """`count` Verlet substeps on one thread: predict, tethers, relaxation sweeps, tethers; then
-    the State. XP: (W, 3) previous positions in kernel numbering, used when count > 1."""
+    the State (arguments as for `xpbd_substep`)."""
     n = np.uint64(rank.shape[0])
     nt = np.uint64(tethers.shape[0])
     zero = np.uint64(0)
     dt2 = dt * dt
-    keep = count > 1
-    load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, zero, n, keep)
+    load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, zero, n)
     apply_tethers(X, tethers, zero, nt)
     for step in range(count):
         for it in range(iterations):
@@ -65,21 +71,20 @@ def verlet_substep(
                 _relax_range(X, P, offsets[p], offsets[p + 1], backward)
         apply_tethers(X, tethers, zero, nt)
         if step + 1 < count:
-            predict_points(X, XP, accel, order, retention, dt2, zero, n)
+            predict_vertices(X, accel, order, retention, dt2, zero, n)
             apply_tethers(X, tethers, zero, nt)
-    store_points(X, XP, x, prev, v, rank, 1.0 / dt, zero, n, keep)
+    store_vertices(X, x, prev, v, rank, 1.0 / dt, zero, n)
 
 
 @nb.njit(parallel=True, **SWEEP)
 def verlet_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, XP, rank, order, P, offsets, parts, iterations, tethers,
+    x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, offsets, parts, iterations, tethers,
     vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
     """`verlet_substep` with every phase split over `parts` threads (see `xpbd_substep_parallel`)."""
     dt2 = dt * dt
-    keep = count > 1
     for p in nb.prange(parts):
-        load_points(X, XP, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1], keep)
+        load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
     for p in nb.prange(parts):
         apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
     for step in range(count):
@@ -91,11 +96,11 @@ def verlet_substep_parallel(
         if step + 1 < count:
             for p in nb.prange(parts):
                 apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
-                predict_points(X, XP, accel, order, retention, dt2, vchunks[p], vchunks[p + 1])
+                predict_vertices(X, accel, order, retention, dt2, vchunks[p], vchunks[p + 1])
                 apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
         else:
             for p in nb.prange(parts):
                 apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
     inv_dt = 1.0 / dt
     for p in nb.prange(parts):
-        store_points(X, XP, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1], keep)
+        store_vertices(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])

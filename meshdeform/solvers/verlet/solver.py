@@ -19,12 +19,11 @@ distances run along structural springs only (tighter, octile tethers as in `xpbd
 fully stiff relaxation here and raise the stretch).
 
 A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
-bytes either way: `dispatch.KernelPicker` chooses), and so is a whole frame when nothing happens
-between its substeps (`advance`: the vertices stay in the scratch, previous positions beside it
-in kernel numbering, the same bytes as substep by substep). Per spring the factors k w_a / w and
-k w_b / w (tension and compression) are precomputed into one `kernels.RELAX_SPRING` row, so the
-scratch vertex needs only its position and inverse mass (`sweep_kernels.POINT`, 32 bytes: twice
-as many vertices per cache line as xpbd's records).
+bytes either way: serial unless `dispatch.substep_build` finds the parallel one asked for), and
+so is a whole frame when nothing happens between its substeps (`advance`: the vertices stay in
+the scratch, `sweep_kernels.VERTEX` records as xpbd's, the same bytes as substep by substep).
+Per spring the factors k w_a / w and k w_b / w (tension and compression) are precomputed into
+one `kernels.RELAX_SPRING` row.
 """
 
 from __future__ import annotations
@@ -36,10 +35,10 @@ import numpy as np
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import LayoutCache, kernel_tethers
-from meshdeform.solvers.dispatch import KernelPicker
+from meshdeform.solvers.dispatch import substep_build
 from meshdeform.solvers.layout import kernel_chunks
 from meshdeform.solvers.options import VerletOptions
-from meshdeform.solvers.sweep_kernels import POINT
+from meshdeform.solvers.sweep_kernels import VERTEX
 from meshdeform.solvers.verlet import kernels
 
 
@@ -64,8 +63,6 @@ class VerletSolver(LayoutCache, Solver):
         super().__init__(options)
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
-        # one picker for the solver's life: what it measured holds for every model (tearing)
-        self.substep = KernelPicker(kernels.verlet_substep, kernels.verlet_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self.layout = self._layout_for(model, self.options.partitions)
@@ -86,11 +83,10 @@ class VerletSolver(LayoutCache, Solver):
         p["ac"] = self.kc * share_a
         p["bc"] = self.kc * share_b
         self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers)
-        self.scratch = self._buffer("scratch", model.vertex_count, POINT)
+        self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
-        self.previous = self._buffer("previous", 3 * model.vertex_count, np.float64).reshape(-1, 3)  # kernel numbering
-        self.substep.allow_parallel(lay.parts > 1)
+        self.substep = substep_build(kernels.verlet_substep, kernels.verlet_substep_parallel, lay.parts)
         self._dt = -1.0
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
@@ -107,7 +103,7 @@ class VerletSolver(LayoutCache, Solver):
         lay = self.layout
         args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
-            self.retention, dt, self.scratch, self.previous, lay.vertex_rank, lay.vertex_order, self.params,
+            self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params,
             self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
         )
-        self.substep.call_substeps(count, *args)
+        self.substep(*args, count)

@@ -28,15 +28,15 @@ the line between the pins fight; the slack removes both. They cap stretch along 
 pins (set them off to see the compliance alone).
 
 A whole substep (prediction, tethers, sweeps, velocities) is one compiled call
-(`kernels.xpbd_substep`, or its parallel build, bit for bit the same result:
-`dispatch.KernelPicker` chooses), and so is a whole frame when nothing happens between its
-substeps (`advance`: the vertices stay in the scratch from one substep to the next, the State
-is read once and written once per frame, the same bytes as substep by substep). The scratch
-holds one cache line per vertex (`sweep_kernels.VERTEX`: position, inverse mass, previous
-position); per spring the constants (compliances, 1 / denominators, damping) are precomputed
-once per step size into one `kernels.XPBD_SPRING` record beside the spring's ends, so a
-projection streams one array and costs one square root and one division. The first sweep of a
-substep writes the multipliers without reading them (they start at zero).
+(`kernels.xpbd_substep`, or its parallel build, bit for bit the same result: serial unless
+`dispatch.substep_build` finds the parallel one asked for), and so is a whole frame when nothing
+happens between its substeps (`advance`: the vertices stay in the scratch from one substep to
+the next, the State is read once and written once per frame, the same bytes as substep by
+substep). The scratch holds one cache line per vertex (`sweep_kernels.VERTEX`: position, inverse
+mass, previous position); per spring the constants (compliances, 1 / denominators, damping) are
+precomputed once per step size into one `kernels.XPBD_SPRING` record beside the spring's ends,
+so a projection streams one array and costs one square root and one division. The first sweep of
+a substep writes the multipliers without reading them (they start at zero).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ import numpy as np
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import LayoutCache, kernel_tethers
-from meshdeform.solvers.dispatch import KernelPicker
+from meshdeform.solvers.dispatch import substep_build
 from meshdeform.solvers.layout import kernel_chunks
 from meshdeform.solvers.options import XPBDOptions
 from meshdeform.solvers.sweep_kernels import VERTEX
@@ -74,8 +74,6 @@ class XPBDSolver(LayoutCache, Solver):
         super().__init__(options)
         self.iterations = options.iterations_for(self)
         self._dt = -1.0
-        # one picker for the solver's life: what it measured holds for every model (tearing)
-        self.substep = KernelPicker(kernels.xpbd_substep, kernels.xpbd_substep_parallel, parallel_ok=False)
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self.layout = self._layout_for(model, self.options.partitions)
@@ -84,7 +82,7 @@ class XPBDSolver(LayoutCache, Solver):
         self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
-        self.substep.allow_parallel(lay.parts > 1)
+        self.substep = substep_build(kernels.xpbd_substep, kernels.xpbd_substep_parallel, lay.parts)
         self.params = self._buffer("params", lay.a.shape[0], kernels.XPBD_SPRING)
         self.params["a"] = lay.ends["a"]
         self.params["b"] = lay.ends["b"]
@@ -121,4 +119,4 @@ class XPBDSolver(LayoutCache, Solver):
             self.offsets, lay.parts, self.iterations, self.damped,
             self.tethers, self.chunks.vertices, self.chunks.tethers,
         )
-        self.substep.call_substeps(count, *args)
+        self.substep(*args, count)
