@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 from meshdeform.errors import ExportError
 from meshdeform.export.sequence import copy_material_libraries
 from meshdeform.io import load, read_obj, read_ply, save
-from meshdeform.io.obj import ObjWriter
+from meshdeform.io.obj_writer import ObjWriter
 from meshdeform.mesh import Mesh
 from meshdeform.topology import build_springs
 from pipeline.cli import app

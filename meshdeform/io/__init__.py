@@ -13,8 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from meshdeform.errors import ExportError, MeshLoadError
-from meshdeform.io.obj import ObjWriter, read_obj, write_obj
-from meshdeform.io.ply import PlyWriter, read_ply, write_ply
+from meshdeform.io.obj import read_obj
+from meshdeform.io.obj_writer import ObjWriter, write_obj
+from meshdeform.io.ply import read_ply
+from meshdeform.io.ply_writer import PlyWriter, write_ply
 from meshdeform.mesh import Mesh
 
 __all__ = [
