@@ -5,8 +5,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 import pytest
+from factories import TOP_CORNERS, grid_cloth
 
-from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers import Control, make_solver, solver_class
 from meshdeform.solvers.common import kernel_tethers
@@ -79,10 +79,8 @@ def test_solvers_prepare_with_the_build_asked_for(name: str, monkeypatch: pytest
 
 
 def cloth(n: int) -> SpringModel:
-    mesh = grid_mesh(n, n, plane="xy")
-    pinned = np.zeros(n * n, dtype=bool)
-    pinned[[n * (n - 1), n * n - 1]] = True
-    return SpringModel.from_mesh(mesh, pinned_input=pinned)
+    """An n x n cloth hanging from its top corners (`factories.grid_cloth`)."""
+    return grid_cloth(n, pins=TOP_CORNERS).model
 
 
 #: (solver, build) -> its substep kernel

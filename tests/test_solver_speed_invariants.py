@@ -11,8 +11,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 import pytest
+from factories import TOP_CORNERS, grid_cloth
 
-from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers import Control, Solver, solver_class
@@ -23,10 +23,8 @@ two_threads = pytest.mark.skipif(nb.config.NUMBA_NUM_THREADS < 2, reason="needs 
 
 
 def cloth(n: int, plane: str = "xy") -> SpringModel:
-    mesh = grid_mesh(n, n, plane=plane)
-    pinned = np.zeros(n * n, dtype=bool)
-    pinned[[n * (n - 1), n * n - 1]] = True
-    return SpringModel.from_mesh(mesh, pinned_input=pinned)
+    """An n x n cloth hanging from its top corners (`factories.grid_cloth`)."""
+    return grid_cloth(n, pins=TOP_CORNERS, plane=plane).model
 
 
 def run(model: SpringModel, solver: str, threads: int, partitions: int, frames: int = 4) -> np.ndarray:

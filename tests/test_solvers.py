@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from factories import TOP_CORNERS, grid_cloth
 
 from meshdeform.errors import MeshdeformError
 from meshdeform.mesh import grid_mesh
@@ -28,11 +29,8 @@ NAMES = ("anchor", "verlet", "xpbd", "springs", "implicit")
 
 
 def cloth(n: int = 8, pins: bool = True) -> SpringModel:
-    mesh = grid_mesh(n, n, plane="xy")
-    pinned = np.zeros(n * n, dtype=bool)
-    if pins:
-        pinned[[n * (n - 1), n * n - 1]] = True
-    return SpringModel.from_mesh(mesh, pinned_input=pinned)
+    """An n x n cloth, hanging from its top corners when `pins` (`factories.grid_cloth`)."""
+    return grid_cloth(n, pins=TOP_CORNERS if pins else ()).model
 
 
 def test_all_five_solvers_registered_by_name() -> None:
