@@ -17,8 +17,8 @@ Scenes:
 Knobs, each an alternative the solvers' defaults were measured against (docs/performance.md,
 "Serial or parallel substeps"):
 - NUMBA_NUM_THREADS=1 in the environment: one Numba thread (the serial build whatever else).
-- MESHDEFORM_PARALLEL_SUBSTEPS=1 in the environment: the parallel build of the substep where the layout
-  has more than one slab and Numba more than one thread (see `meshdeform.solvers.dispatch`).
+- MESHDEFORM_PARALLEL_SUBSTEPS=1 in the environment: the parallel build of the substep where the
+  layout has more than one slab and Numba more than one thread (see `meshdeform.solvers.dispatch`).
 - --partitions P: P slabs instead of the automatic count (P changes the results; the per-solver
   options API is needed, so not with the code before issue #14).
 - --fresh-layouts: after a tear, sort the torn model's springs afresh instead of inheriting the

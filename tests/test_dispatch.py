@@ -78,6 +78,17 @@ def test_solvers_prepare_with_the_build_asked_for(name: str, monkeypatch: pytest
     assert solver.substep is BUILDS[name, "parallel"]
 
 
+@pytest.mark.parametrize("name", ["xpbd", "verlet"])
+def test_the_two_builds_compile_one_source_under_two_names(name: str) -> None:
+    """One kernel source, compiled serially and in parallel, each build under its own name (so
+    that Numba's disk cache, which keys by name and bytecode, keeps them apart)."""
+    serial, parallel = BUILDS[name, "serial"], BUILDS[name, "parallel"]
+    assert serial.py_func.__code__ is parallel.py_func.__code__
+    assert serial.py_func.__qualname__ == f"{name}_substep"
+    assert parallel.py_func.__qualname__ == f"{name}_substep_parallel"
+    assert not serial.targetoptions.get("parallel") and parallel.targetoptions.get("parallel")
+
+
 def cloth(n: int) -> SpringModel:
     """An n x n cloth hanging from its top corners (`factories.grid_cloth`)."""
     return grid_cloth(n, pins=TOP_CORNERS).model

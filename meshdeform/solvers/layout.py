@@ -1,11 +1,12 @@
-"""Spring order for the solvers' kernels: partitions solved in parallel, sorted for locality.
+"""Spring order for the solvers' kernels: slabs that can be swept in parallel, sorted for locality.
 
 Vertices are split into P slabs of equal count along the rest shape's longest axis. A spring
 whose two ends lie in the same slab belongs to that slab; the few that cross slabs form a
-separator. Slabs share no vertex, so Gauss-Seidel sweeps over them run in parallel without
-locks (one thread per slab) and give the same result whatever the number of threads; the
-separator is swept serially after them. P depends only on the option and the model (never
-on the thread count), so results are byte-identical on any machine and in any worker.
+separator. Slabs share no vertex, so Gauss-Seidel sweeps over them give the same result one
+after another (the serial build, the default) or one thread each without locks (the parallel
+build, when asked for: `dispatch`); the separator is swept after them. P decides the result, and
+depends only on the option and the model (never on the thread count or the build), so results
+are byte-identical on any machine and in any worker.
 
 Inside a slab, springs are sorted by their rest distance from the nearest pin (so a forward
 sweep carries the pins' hold across the whole cloth in one pass, and the alternating backward

@@ -50,10 +50,11 @@ class SolverOptions:
 class SweepOptions(SolverOptions):
     """Options of the position solvers that sweep springs as constraints (`verlet`, `xpbd`).
 
-    partitions: slabs of springs swept in parallel, one thread each (Gauss-Seidel inside each,
-        the springs between slabs after them); results depend on this number, not on the thread
-        count, so runs are reproducible on any machine. 1 runs serially (no parallel runtime); 0
-        (default, auto) uses 2 slabs from 4096 springs up (about a 27 x 27 grid) and 1 below.
+    partitions: slabs of springs that share no vertex (Gauss-Seidel inside each, the springs
+        between slabs after them), swept one after another, or one thread each where the parallel
+        build is asked for (`meshdeform.solvers.dispatch`); results depend on this number, not on
+        the thread count or the build, so runs are reproducible on any machine. 0 (default, auto)
+        uses 2 slabs from 4096 springs up (about a 27 x 27 grid) and 1 below.
     tethers: long range attachments (Kim, Tang, Mueller 2012): after the sweeps, every vertex
         connected to a pin is kept within this ratio of its rest distance along the mesh to the
         nearest pin (1.0: no stretch along that path). Plain sweeps propagate a pin's hold one

@@ -1,11 +1,11 @@
-"""Numba kernels of the `verlet` solver: the substep (serial and parallel builds)."""
+"""Numba kernels of the `verlet` solver: the substep (one source, a serial and a parallel build)."""
 
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
 
-from meshdeform.solvers.jit import SWEEP
+from meshdeform.solvers.jit import SWEEP, serial_and_parallel
 from meshdeform.solvers.sweep_kernels import (
     apply_tethers,
     load_vertices,
@@ -51,37 +51,15 @@ def _relax_range(X, P, lo, hi, backward):  # pragma: no cover - compiled
             _relax_spring(X, P, s)
 
 
-@nb.njit(**SWEEP)
 def verlet_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, offsets, parts, iterations, tethers,
     vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
-    """`count` Verlet substeps on one thread: predict, tethers, relaxation sweeps, tethers; then
-    the State (arguments as for `xpbd_substep`)."""
-    n = np.uint64(rank.shape[0])
-    nt = np.uint64(tethers.shape[0])
-    zero = np.uint64(0)
-    dt2 = dt * dt
-    load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, zero, n)
-    apply_tethers(X, tethers, zero, nt)
-    for step in range(count):
-        for it in range(iterations):
-            backward = (it % 2) == 1
-            for p in range(parts + 1):
-                _relax_range(X, P, offsets[p], offsets[p + 1], backward)
-        apply_tethers(X, tethers, zero, nt)
-        if step + 1 < count:
-            predict_vertices(X, accel, order, retention, dt2, zero, n)
-            apply_tethers(X, tethers, zero, nt)
-    store_vertices(X, x, prev, v, rank, 1.0 / dt, zero, n)
+    """`count` Verlet substeps: predict, tethers, relaxation sweeps, tethers; then the State.
 
-
-@nb.njit(parallel=True, **SWEEP)
-def verlet_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, offsets, parts, iterations, tethers,
-    vchunks, tchunks, count,
-):  # pragma: no cover - compiled
-    """`verlet_substep` with every phase split over `parts` threads (see `xpbd_substep_parallel`)."""
+    Arguments, order of the work and the two builds (`verlet_substep`, `verlet_substep_parallel`)
+    as for `xpbd.kernels.xpbd_substep`.
+    """
     dt2 = dt * dt
     for p in nb.prange(parts):
         load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
@@ -104,3 +82,6 @@ def verlet_substep_parallel(
     inv_dt = 1.0 / dt
     for p in nb.prange(parts):
         store_vertices(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
+
+
+verlet_substep, verlet_substep_parallel = serial_and_parallel(verlet_substep, **SWEEP)

@@ -1,11 +1,11 @@
-"""Numba kernels of the `xpbd` solver: the substep (serial and parallel builds) and the per-spring constants."""
+"""Numba kernels of the `xpbd` solver: the substep (one source, serial and parallel builds), the spring constants."""
 
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
 
-from meshdeform.solvers.jit import JIT, SWEEP
+from meshdeform.solvers.jit import JIT, SWEEP, serial_and_parallel
 from meshdeform.solvers.sweep_kernels import (
     apply_tethers,
     load_vertices,
@@ -87,50 +87,22 @@ def _xpbd_range(X, P, lam, lo, hi, backward, damped, first):  # pragma: no cover
             _xpbd_spring(X, P, lam, s, False, False)
 
 
-@nb.njit(**SWEEP)
 def xpbd_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, lam, offsets, parts, iterations, damped,
     tethers, vchunks, tchunks, count,
 ):  # pragma: no cover - compiled
-    """`count` XPBD substeps on one thread: predict, tethers, `iterations` sweeps, tethers; then
-    positions, previous positions and velocities back to the State.
+    """`count` XPBD substeps: predict, tethers, `iterations` sweeps, tethers; then positions,
+    previous positions and velocities back to the State.
 
     The vertices stay in the scratch from one substep to the next (`predict_vertices`), so a frame with
     nothing between its substeps is one call. Sweeps alternate direction, the first forward (from
-    the pins outward); slabs then the separator, in layout order. rank / order: model vertex ->
-    kernel vertex and back; offsets: (parts + 2,) uint64 (see `SpringLayout`); vchunks, tchunks:
-    the vertex and tether chunks of the parallel build (unused here).
-    """
-    n = np.uint64(rank.shape[0])
-    nt = np.uint64(tethers.shape[0])
-    zero = np.uint64(0)
-    dt2 = dt * dt
-    load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, zero, n)
-    apply_tethers(X, tethers, zero, nt)
-    for step in range(count):
-        for it in range(iterations):
-            backward = (it % 2) == 1
-            for p in range(parts + 1):
-                _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
-        apply_tethers(X, tethers, zero, nt)
-        if step + 1 < count:
-            predict_vertices(X, accel, order, retention, dt2, zero, n)
-            apply_tethers(X, tethers, zero, nt)
-    store_vertices(X, x, prev, v, rank, 1.0 / dt, zero, n)
+    the pins outward); the slabs, then the separator. rank / order: model vertex -> kernel vertex
+    and back; offsets: (parts + 2,) uint64 (see `SpringLayout`); vchunks, tchunks: the vertex
+    chunks and their tethers (`layout.KernelChunks`), one per slab.
 
-
-@nb.njit(parallel=True, **SWEEP)
-def xpbd_substep_parallel(
-    x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, lam, offsets, parts, iterations, damped,
-    tethers, vchunks, tchunks, count,
-):  # pragma: no cover - compiled
-    """`xpbd_substep` with every phase split over `parts` threads (bit for bit the same result).
-
-    Load and write-back run over vertex chunks (vchunks) of the State; between two substeps one
-    pass per kernel vertex chunk applies the last substep's tethers, predicts and applies the
-    next one's (tchunks: the tethers of each chunk); sweeps run over the slabs, the separator
-    follows serially. Every vertex sees the same operations in the same order as in the serial
-    build.
+    Every `prange` loop runs over slabs or chunks that share no vertex: the serial build
+    (`xpbd_substep`) runs them in order, the parallel one (`xpbd_substep_parallel`) one thread
+    each, and every vertex sees the same operations in the same order in both.
     """
     dt2 = dt * dt
     for p in nb.prange(parts):
@@ -156,6 +128,7 @@ def xpbd_substep_parallel(
         store_vertices(X, x, prev, v, rank, inv_dt, vchunks[p], vchunks[p + 1])
 
 
+xpbd_substep, xpbd_substep_parallel = serial_and_parallel(xpbd_substep, **SWEEP)
 
 
 @nb.njit(**JIT)
