@@ -36,8 +36,10 @@ solver = "xpbd"
 fps = 24
 frames = {frames}
 damping = 0.2
-tethers = 0                # off in both runs (a recipe that tears has them off by default)
 {interval}
+
+[simulation.xpbd]
+tethers = 0                # off in both runs (a recipe that tears has them off by default)
 
 [material]
 structural = {{ stiffness = 1.0 }}

@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import ClassVar
+
 import numpy as np
 
-from meshdeform.model import SpringModel
-from meshdeform.solvers.layout import SpringLayout, inherited_layout, spring_layout
+from meshdeform.model import SpringModel, State
+from meshdeform.solvers.base import Control
+from meshdeform.solvers.dispatch import substep_build
+from meshdeform.solvers.layout import SpringLayout, inherited_layout, kernel_chunks, spring_layout
+from meshdeform.solvers.options import SweepOptions
+from meshdeform.solvers.sweep_kernels import VERTEX
 
 
 def spring_constants(model: SpringModel) -> tuple[np.ndarray, np.ndarray]:
@@ -128,3 +135,41 @@ def kernel_tethers(
     out["lim"] = t.limit[order] * float(slack)
     return out
 
+
+class SweepSolver(LayoutCache):
+    """What verlet and xpbd share: a `SpringLayout` swept by one compiled substep kernel over a
+    scratch copy of the vertices (`sweep_kernels.VERTEX`), tethers to the pins, and `step` as one
+    substep of `advance`.
+
+    Subclasses set `tether_kinds` / `tether_slack` (the springs tether paths run along and their
+    slack, see `kernel_tethers`) and call `_prepare_sweeps` from their `_prepare` with their two
+    builds of the substep kernel.
+    """
+
+    tether_kinds: ClassVar[tuple[int, ...] | None] = None
+    tether_slack: ClassVar[float] = 1.0
+
+    def __init__(self, options: SweepOptions) -> None:
+        super().__init__(options)
+        self.iterations = options.iterations_for(self)
+        self._dt = -1.0
+
+    def _prepare_sweeps(
+        self, model: SpringModel, serial: Callable[..., None], parallel: Callable[..., None]
+    ) -> SpringLayout:
+        """The layout, inverse masses, tethers, scratch, slab offsets, chunks and substep build for
+        `model`; returns the layout. Per-spring records are the subclass's."""
+        lay = self.layout = self._layout_for(model, self.options.partitions)
+        self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
+        self.tethers = kernel_tethers(
+            model, lay.vertex_rank, self.options.tethers, self.tether_kinds, self.tether_slack
+        )
+        self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
+        self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
+        self.chunks = kernel_chunks(lay, self.tethers["v"])
+        self.substep = substep_build(serial, parallel, lay.parts)
+        self._dt = -1.0
+        return lay
+
+    def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
+        self.advance(model, state, dt, control, 1)

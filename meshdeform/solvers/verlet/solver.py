@@ -34,11 +34,8 @@ import numpy as np
 
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
-from meshdeform.solvers.common import LayoutCache, kernel_tethers
-from meshdeform.solvers.dispatch import substep_build
-from meshdeform.solvers.layout import kernel_chunks
+from meshdeform.solvers.common import SweepSolver
 from meshdeform.solvers.options import VerletOptions
-from meshdeform.solvers.sweep_kernels import VERTEX
 from meshdeform.solvers.verlet import kernels
 
 
@@ -49,7 +46,7 @@ def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
     return np.where(s >= 1.0, s, soft)
 
 
-class VerletSolver(LayoutCache, Solver):
+class VerletSolver(SweepSolver, Solver):
     """Position-based Verlet cloth with per-kind relaxation factors."""
 
     name: ClassVar[str] = "verlet"
@@ -59,16 +56,10 @@ class VerletSolver(LayoutCache, Solver):
     default_substeps: ClassVar[int] = 18
     default_iterations: ClassVar[int] = 2
 
-    def __init__(self, options: VerletOptions) -> None:
-        super().__init__(options)
-        self.iterations = options.iterations_for(self)
-        self._dt = -1.0
-
     def _prepare(self, model: SpringModel) -> None:
-        lay = self.layout = self._layout_for(model, self.options.partitions)
+        lay = self._prepare_sweeps(model, kernels.verlet_substep, kernels.verlet_substep_parallel)
         self.kt = lay.take(per_iteration(model.stiffness, self.iterations))
         self.kc = lay.take(per_iteration(model.compression, self.iterations))
-        self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         wa = self.inv_mass[lay.a]
         wb = self.inv_mass[lay.b]
         w = wa + wb
@@ -82,15 +73,6 @@ class VerletSolver(LayoutCache, Solver):
         p["bt"] = self.kt * share_b
         p["ac"] = self.kc * share_a
         p["bc"] = self.kc * share_b
-        self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers)
-        self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
-        self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
-        self.chunks = kernel_chunks(lay, self.tethers["v"])
-        self.substep = substep_build(kernels.verlet_substep, kernels.verlet_substep_parallel, lay.parts)
-        self._dt = -1.0
-
-    def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
-        self.advance(model, state, dt, control, 1)
 
     def advance(self, model: SpringModel, state: State, dt: float, control: Control, count: int) -> None:
         """`count` substeps of dt with the same accelerations, as one compiled call (the same

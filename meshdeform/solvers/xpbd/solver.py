@@ -47,11 +47,8 @@ import numpy as np
 
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
-from meshdeform.solvers.common import LayoutCache, kernel_tethers
-from meshdeform.solvers.dispatch import substep_build
-from meshdeform.solvers.layout import kernel_chunks
+from meshdeform.solvers.common import SweepSolver
 from meshdeform.solvers.options import XPBDOptions
-from meshdeform.solvers.sweep_kernels import VERTEX
 from meshdeform.solvers.xpbd import kernels
 from meshdeform.topology import SpringKind
 
@@ -60,7 +57,7 @@ TETHER_KINDS = (int(SpringKind.STRUCTURAL), int(SpringKind.SHEAR))
 TETHER_SLACK = 1.03
 
 
-class XPBDSolver(LayoutCache, Solver):
+class XPBDSolver(SweepSolver, Solver):
     """Extended position-based dynamics with per-kind compliance and constraint damping."""
 
     name: ClassVar[str] = "xpbd"
@@ -69,25 +66,15 @@ class XPBDSolver(LayoutCache, Solver):
     options_class: ClassVar[type[XPBDOptions]] = XPBDOptions
     default_substeps: ClassVar[int] = 22
     default_iterations: ClassVar[int] = 2
-
-    def __init__(self, options: XPBDOptions) -> None:
-        super().__init__(options)
-        self.iterations = options.iterations_for(self)
-        self._dt = -1.0
+    tether_kinds: ClassVar[tuple[int, ...]] = TETHER_KINDS
+    tether_slack: ClassVar[float] = TETHER_SLACK
 
     def _prepare(self, model: SpringModel) -> None:
-        lay = self.layout = self._layout_for(model, self.options.partitions)
-        self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
-        self.tethers = kernel_tethers(model, lay.vertex_rank, self.options.tethers, TETHER_KINDS, TETHER_SLACK)
-        self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
-        self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
-        self.chunks = kernel_chunks(lay, self.tethers["v"])
-        self.substep = substep_build(kernels.xpbd_substep, kernels.xpbd_substep_parallel, lay.parts)
+        lay = self._prepare_sweeps(model, kernels.xpbd_substep, kernels.xpbd_substep_parallel)
         self.params = self._buffer("params", lay.a.shape[0], kernels.XPBD_SPRING)
         self.params["a"] = lay.ends["a"]
         self.params["b"] = lay.ends["b"]
         self.lam = self._buffer("lam", lay.a.shape[0], np.float64)
-        self._dt = -1.0
 
     def _coefficients(self, dt: float) -> None:
         """Per-spring records (`kernels.XPBD_SPRING`) for this step size, in one compiled pass
@@ -101,9 +88,6 @@ class XPBDSolver(LayoutCache, Solver):
         )
         self.retention = velocity_retention(self.options.damping, dt)
         self._dt = dt
-
-    def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
-        self.advance(model, state, dt, control, 1)
 
     def advance(self, model: SpringModel, state: State, dt: float, control: Control, count: int) -> None:
         """`count` substeps of dt with the same accelerations, as one compiled call (the same
