@@ -14,7 +14,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_JIT = {"cache": True, "error_model": "numpy", "inline": "always"}
+from meshdeform.solvers.jit import JIT
+
+_JIT = {**JIT, "inline": "always"}
 
 
 @numba.njit(**_JIT)

@@ -1,0 +1,448 @@
+"""Compiled narrow phase of self-collision: pair filters, proximity projection, the conservative
+continuous check and impact zones (see `self_collision` for the method and why it holds).
+
+Pairs come in two kinds, each an (P, 2) int64 array from the broad phase:
+- vertex-triangle (VF): (vertex, triangle), the vertex not a corner of the triangle;
+- edge-edge (EE): (edge, edge), the edges sharing no vertex.
+Positions are (V, 3) float64 metres; x0 the start of the substep (intersection free), x the
+end. `origin` (V,) maps each vertex to the vertex of the untorn rest mesh it came from, so the
+copies a tear makes still count as the same vertex (they start where their original is).
+`ring_start`, `ring` are the rest mesh's vertex adjacency (CSR, sorted neighbours, on origins).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from meshdeform.contact.primitives import point_triangle_weights, segment_segment_params
+from meshdeform.solvers.jit import JIT
+
+#: pairs whose distance falls to this fraction of its start value within the substep count as
+#: colliding (the conservative advancement's stopping rule, Li et al. 2021 "additive CCD")
+SEPARATION = 0.1
+#: advancement steps per pair before it counts as colliding (conservative: a zone, never a miss)
+MAX_ADVANCE_STEPS = 64
+
+
+@nb.njit(**JIT)
+def _adjacent(ring_start: np.ndarray, ring: np.ndarray, a: int, b: int) -> bool:
+    """Whether origin vertices a and b are equal or neighbours in the rest mesh (binary search)."""
+    if a == b:
+        return True
+    lo = ring_start[a]
+    hi = ring_start[a + 1]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if ring[mid] < b:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo < ring_start[a + 1] and ring[lo] == b
+
+
+@nb.njit(**JIT)
+def filter_vf(
+    pairs: np.ndarray, triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The VF candidates to check (the vertex's origin is no corner's origin) and, per kept pair,
+    whether it takes proximity repulsion (the vertex is no rest neighbour of a corner)."""
+    keep = np.empty(pairs.shape[0], dtype=np.bool_)
+    near = np.empty(pairs.shape[0], dtype=np.bool_)
+    for k in range(pairs.shape[0]):
+        ov = origin[pairs[k, 0]]
+        t = pairs[k, 1]
+        oa = origin[triangles[t, 0]]
+        ob = origin[triangles[t, 1]]
+        oc = origin[triangles[t, 2]]
+        keep[k] = ov != oa and ov != ob and ov != oc
+        near[k] = keep[k] and not (
+            _adjacent(ring_start, ring, ov, oa) or _adjacent(ring_start, ring, ov, ob)
+            or _adjacent(ring_start, ring, ov, oc)
+        )
+    kept = np.flatnonzero(keep)
+    return pairs[kept], near[kept]
+
+
+@nb.njit(**JIT)
+def filter_ee(
+    pairs: np.ndarray, edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The EE candidates to check (no shared origin) and whether each takes proximity repulsion
+    (no end a rest neighbour of an end of the other)."""
+    keep = np.empty(pairs.shape[0], dtype=np.bool_)
+    near = np.empty(pairs.shape[0], dtype=np.bool_)
+    for k in range(pairs.shape[0]):
+        a = origin[edges[pairs[k, 0], 0]]
+        b = origin[edges[pairs[k, 0], 1]]
+        c = origin[edges[pairs[k, 1], 0]]
+        d = origin[edges[pairs[k, 1], 1]]
+        keep[k] = a != c and a != d and b != c and b != d
+        near[k] = keep[k] and not (
+            _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
+            or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
+        )
+    kept = np.flatnonzero(keep)
+    return pairs[kept], near[kept]
+
+
+@nb.njit(**JIT)
+def _vf_gap(x: np.ndarray, v: int, a: int, b: int, c: int) -> tuple[float, float, float, float, float, float, float]:
+    """Distance from vertex v to triangle (a, b, c) in x, the closest point's weights and the
+    unit direction from that point to v (the face normal towards v when they touch)."""
+    wa, wb, wc = point_triangle_weights(x[v, 0], x[v, 1], x[v, 2], x, a, b, c)
+    dx = x[v, 0] - (wa * x[a, 0] + wb * x[b, 0] + wc * x[c, 0])
+    dy = x[v, 1] - (wa * x[a, 1] + wb * x[b, 1] + wc * x[c, 1])
+    dz = x[v, 2] - (wa * x[a, 2] + wb * x[b, 2] + wc * x[c, 2])
+    dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if dist > 1e-300:
+        return dist, wa, wb, wc, dx / dist, dy / dist, dz / dist
+    return 0.0, wa, wb, wc, 0.0, 0.0, 0.0
+
+
+@nb.njit(**JIT)
+def _face_normal(x: np.ndarray, a: int, b: int, c: int) -> tuple[float, float, float]:
+    ux = x[b, 0] - x[a, 0]
+    uy = x[b, 1] - x[a, 1]
+    uz = x[b, 2] - x[a, 2]
+    vx = x[c, 0] - x[a, 0]
+    vy = x[c, 1] - x[a, 1]
+    vz = x[c, 2] - x[a, 2]
+    nx = uy * vz - uz * vy
+    ny = uz * vx - ux * vz
+    nz = ux * vy - uy * vx
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if length > 1e-300:
+        return nx / length, ny / length, nz / length
+    return 0.0, 0.0, 0.0
+
+
+@nb.njit(**JIT)
+def _ee_gap(x: np.ndarray, p0: int, p1: int, q0: int, q1: int) -> tuple[float, float, float, float, float, float]:
+    """Distance between edges (p0, p1) and (q0, q1) in x, the closest points' parameters and the
+    unit direction from the q point to the p point."""
+    s, t = segment_segment_params(x, p0, p1, x, q0, q1)
+    dx = x[p0, 0] + s * (x[p1, 0] - x[p0, 0]) - x[q0, 0] - t * (x[q1, 0] - x[q0, 0])
+    dy = x[p0, 1] + s * (x[p1, 1] - x[p0, 1]) - x[q0, 1] - t * (x[q1, 1] - x[q0, 1])
+    dz = x[p0, 2] + s * (x[p1, 2] - x[p0, 2]) - x[q0, 2] - t * (x[q1, 2] - x[q0, 2])
+    dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if dist > 1e-300:
+        return dist, s, t, dx / dist, dy / dist, dz / dist
+    return 0.0, s, t, 0.0, 0.0, 0.0
+
+
+@nb.njit(**JIT)
+def pair_gaps(
+    x: np.ndarray, triangles: np.ndarray, edges: np.ndarray, vf: np.ndarray, ee: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (m) of the VF pairs (P,) and the EE pairs (Q,) in positions x."""
+    dvf = np.empty(vf.shape[0])
+    for k in range(vf.shape[0]):
+        t = vf[k, 1]
+        dvf[k] = _vf_gap(x, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])[0]
+    dee = np.empty(ee.shape[0])
+    for k in range(ee.shape[0]):
+        e, f = ee[k, 0], ee[k, 1]
+        dee[k] = _ee_gap(x, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])[0]
+    return dvf, dee
+
+
+@nb.njit(**JIT)
+def _vf_side(x0: np.ndarray, v: int, a: int, b: int, c: int) -> tuple[float, float, float]:
+    """The unit direction at the start of the substep from triangle (a, b, c) to vertex v: the
+    side the vertex must stay on (the face normal turned towards v, or the offset direction
+    when v is off the face)."""
+    dist, _, _, _, ox, oy, oz = _vf_gap(x0, v, a, b, c)
+    nx, ny, nz = _face_normal(x0, a, b, c)
+    along = ox * nx + oy * ny + oz * nz
+    if dist > 0.0 and abs(along) < 0.999:  # beside the face: the offset is the side
+        return ox, oy, oz
+    if along < 0.0:
+        return -nx, -ny, -nz
+    return nx, ny, nz
+
+
+@nb.njit(**JIT)
+def _tangential(rel: np.ndarray, nx: float, ny: float, nz: float, limit: float) -> float:
+    """Remove the normal part of rel (3,) in place; the fraction of the tangential rest to take
+    away so that at most `limit` metres of it go (Coulomb: friction times the normal push)."""
+    along = rel[0] * nx + rel[1] * ny + rel[2] * nz
+    rel[0] -= along * nx
+    rel[1] -= along * ny
+    rel[2] -= along * nz
+    length = np.sqrt(rel[0] * rel[0] + rel[1] * rel[1] + rel[2] * rel[2])
+    if length <= 1e-300:
+        return 0.0
+    return min(1.0, limit / length)
+
+
+@nb.njit(**JIT)
+def project_proximity(
+    x: np.ndarray,
+    x0: np.ndarray,
+    inv_mass: np.ndarray,
+    triangles: np.ndarray,
+    edges: np.ndarray,
+    vf: np.ndarray,
+    vf_gap: np.ndarray,
+    ee: np.ndarray,
+    ee_gap: np.ndarray,
+    sweeps: int,
+    friction: float,
+) -> int:
+    """Gauss-Seidel sweeps (in pair order) pushing each pair apart to its gap (m, per pair) along
+    the side it had at the start of the substep, inverse-mass and barycentric weighted; x is
+    changed in place. Friction (position-based Coulomb, Macklin et al. 2014): the pair's
+    relative tangential travel this substep shrinks by up to `friction` times the normal
+    correction. Returns how many pair projections moved something."""
+    moved = 0
+    rel = np.empty(3)
+    side_vf = np.empty((vf.shape[0], 3))
+    for k in range(vf.shape[0]):
+        t = vf[k, 1]
+        nx, ny, nz = _vf_side(x0, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])
+        side_vf[k, 0], side_vf[k, 1], side_vf[k, 2] = nx, ny, nz
+    side_ee = np.empty((ee.shape[0], 3))
+    for k in range(ee.shape[0]):
+        e, f = ee[k, 0], ee[k, 1]
+        dist, s, tt, dx, dy, dz = _ee_gap(x0, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])
+        if dist == 0.0:
+            dx, dy, dz = 0.0, 0.0, 1.0
+        side_ee[k, 0], side_ee[k, 1], side_ee[k, 2] = dx, dy, dz
+    for _ in range(sweeps):
+        for k in range(vf.shape[0]):
+            v = vf[k, 0]
+            t = vf[k, 1]
+            a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+            _, wa, wb, wc, _, _, _ = _vf_gap(x, v, a, b, c)
+            nx, ny, nz = side_vf[k, 0], side_vf[k, 1], side_vf[k, 2]
+            gap = (
+                (x[v, 0] - wa * x[a, 0] - wb * x[b, 0] - wc * x[c, 0]) * nx
+                + (x[v, 1] - wa * x[a, 1] - wb * x[b, 1] - wc * x[c, 1]) * ny
+                + (x[v, 2] - wa * x[a, 2] - wb * x[b, 2] - wc * x[c, 2]) * nz
+            )
+            violation = vf_gap[k] - gap
+            if violation <= 0.0:
+                continue
+            denom = inv_mass[v] + wa * wa * inv_mass[a] + wb * wb * inv_mass[b] + wc * wc * inv_mass[c]
+            if denom <= 0.0:
+                continue
+            lam = violation / denom
+            for axis, n in ((0, nx), (1, ny), (2, nz)):
+                x[v, axis] += inv_mass[v] * lam * n
+                x[a, axis] -= inv_mass[a] * wa * lam * n
+                x[b, axis] -= inv_mass[b] * wb * lam * n
+                x[c, axis] -= inv_mass[c] * wc * lam * n
+            moved += 1
+            if friction > 0.0:
+                for axis in range(3):
+                    rel[axis] = (
+                        x[v, axis] - x0[v, axis] - wa * (x[a, axis] - x0[a, axis])
+                        - wb * (x[b, axis] - x0[b, axis]) - wc * (x[c, axis] - x0[c, axis])
+                    )
+                scale = _tangential(rel, nx, ny, nz, friction * violation)
+                if scale > 0.0:
+                    for axis in range(3):
+                        shift = scale * rel[axis] / denom
+                        x[v, axis] -= inv_mass[v] * shift
+                        x[a, axis] += inv_mass[a] * wa * shift
+                        x[b, axis] += inv_mass[b] * wb * shift
+                        x[c, axis] += inv_mass[c] * wc * shift
+        for k in range(ee.shape[0]):
+            e, f = ee[k, 0], ee[k, 1]
+            p0, p1, q0, q1 = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
+            _, s, tt, _, _, _ = _ee_gap(x, p0, p1, q0, q1)
+            nx, ny, nz = side_ee[k, 0], side_ee[k, 1], side_ee[k, 2]
+            gap = 0.0
+            for axis, n in ((0, nx), (1, ny), (2, nz)):
+                p_point = x[p0, axis] + s * (x[p1, axis] - x[p0, axis])
+                gap += (p_point - x[q0, axis] - tt * (x[q1, axis] - x[q0, axis])) * n
+            violation = ee_gap[k] - gap
+            if violation <= 0.0:
+                continue
+            w0, w1, w2, w3 = 1.0 - s, s, 1.0 - tt, tt
+            denom = (
+                w0 * w0 * inv_mass[p0] + w1 * w1 * inv_mass[p1] + w2 * w2 * inv_mass[q0] + w3 * w3 * inv_mass[q1]
+            )
+            if denom <= 0.0:
+                continue
+            lam = violation / denom
+            for axis, n in ((0, nx), (1, ny), (2, nz)):
+                x[p0, axis] += inv_mass[p0] * w0 * lam * n
+                x[p1, axis] += inv_mass[p1] * w1 * lam * n
+                x[q0, axis] -= inv_mass[q0] * w2 * lam * n
+                x[q1, axis] -= inv_mass[q1] * w3 * lam * n
+            moved += 1
+            if friction > 0.0:
+                for axis in range(3):
+                    rel[axis] = (
+                        w0 * (x[p0, axis] - x0[p0, axis]) + w1 * (x[p1, axis] - x0[p1, axis])
+                        - w2 * (x[q0, axis] - x0[q0, axis]) - w3 * (x[q1, axis] - x0[q1, axis])
+                    )
+                scale = _tangential(rel, nx, ny, nz, friction * violation)
+                if scale > 0.0:
+                    for axis in range(3):
+                        shift = scale * rel[axis] / denom
+                        x[p0, axis] -= inv_mass[p0] * w0 * shift
+                        x[p1, axis] -= inv_mass[p1] * w1 * shift
+                        x[q0, axis] += inv_mass[q0] * w2 * shift
+                        x[q1, axis] += inv_mass[q1] * w3 * shift
+    return moved
+
+
+@nb.njit(**JIT)
+def _advance(x0: np.ndarray, x1: np.ndarray, ids: np.ndarray, is_vf: bool, buf: np.ndarray) -> bool:
+    """Conservative advancement of one pair (its four vertices `ids`, VF: vertex then triangle;
+    EE: edge then edge) from x0 to x1: True when its distance may fall below SEPARATION times
+    its start value within the substep (a collision), False when it provably stays above."""
+    mean = np.zeros(3)
+    for i in range(4):
+        for axis in range(3):
+            mean[axis] += 0.25 * (x1[ids[i], axis] - x0[ids[i], axis])
+    travel = np.empty(4)
+    for i in range(4):
+        sq = 0.0
+        for axis in range(3):
+            d = x1[ids[i], axis] - x0[ids[i], axis] - mean[axis]
+            sq += d * d
+        travel[i] = np.sqrt(sq)
+    if is_vf:
+        bound = travel[0] + max(travel[1], max(travel[2], travel[3]))
+    else:
+        bound = max(travel[0], travel[1]) + max(travel[2], travel[3])
+    for i in range(4):
+        for axis in range(3):
+            buf[i, axis] = x0[ids[i], axis]
+    start = _vf_gap(buf, 0, 1, 2, 3)[0] if is_vf else _ee_gap(buf, 0, 1, 2, 3)[0]
+    if bound <= 0.0:
+        return start <= 0.0
+    floor = SEPARATION * start
+    if floor <= 0.0:
+        return True
+    t = 0.0
+    dist = start
+    for _ in range(MAX_ADVANCE_STEPS):
+        step = (1.0 - SEPARATION) * dist / bound
+        if t + step >= 1.0:
+            return False
+        t += step
+        for i in range(4):
+            for axis in range(3):
+                buf[i, axis] = x0[ids[i], axis] + t * (x1[ids[i], axis] - x0[ids[i], axis])
+        dist = _vf_gap(buf, 0, 1, 2, 3)[0] if is_vf else _ee_gap(buf, 0, 1, 2, 3)[0]
+        if dist < floor:
+            return True
+    return True
+
+
+@nb.njit(**JIT)
+def colliding_pairs(
+    x0: np.ndarray, x1: np.ndarray, triangles: np.ndarray, edges: np.ndarray, vf: np.ndarray, ee: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Masks (P,), (Q,) of the VF and EE pairs that may come into contact moving linearly from x0
+    to x1 (conservative: no pair that touches is missed)."""
+    buf = np.empty((4, 3))
+    ids = np.empty(4, dtype=np.int64)
+    hit_vf = np.zeros(vf.shape[0], dtype=np.bool_)
+    for k in range(vf.shape[0]):
+        t = vf[k, 1]
+        ids[0] = vf[k, 0]
+        ids[1] = triangles[t, 0]
+        ids[2] = triangles[t, 1]
+        ids[3] = triangles[t, 2]
+        hit_vf[k] = _advance(x0, x1, ids, True, buf)
+    hit_ee = np.zeros(ee.shape[0], dtype=np.bool_)
+    for k in range(ee.shape[0]):
+        ids[0] = edges[ee[k, 0], 0]
+        ids[1] = edges[ee[k, 0], 1]
+        ids[2] = edges[ee[k, 1], 0]
+        ids[3] = edges[ee[k, 1], 1]
+        hit_ee[k] = _advance(x0, x1, ids, False, buf)
+    return hit_vf, hit_ee
+
+
+@nb.njit(**JIT)
+def _root(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@nb.njit(**JIT)
+def _join(parent: np.ndarray, a: int, b: int) -> None:
+    ra = _root(parent, a)
+    rb = _root(parent, b)
+    if ra != rb:  # the smaller index becomes the root: the result does not depend on pair order
+        if ra < rb:
+            parent[rb] = ra
+        else:
+            parent[ra] = rb
+
+
+@nb.njit(**JIT)
+def merge_zones(
+    parent: np.ndarray,
+    in_zone: np.ndarray,
+    triangles: np.ndarray,
+    edges: np.ndarray,
+    vf: np.ndarray,
+    hit_vf: np.ndarray,
+    ee: np.ndarray,
+    hit_ee: np.ndarray,
+) -> None:
+    """Join the four vertices of every colliding pair into one impact zone (union-find over
+    vertices: parent (V,), in_zone (V,) marks zone members)."""
+    for k in range(vf.shape[0]):
+        if hit_vf[k]:
+            v = vf[k, 0]
+            t = vf[k, 1]
+            in_zone[v] = True
+            for j in range(3):
+                in_zone[triangles[t, j]] = True
+                _join(parent, v, triangles[t, j])
+    for k in range(ee.shape[0]):
+        if hit_ee[k]:
+            a, b = edges[ee[k, 0], 0], edges[ee[k, 0], 1]
+            c, d = edges[ee[k, 1], 0], edges[ee[k, 1], 1]
+            for u in (a, b, c, d):
+                in_zone[u] = True
+            _join(parent, a, b)
+            _join(parent, a, c)
+            _join(parent, a, d)
+
+
+@nb.njit(**JIT)
+def move_zones(x: np.ndarray, x0: np.ndarray, inv_mass: np.ndarray, parent: np.ndarray, in_zone: np.ndarray) -> int:
+    """Give every impact zone one translation, x = x0 + the mass-weighted mean displacement of its
+    free members (or the mean displacement of its pinned members, which cannot be moved): a
+    translation keeps every distance inside the zone, so no pair within it can meet. Returns the
+    number of vertices in zones."""
+    n = x.shape[0]
+    mass = np.zeros(n)
+    pinned = np.zeros(n)
+    moved = np.zeros((n, 3))
+    pinned_moved = np.zeros((n, 3))
+    members = 0
+    for i in range(n):
+        if not in_zone[i]:
+            continue
+        members += 1
+        r = _root(parent, i)
+        if inv_mass[i] > 0.0:
+            m = 1.0 / inv_mass[i]
+            mass[r] += m
+            for axis in range(3):
+                moved[r, axis] += m * (x[i, axis] - x0[i, axis])
+        else:
+            pinned[r] += 1.0
+            for axis in range(3):
+                pinned_moved[r, axis] += x[i, axis] - x0[i, axis]
+    for i in range(n):
+        if not in_zone[i] or inv_mass[i] <= 0.0:
+            continue
+        r = _root(parent, i)
+        for axis in range(3):
+            shift = pinned_moved[r, axis] / pinned[r] if pinned[r] > 0.0 else moved[r, axis] / mass[r]
+            x[i, axis] = x0[i, axis] + shift
+    return members
