@@ -66,6 +66,7 @@ from meshdeform.solvers.common import structural_mask
 from meshdeform.solvers.registry import make_solver, solver_class, solver_options
 
 if TYPE_CHECKING:
+    from meshdeform.contact.self_collision import ContactWork
     from meshdeform.tearing import Tearer
 
 
@@ -119,6 +120,7 @@ class Frame:
     end of the frame (welded_positions are its vertices); broken_springs / split_vertices: how
     many springs broke and vertices were added during the frame; pieces: connected pieces of
     the mesh at the end of it (None without tearing).
+    contact: what self-collision did during the frame (`Scene.self_collision`; None when off).
     """
 
     index: int
@@ -134,6 +136,7 @@ class Frame:
     broken_springs: int = 0
     split_vertices: int = 0
     pieces: int | None = None
+    contact: ContactWork | None = None
 
 
 def rest_frame(frames: Iterable[Frame]) -> int | None:
@@ -244,7 +247,10 @@ def simulate(
     resting_since: int | None = None
     # nothing between the substeps (no forces, constraints, pin motion or tearing): the solver
     # runs a whole frame in one call (`Solver.advance`), with the same result as substep by substep
-    whole_frames = not forces and not constraints and pin_motion is None and tearing is None
+    self_collision = scene.self_collision
+    whole_frames = (
+        not forces and not constraints and pin_motion is None and tearing is None and self_collision is None
+    )
     for frame in range(1, settings.frames + 1):
         if whole_frames:
             solver.advance(model, state, dt, control, substeps)
@@ -269,6 +275,8 @@ def simulate(
             step(model, state, dt, control)
             for constraint in constraints:
                 constraint.project(model, state, t1, dt)
+            if self_collision is not None:
+                self_collision.project(model, state, t1, dt)
             if pin_motion is not None:
                 state.positions[pinned_idx] = targets
             elif pinned_idx.size:
@@ -345,6 +353,7 @@ def simulate(
             at_rest=at_rest,
             rest_frame=resting_since,
             model=model,
+            contact=self_collision.take_work() if self_collision is not None else None,
             **torn,
         )
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from meshdeform.contact.self_collision import SelfCollision, SelfCollisionSettings
 from meshdeform.errors import MeshdeformError
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh
@@ -183,7 +184,18 @@ def _collider(spec: ColliderSpec, i: int, recipe: Recipe, res: _Resolver) -> col
             raise recipe.error(path, f"collider mesh {file} has no faces")
         shape = col.TriangleMesh(other.positions, other.triangles)
     pivot = res.point(spec.pivot, rel) if spec.pivot is not None else shape.center
-    return col.Collider(shape, spec.friction, spec.thickness, _keyframes(spec.animate, pivot, spec.loop))
+    thickness = spec.thickness if spec.thickness is not None else recipe.material.thickness
+    return col.Collider(shape, spec.friction, thickness, _keyframes(spec.animate, pivot, spec.loop))
+
+
+def _self_collision(recipe: Recipe, colliders: list[col.Collider]) -> SelfCollision | None:
+    """The [self_collision] table as the scene's SelfCollision (None when absent or disabled)."""
+    spec = recipe.self_collision
+    if spec is None or not spec.enabled:
+        return None
+    thickness = spec.thickness if spec.thickness is not None else recipe.material.thickness
+    settings = SelfCollisionSettings(thickness=thickness, friction=spec.friction, sweeps=spec.sweeps)
+    return SelfCollision(settings, colliders)
 
 
 def _tearing(
@@ -389,10 +401,12 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
         constraints.append(NearestPinTethers(model, anchor_idx, spec.tethers.max_stretch))
 
     # -- colliders last, so nothing is left inside one after a substep --------------------------------
-    constraints.extend(_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders))
+    colliders = [_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders)]
+    constraints.extend(colliders)
 
     gravity = sim.gravity if sim.gravity is not None else gravity_vector(sim.up)
     scene = Scene(gravity=gravity, forces=forces, constraints=constraints, pin_motion=pin_motion)
+    scene.self_collision = _self_collision(recipe, colliders)
     scene.tearing = _tearing(recipe, res, mesh, model, settings, warnings)
     return BuiltSimulation(
         model=model,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -100,6 +100,7 @@ def run_job(
     broken_springs: list[int] = []
     split_vertices: list[int] = []
     pieces: list[int] = []
+    contact: dict[str, list[int]] = {}  # self-collision's ContactWork figures, frame by frame
     first_tear_frame: int | None = None
     output_vertices = mesh.vertex_count
     strain_model = model
@@ -130,6 +131,9 @@ def run_job(
                     if first_tear_frame is None and frame.mesh is not None:
                         first_tear_frame = frame.index
                     output_vertices = int(frame.positions.shape[0])
+                if frame.contact is not None:  # self-collision: what each frame took
+                    for key, value in asdict(frame.contact).items():
+                        contact.setdefault(key, []).append(int(value))
                 tick = time.perf_counter()
                 frame_model = frame.model if frame.model is not None else model
                 if frame_model is not strain_model:  # the mesh opened: strain over the new springs
@@ -192,6 +196,11 @@ def run_job(
                     "topology_updates": built.scene.tearing.updates if built.scene.tearing is not None else 0,
                 }
                 if recipe.changes_topology
+                else {}
+            ),
+            **(
+                {"self_collision": {"thickness": built.scene.self_collision.settings.thickness, **contact}}
+                if built.scene.self_collision is not None
                 else {}
             ),
             "formats": formats,

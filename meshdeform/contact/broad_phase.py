@@ -156,9 +156,41 @@ def overlapping_pairs(
         return np.zeros((0, 2), dtype=np.int64)
     inv_cell = 1.0 / cell_size(elo, ehi)
     start, element, cell = build_grid(elo, ehi, inv_cell)
-    out = np.empty((max(capacity_hint, 4 * qlo.shape[0]), 2), dtype=np.int64)
+    out = np.empty((max(capacity_hint, 16 * qlo.shape[0]), 2), dtype=np.int64)
     count = _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, upper_only, out)
     if count > out.shape[0]:
         out = np.empty((count, 2), dtype=np.int64)
         _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, upper_only, out)
     return out[:count]
+
+
+@nb.njit(**JIT)
+def swept_boxes(
+    x0: np.ndarray, x1: np.ndarray, elements: np.ndarray, pad: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (M, 3) around elements (M, k) of vertex indices over both position sets x0, x1
+    (V, 3), grown by pad (m) on every side: what an element sweeps moving linearly from x0 to x1."""
+    m, k = elements.shape
+    lo = np.empty((m, 3))
+    hi = np.empty((m, 3))
+    for e in range(m):
+        for axis in range(3):
+            low = np.inf
+            high = -np.inf
+            for j in range(k):
+                v = elements[e, j]
+                low = min(low, min(x0[v, axis], x1[v, axis]))
+                high = max(high, max(x0[v, axis], x1[v, axis]))
+            lo[e, axis] = low - pad
+            hi[e, axis] = high + pad
+    return lo, hi
+
+
+@nb.njit(**JIT)
+def within(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, slack: float) -> bool:
+    """Whether every row of x (V, 3) lies inside its box lo, hi (V, 3) grown by slack (m)."""
+    for v in range(x.shape[0]):
+        for axis in range(3):
+            if x[v, axis] < lo[v, axis] - slack or x[v, axis] > hi[v, axis] + slack:
+                return False
+    return True

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshdeform.contact import self_kernels
-from meshdeform.contact.broad_phase import overlapping_pairs
+from meshdeform.contact.broad_phase import overlapping_pairs, swept_boxes, within
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 
@@ -64,14 +64,17 @@ class SelfCollisionSettings:
 @dataclass
 class ContactWork:
     """What self-collision did in a span of substeps: proximity projections, pairs flagged by the
-    continuous check, impact-zone rounds and the largest zone (vertices)."""
+    continuous check, impact-zone rounds, the largest zone (vertices) and how often the
+    candidate pairs were searched afresh."""
 
     projections: int = 0
     flagged_pairs: int = 0
     zone_rounds: int = 0
     largest_zone: int = 0
+    pair_builds: int = 0
 
     def add(self, other: ContactWork) -> None:
+        self.pair_builds += other.pair_builds
         self.projections += other.projections
         self.flagged_pairs += other.flagged_pairs
         self.zone_rounds += other.zone_rounds
@@ -103,10 +106,36 @@ def _rings(edges: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.cumsum(start), np.ascontiguousarray(both[:, 1], dtype=np.int64)
 
 
-def _boxes(x0: np.ndarray, x1: np.ndarray, elements: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray]:
-    """Boxes (M, 3) around elements (M, k) of vertex indices over both position sets, +- pad."""
-    corners = np.concatenate([x0[elements], x1[elements]], axis=1)
-    return corners.min(axis=1) - pad, corners.max(axis=1) + pad
+@dataclass(frozen=True)
+class _Pairs:
+    """Candidate pairs kept over several substeps (a Verlet list): VF (P, 2) and EE (Q, 2), each
+    pair's proximity flag and rest distance (m).
+
+    Found from the boxes `lo`, `hi` (V, 3) each vertex swept in the substep they were gathered
+    in, as the pairs whose boxes come within the thickness plus twice `slack` (m). While every
+    vertex stays within `slack` of its box (after the cloth's mean motion since, from `centre`,
+    is taken out: a common translation moves no pair closer), no other pair can come within the
+    thickness or touch, so the list holds.
+    """
+
+    vf: np.ndarray
+    vf_near: np.ndarray
+    vf_rest: np.ndarray
+    ee: np.ndarray
+    ee_near: np.ndarray
+    ee_rest: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    centre: np.ndarray
+    slack: float
+
+    def hold(self, x0: np.ndarray, x1: np.ndarray) -> bool:
+        """Whether these pairs cover a substep from x0 to x1 (V, 3)."""
+        if self.lo.shape[0] != x0.shape[0]:
+            return False
+        shift = x1.mean(axis=0) - self.centre
+        lo, hi = self.lo + shift, self.hi + shift
+        return within(x0, lo, hi, self.slack) and within(x1, lo, hi, self.slack)
 
 
 class SelfCollision(Constraint, Remappable):
@@ -123,6 +152,9 @@ class SelfCollision(Constraint, Remappable):
         self._origin: np.ndarray | None = None
         self._rings: tuple[np.ndarray, np.ndarray] | None = None
         self._start: np.ndarray | None = None
+        self._held: _Pairs | None = None
+        self._margin = 0.0
+        self._capacity = (0, 0)
         self.work = ContactWork()
 
     def take_work(self) -> ContactWork:
@@ -148,24 +180,33 @@ class SelfCollision(Constraint, Remappable):
             self._start = None
         self._model = model
         self._topology = _Topology.of(model)
+        self._held = None
+        self._margin = _margin(model, self._topology, self.settings.thickness)
         return self._topology
 
-    def _candidates(
-        self, topology: _Topology, x0: np.ndarray, x1: np.ndarray, pad: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """VF and EE pairs whose swept boxes come within `pad` (m), filtered by origin, with each
-        kept pair's proximity flag."""
-        n = x1.shape[0]
-        vertices = np.arange(n, dtype=np.int64)[:, None]
-        vlo, vhi = _boxes(x0, x1, vertices, pad)
-        tlo, thi = _boxes(x0, x1, topology.triangles, 0.0)
-        vf = overlapping_pairs(vlo, vhi, tlo, thi)
-        elo, ehi = _boxes(x0, x1, topology.edges, 0.5 * pad)
-        ee = overlapping_pairs(elo, ehi, elo, ehi, upper_only=True)
+    def _pairs(self, model: SpringModel, topology: _Topology, x0: np.ndarray, x1: np.ndarray) -> _Pairs:
+        """The candidate pairs for a substep from x0 to x1: the kept list while it holds, else
+        gathered afresh from the boxes swept from x0 to x1, grown by the thickness and a margin."""
+        held = self._held
+        if held is not None and held.hold(x0, x1):
+            return held
+        self.work.pair_builds += 1
+        reach = self.settings.thickness + self._margin
+        vertices = np.arange(x0.shape[0], dtype=np.int64)[:, None]
+        lo, hi = swept_boxes(x0, x1, vertices, 0.0)
+        tlo, thi = swept_boxes(x0, x1, topology.triangles, 0.0)
+        vf = overlapping_pairs(lo - reach, hi + reach, tlo, thi, capacity_hint=self._capacity[0])
+        elo, ehi = swept_boxes(x0, x1, topology.edges, 0.5 * reach)
+        ee = overlapping_pairs(elo, ehi, elo, ehi, upper_only=True, capacity_hint=self._capacity[1])
+        self._capacity = (int(1.25 * vf.shape[0]), int(1.25 * ee.shape[0]))
         ring_start, ring = self._rings
         vf, vf_near = self_kernels.filter_vf(vf, topology.triangles, self._origin, ring_start, ring)
         ee, ee_near = self_kernels.filter_ee(ee, topology.edges, self._origin, ring_start, ring)
-        return vf, vf_near, ee, ee_near
+        rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
+        vf_rest, ee_rest = self_kernels.pair_gaps(rest, topology.triangles, topology.edges, vf, ee)
+        centre = x1.mean(axis=0)
+        self._held = _Pairs(vf, vf_near, vf_rest, ee, ee_near, ee_rest, lo, hi, centre, 0.5 * self._margin)
+        return self._held
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
         topology = self._prepare(model)
@@ -180,16 +221,13 @@ class SelfCollision(Constraint, Remappable):
         work = ContactWork()
 
         # 1. proximity: pairs within the thickness, pushed apart along their start side
-        vf, vf_near, ee, ee_near = self._candidates(topology, x0, x1, settings.thickness)
-        vf_p, ee_p = vf[vf_near], ee[ee_near]
-        if vf_p.shape[0] or ee_p.shape[0]:
-            rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
-            rest_vf, rest_ee = self_kernels.pair_gaps(rest, topology.triangles, topology.edges, vf_p, ee_p)
-            work.projections = self_kernels.project_proximity(
-                x, x0, inv_mass, topology.triangles, topology.edges,
-                vf_p, np.minimum(settings.thickness, rest_vf), ee_p, np.minimum(settings.thickness, rest_ee),
-                settings.sweeps, settings.friction,
-            )
+        pairs = self._pairs(model, topology, x0, x1)
+        work.projections = self_kernels.project_proximity(
+            x, x0, inv_mass, topology.triangles, topology.edges,
+            pairs.vf, pairs.vf_near, np.minimum(settings.thickness, pairs.vf_rest),
+            pairs.ee, pairs.ee_near, np.minimum(settings.thickness, pairs.ee_rest),
+            settings.sweeps, settings.friction,
+        )
 
         _settle(state, x1, dt)
         # the colliders again, on what the proximity step moved (it may push a layer into them)
@@ -201,7 +239,8 @@ class SelfCollision(Constraint, Remappable):
         parent = np.arange(n, dtype=np.int64)
         in_zone = np.zeros(n, dtype=np.bool_)
         for round_ in range(settings.max_rounds + 1):
-            vf, _, ee, _ = self._candidates(topology, x0, x, 1e-9)
+            pairs = self._pairs(model, topology, x0, x)
+            vf, ee = pairs.vf, pairs.ee
             hit_vf, hit_ee = self_kernels.colliding_pairs(x0, x, topology.triangles, topology.edges, vf, ee)
             flagged = int(hit_vf.sum() + hit_ee.sum())
             if flagged == 0:
@@ -219,6 +258,21 @@ class SelfCollision(Constraint, Remappable):
         _settle(state, x2, dt)
         self._start = x.copy()
         self.work.add(work)
+
+
+#: the candidate pairs' margin: this fraction of the median rest edge length (at least the thickness)
+MARGIN_FRACTION = 0.25
+
+
+def _margin(model: SpringModel, topology: _Topology, thickness: float) -> float:
+    """Metres beyond the thickness within which candidate pairs are gathered (see `_Pairs`): they
+    hold until some vertex moves half of it, so a larger margin means fewer searches but more
+    pairs to check; a quarter of the typical edge keeps both small."""
+    if topology.edges.shape[0] == 0:
+        return thickness
+    rest = model.rest_positions
+    lengths = np.linalg.norm(rest[topology.edges[:, 1]] - rest[topology.edges[:, 0]], axis=1)
+    return max(thickness, MARGIN_FRACTION * float(np.median(lengths)))
 
 
 def _settle(state: State, before: np.ndarray, dt: float) -> None:

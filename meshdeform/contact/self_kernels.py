@@ -184,14 +184,17 @@ def project_proximity(
     triangles: np.ndarray,
     edges: np.ndarray,
     vf: np.ndarray,
+    vf_near: np.ndarray,
     vf_gap: np.ndarray,
     ee: np.ndarray,
+    ee_near: np.ndarray,
     ee_gap: np.ndarray,
     sweeps: int,
     friction: float,
 ) -> int:
     """Gauss-Seidel sweeps (in pair order) pushing each pair apart to its gap (m, per pair) along
-    the side it had at the start of the substep, inverse-mass and barycentric weighted; x is
+    the side it had at the start of the substep, inverse-mass and barycentric weighted (only
+    the pairs flagged `near`: the others are rest neighbours); x is
     changed in place. Friction (position-based Coulomb, Macklin et al. 2014): the pair's
     relative tangential travel this substep shrinks by up to `friction` times the normal
     correction. Returns how many pair projections moved something."""
@@ -199,11 +202,15 @@ def project_proximity(
     rel = np.empty(3)
     side_vf = np.empty((vf.shape[0], 3))
     for k in range(vf.shape[0]):
+        if not vf_near[k]:
+            continue
         t = vf[k, 1]
         nx, ny, nz = _vf_side(x0, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])
         side_vf[k, 0], side_vf[k, 1], side_vf[k, 2] = nx, ny, nz
     side_ee = np.empty((ee.shape[0], 3))
     for k in range(ee.shape[0]):
+        if not ee_near[k]:
+            continue
         e, f = ee[k, 0], ee[k, 1]
         dist, s, tt, dx, dy, dz = _ee_gap(x0, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])
         if dist == 0.0:
@@ -211,6 +218,8 @@ def project_proximity(
         side_ee[k, 0], side_ee[k, 1], side_ee[k, 2] = dx, dy, dz
     for _ in range(sweeps):
         for k in range(vf.shape[0]):
+            if not vf_near[k]:
+                continue
             v = vf[k, 0]
             t = vf[k, 1]
             a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
@@ -249,6 +258,8 @@ def project_proximity(
                         x[b, axis] += inv_mass[b] * wb * shift
                         x[c, axis] += inv_mass[c] * wc * shift
         for k in range(ee.shape[0]):
+            if not ee_near[k]:
+                continue
             e, f = ee[k, 0], ee[k, 1]
             p0, p1, q0, q1 = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
             _, s, tt, _, _, _ = _ee_gap(x, p0, p1, q0, q1)
@@ -295,21 +306,25 @@ def _advance(x0: np.ndarray, x1: np.ndarray, ids: np.ndarray, is_vf: bool, buf: 
     """Conservative advancement of one pair (its four vertices `ids`, VF: vertex then triangle;
     EE: edge then edge) from x0 to x1: True when its distance may fall below SEPARATION times
     its start value within the substep (a collision), False when it provably stays above."""
-    mean = np.zeros(3)
+    mx = 0.0
+    my = 0.0
+    mz = 0.0
     for i in range(4):
-        for axis in range(3):
-            mean[axis] += 0.25 * (x1[ids[i], axis] - x0[ids[i], axis])
-    travel = np.empty(4)
+        mx += 0.25 * (x1[ids[i], 0] - x0[ids[i], 0])
+        my += 0.25 * (x1[ids[i], 1] - x0[ids[i], 1])
+        mz += 0.25 * (x1[ids[i], 2] - x0[ids[i], 2])
+    first = 0.0  # the vertex (VF) or the first edge's largest travel relative to the mean
+    second = 0.0  # the triangle's or the second edge's
     for i in range(4):
-        sq = 0.0
-        for axis in range(3):
-            d = x1[ids[i], axis] - x0[ids[i], axis] - mean[axis]
-            sq += d * d
-        travel[i] = np.sqrt(sq)
-    if is_vf:
-        bound = travel[0] + max(travel[1], max(travel[2], travel[3]))
-    else:
-        bound = max(travel[0], travel[1]) + max(travel[2], travel[3])
+        dx = x1[ids[i], 0] - x0[ids[i], 0] - mx
+        dy = x1[ids[i], 1] - x0[ids[i], 1] - my
+        dz = x1[ids[i], 2] - x0[ids[i], 2] - mz
+        travel = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if i == 0 or (i == 1 and not is_vf):
+            first = max(first, travel)
+        else:
+            second = max(second, travel)
+    bound = first + second
     for i in range(4):
         for axis in range(3):
             buf[i, axis] = x0[ids[i], axis]

@@ -34,6 +34,7 @@ import numpy as np
 from meshdeform.model import SpringModel, State
 
 if TYPE_CHECKING:
+    from meshdeform.contact.self_collision import SelfCollision
     from meshdeform.tearing import Tearer
 
 
@@ -87,6 +88,8 @@ class Scene:
     gravity: m/s^2, added to every vertex's external acceleration (default 9.81 down Y).
     forces / constraints: see `Force`, `Constraint` (constraints run in this order).
     pin_motion: targets of the hard pins (None: they stay at rest). tearing: a `Tearer` or None.
+    self_collision: the cloth's contact with itself (`meshdeform.contact.SelfCollision`), run
+        after every constraint of a substep, or None (off).
     """
 
     gravity: tuple[float, float, float] = gravity_vector()
@@ -94,9 +97,12 @@ class Scene:
     constraints: list[Constraint] = field(default_factory=list)
     pin_motion: PinMotion | None = None
     tearing: Tearer | None = None
+    self_collision: SelfCollision | None = None
 
     def remappables(self) -> list[Remappable]:
         """The forces and constraints that follow a tear, each object once (an effect such as
-        `Plasticity` is both a force and a constraint), forces first, in scene order."""
-        unique = {id(item): item for item in (*self.forces, *self.constraints)}
+        `Plasticity` is both a force and a constraint), forces first, in scene order, then
+        self-collision."""
+        after = (self.self_collision,) if self.self_collision is not None else ()
+        unique = {id(item): item for item in (*self.forces, *self.constraints, *after)}
         return [item for item in unique.values() if isinstance(item, Remappable)]

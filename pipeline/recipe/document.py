@@ -26,6 +26,7 @@ from pipeline.recipe.schema import (
     MaterialSpec,
     OutputSpec,
     PinSpec,
+    SelfCollisionSpec,
     SimulationSpec,
     TearSpec,
     WindSpec,
@@ -42,6 +43,7 @@ class Recipe(Table):
     impacts: tuple[ImpactSpec, ...] = ()
     wind: WindSpec | None = None
     colliders: tuple[ColliderSpec, ...] = ()
+    self_collision: SelfCollisionSpec | None = None
     tears: tuple[TearSpec, ...] = ()
     cuts: tuple[CutSpec, ...] = ()
     output: OutputSpec = Field(default_factory=OutputSpec)

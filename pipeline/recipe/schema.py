@@ -199,6 +199,8 @@ class MaterialSpec(Table):
     pressure: PressureSpec | None = None
     plasticity: PlasticitySpec | None = None
     tethers: TetherSpec | None = None
+    #: m: the cloth's own thickness, kept from colliders and (with [self_collision]) between its own parts
+    thickness: Float = Field(0.005, gt=0)
 
     def to_material(self) -> Material:
         return Material(
@@ -361,7 +363,8 @@ class ColliderSpec(Table):
     capsule: CapsuleSpec | None = None
     mesh: Annotated[MeshColliderSpec | None, BeforeValidator(_mesh_path)] = None
     friction: Float = Field(0.2, ge=0)
-    thickness: Float = Field(0.01, ge=0)
+    #: m kept between the collider and the cloth's surface; None: the cloth's [material] thickness
+    thickness: Float | None = Field(None, ge=0)
     relative: StrictBool = False
     animate: tuple[KeySpec, ...] = ()
     pivot: Vec3 | None = None
@@ -396,6 +399,17 @@ class ColliderSpec(Table):
             if key.scale is not None and len(set(key.scale)) != 1:
                 raise ValueError(f"animate[{i}].scale: colliders scale uniformly: give one number")
         return self
+
+
+class SelfCollisionSpec(Table):
+    """[self_collision]: the cloth keeps `thickness` metres between its parts (None: the cloth's
+    [material] thickness) and never passes through itself; `friction` between touching parts;
+    `sweeps` of the proximity step per substep; `enabled = false` keeps the table but turns it off."""
+
+    enabled: StrictBool = True
+    thickness: Float | None = Field(None, gt=0)
+    friction: Float = Field(0.1, ge=0)
+    sweeps: StrictInt = Field(2, ge=1, le=32)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -556,6 +570,7 @@ class AssetRuleSpec(Table):
     impacts: list[Any] | None = None
     wind: dict[str, Any] | None = None
     colliders: list[Any] | None = None
+    self_collision: dict[str, Any] | None = None
     tears: list[Any] | None = None
     cuts: list[Any] | None = None
     output: dict[str, Any] | None = None
