@@ -27,10 +27,12 @@ ever intersect after a substep, at any speed. The broad phase is a hashed grid f
 counting sort (`broad_phase`), and all kernels run serially in fixed orders, so the result is
 the same bytes whatever the executor or thread count.
 
-Tearing: the copies a tear makes start where their original is, so pairs are judged by the
-rest-mesh vertex each vertex came from (`origin`, updated by `remap`): a copy and the
-triangles of its original's other side are not tested against each other (they touch at the
-tear), while new boundary edges take part like any other.
+Tearing: the copies a tear makes start where their original is, touching the triangles of its
+other side. Proximity judges pairs by the rest-mesh vertex each vertex came from (`origin`,
+updated by `remap`), so the two sides of a tear are not pushed apart; the continuous check
+takes every pair sharing no vertex, except the two sides of the tear while they are still
+within a seam of `SEAM_FRACTION` of the thickness: once they part beyond it, they can never pass
+through each other, and new boundary edges take part like any other.
 """
 
 from __future__ import annotations
@@ -241,7 +243,9 @@ class SelfCollision(Constraint, Remappable):
         for round_ in range(settings.max_rounds + 1):
             pairs = self._pairs(model, topology, x0, x)
             vf, ee = pairs.vf, pairs.ee
-            hit_vf, hit_ee = self_kernels.colliding_pairs(x0, x, topology.triangles, topology.edges, vf, ee)
+            hit_vf, hit_ee = self_kernels.colliding_pairs(
+                x0, x, topology.triangles, topology.edges, vf, ee, self._origin, SEAM_FRACTION * settings.thickness
+            )
             flagged = int(hit_vf.sum() + hit_ee.sum())
             if flagged == 0:
                 break
@@ -260,6 +264,9 @@ class SelfCollision(Constraint, Remappable):
         self.work.add(work)
 
 
+#: the two sides of a tear are not judged by the continuous check while closer than this fraction
+#: of the thickness (the seam the tear opened, see `self_kernels`)
+SEAM_FRACTION = 0.2
 #: the candidate pairs' margin: this fraction of the median rest edge length (at least the thickness)
 MARGIN_FRACTION = 0.25
 

@@ -4,6 +4,9 @@ continuous check and impact zones (see `self_collision` for the method and why i
 Pairs come in two kinds, each an (P, 2) int64 array from the broad phase:
 - vertex-triangle (VF): (vertex, triangle), the vertex not a corner of the triangle;
 - edge-edge (EE): (edge, edge), the edges sharing no vertex.
+The continuous check leaves out a pair of the two sides of a tear (sharing an origin vertex)
+while it is closer than a seam width: a tear splits a vertex into copies at one place, where
+the sides touch; once they part beyond the seam they are guarded like any other pair.
 Positions are (V, 3) float64 metres; x0 the start of the substep (intersection free), x the
 end. `origin` (V,) maps each vertex to the vertex of the untorn rest mesh it came from, so the
 copies a tear makes still count as the same vertex (they start where their original is).
@@ -45,17 +48,19 @@ def _adjacent(ring_start: np.ndarray, ring: np.ndarray, a: int, b: int) -> bool:
 def filter_vf(
     pairs: np.ndarray, triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The VF candidates to check (the vertex's origin is no corner's origin) and, per kept pair,
-    whether it takes proximity repulsion (the vertex is no rest neighbour of a corner)."""
+    """The VF candidates to check (the vertex is no corner of the triangle) and, per kept pair,
+    whether it takes proximity repulsion (its origin is neither a corner's origin nor a rest
+    neighbour of one)."""
     keep = np.empty(pairs.shape[0], dtype=np.bool_)
     near = np.empty(pairs.shape[0], dtype=np.bool_)
     for k in range(pairs.shape[0]):
-        ov = origin[pairs[k, 0]]
+        v = pairs[k, 0]
         t = pairs[k, 1]
+        keep[k] = v != triangles[t, 0] and v != triangles[t, 1] and v != triangles[t, 2]
+        ov = origin[v]
         oa = origin[triangles[t, 0]]
         ob = origin[triangles[t, 1]]
         oc = origin[triangles[t, 2]]
-        keep[k] = ov != oa and ov != ob and ov != oc
         near[k] = keep[k] and not (
             _adjacent(ring_start, ring, ov, oa) or _adjacent(ring_start, ring, ov, ob)
             or _adjacent(ring_start, ring, ov, oc)
@@ -68,16 +73,15 @@ def filter_vf(
 def filter_ee(
     pairs: np.ndarray, edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The EE candidates to check (no shared origin) and whether each takes proximity repulsion
-    (no end a rest neighbour of an end of the other)."""
+    """The EE candidates to check (no shared vertex) and whether each takes proximity repulsion
+    (no end's origin equal to or a rest neighbour of an end's origin of the other)."""
     keep = np.empty(pairs.shape[0], dtype=np.bool_)
     near = np.empty(pairs.shape[0], dtype=np.bool_)
     for k in range(pairs.shape[0]):
-        a = origin[edges[pairs[k, 0], 0]]
-        b = origin[edges[pairs[k, 0], 1]]
-        c = origin[edges[pairs[k, 1], 0]]
-        d = origin[edges[pairs[k, 1], 1]]
-        keep[k] = a != c and a != d and b != c and b != d
+        p0, p1 = edges[pairs[k, 0], 0], edges[pairs[k, 0], 1]
+        q0, q1 = edges[pairs[k, 1], 0], edges[pairs[k, 1], 1]
+        keep[k] = p0 != q0 and p0 != q1 and p1 != q0 and p1 != q1
+        a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
         near[k] = keep[k] and not (
             _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
             or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
@@ -302,10 +306,14 @@ def project_proximity(
 
 
 @nb.njit(**JIT)
-def _advance(x0: np.ndarray, x1: np.ndarray, ids: np.ndarray, is_vf: bool, buf: np.ndarray) -> bool:
+def _advance(
+    x0: np.ndarray, x1: np.ndarray, ids: np.ndarray, is_vf: bool, buf: np.ndarray, origin: np.ndarray, seam: float
+) -> bool:
     """Conservative advancement of one pair (its four vertices `ids`, VF: vertex then triangle;
     EE: edge then edge) from x0 to x1: True when its distance may fall below SEPARATION times
-    its start value within the substep (a collision), False when it provably stays above."""
+    its start value within the substep (a collision), False when it provably stays above.
+    A pair sharing an origin vertex (the two sides of a tear) closer than `seam` (m) is not
+    judged: it is still at the seam the tear opened."""
     mx = 0.0
     my = 0.0
     mz = 0.0
@@ -329,11 +337,17 @@ def _advance(x0: np.ndarray, x1: np.ndarray, ids: np.ndarray, is_vf: bool, buf: 
         for axis in range(3):
             buf[i, axis] = x0[ids[i], axis]
     start = _vf_gap(buf, 0, 1, 2, 3)[0] if is_vf else _ee_gap(buf, 0, 1, 2, 3)[0]
-    if bound <= 0.0:
-        return start <= 0.0
+    if bound <= 0.0:  # moving as one
+        return False
+    if start < seam:
+        torn = (
+            origin[ids[0]] == origin[ids[2]] or origin[ids[0]] == origin[ids[3]]
+            or origin[ids[1]] == origin[ids[2]] or origin[ids[1]] == origin[ids[3]]
+            or (is_vf and origin[ids[0]] == origin[ids[1]])
+        )
+        if torn or start <= 0.0:
+            return False
     floor = SEPARATION * start
-    if floor <= 0.0:
-        return True
     t = 0.0
     dist = start
     for _ in range(MAX_ADVANCE_STEPS):
@@ -352,7 +366,14 @@ def _advance(x0: np.ndarray, x1: np.ndarray, ids: np.ndarray, is_vf: bool, buf: 
 
 @nb.njit(**JIT)
 def colliding_pairs(
-    x0: np.ndarray, x1: np.ndarray, triangles: np.ndarray, edges: np.ndarray, vf: np.ndarray, ee: np.ndarray
+    x0: np.ndarray,
+    x1: np.ndarray,
+    triangles: np.ndarray,
+    edges: np.ndarray,
+    vf: np.ndarray,
+    ee: np.ndarray,
+    origin: np.ndarray,
+    seam: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Masks (P,), (Q,) of the VF and EE pairs that may come into contact moving linearly from x0
     to x1 (conservative: no pair that touches is missed)."""
@@ -365,14 +386,14 @@ def colliding_pairs(
         ids[1] = triangles[t, 0]
         ids[2] = triangles[t, 1]
         ids[3] = triangles[t, 2]
-        hit_vf[k] = _advance(x0, x1, ids, True, buf)
+        hit_vf[k] = _advance(x0, x1, ids, True, buf, origin, seam)
     hit_ee = np.zeros(ee.shape[0], dtype=np.bool_)
     for k in range(ee.shape[0]):
         ids[0] = edges[ee[k, 0], 0]
         ids[1] = edges[ee[k, 0], 1]
         ids[2] = edges[ee[k, 1], 0]
         ids[3] = edges[ee[k, 1], 1]
-        hit_ee[k] = _advance(x0, x1, ids, False, buf)
+        hit_ee[k] = _advance(x0, x1, ids, False, buf, origin, seam)
     return hit_vf, hit_ee
 
 
