@@ -175,7 +175,9 @@ def test_the_continuous_check_misses_no_crossing() -> None:
         start = _sampled_min_distance(x0, x0, samples=1)
         near = _sampled_min_distance(x0, x1) < 0.05 * start
         no_pairs = np.zeros((0, 2), dtype=np.int64)
-        hit, _ = self_kernels.colliding_pairs(x0, x1, triangles, edges, pairs, no_pairs, np.arange(4), 0.0)
+        hit, _ = self_kernels.colliding_pairs(
+            x0, x1, triangles, edges, pairs, no_pairs, np.arange(4), 0.0, np.zeros(1), np.zeros(0)
+        )
         if near:
             crossings += 1
             assert hit[0]

@@ -8,7 +8,8 @@ element order, so every query reports its elements in one fixed order and the pa
 the same whatever the thread count or the run: contact stays byte-for-byte reproducible.
 
 Boxes are (M, 3) lower and upper corners in metres; `cell` is the grid spacing in metres,
-chosen by `cell_size` from the element boxes so that a typical element touches a few cells.
+chosen by `cell_size` from the element and the query boxes so that a typical box of either
+touches at most two cells per axis.
 """
 
 from __future__ import annotations
@@ -154,7 +155,7 @@ def overlapping_pairs(
     ehi = np.ascontiguousarray(ehi, dtype=np.float64)
     if qlo.shape[0] == 0 or elo.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    inv_cell = 1.0 / cell_size(elo, ehi)
+    inv_cell = 1.0 / max(cell_size(elo, ehi), cell_size(qlo, qhi))
     start, element, cell = build_grid(elo, ehi, inv_cell)
     out = np.empty((max(capacity_hint, 16 * qlo.shape[0]), 2), dtype=np.int64)
     count = _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, upper_only, out)

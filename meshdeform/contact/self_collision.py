@@ -111,7 +111,8 @@ def _rings(edges: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class _Pairs:
     """Candidate pairs kept over several substeps (a Verlet list): VF (P, 2) and EE (Q, 2), each
-    pair's proximity flag and rest distance (m).
+    pair's proximity flag, rest distance (m) and a lower bound (m) of its current distance that
+    the continuous check keeps up to date (`self_kernels.colliding_pairs`).
 
     Found from the boxes `lo`, `hi` (V, 3) each vertex swept in the substep they were gathered
     in, as the pairs whose boxes come within the thickness plus twice `slack` (m). While every
@@ -126,6 +127,8 @@ class _Pairs:
     ee: np.ndarray
     ee_near: np.ndarray
     ee_rest: np.ndarray
+    vf_lower: np.ndarray
+    ee_lower: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
     centre: np.ndarray
@@ -206,8 +209,11 @@ class SelfCollision(Constraint, Remappable):
         ee, ee_near = self_kernels.filter_ee(ee, topology.edges, self._origin, ring_start, ring)
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
         vf_rest, ee_rest = self_kernels.pair_gaps(rest, topology.triangles, topology.edges, vf, ee)
+        vf_lower, ee_lower = np.zeros(vf.shape[0]), np.zeros(ee.shape[0])  # unknown: computed when checked
         centre = x1.mean(axis=0)
-        self._held = _Pairs(vf, vf_near, vf_rest, ee, ee_near, ee_rest, lo, hi, centre, 0.5 * self._margin)
+        self._held = _Pairs(
+            vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, lo, hi, centre, 0.5 * self._margin
+        )
         return self._held
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
@@ -244,7 +250,8 @@ class SelfCollision(Constraint, Remappable):
             pairs = self._pairs(model, topology, x0, x)
             vf, ee = pairs.vf, pairs.ee
             hit_vf, hit_ee = self_kernels.colliding_pairs(
-                x0, x, topology.triangles, topology.edges, vf, ee, self._origin, SEAM_FRACTION * settings.thickness
+                x0, x, topology.triangles, topology.edges, vf, ee, self._origin, SEAM_FRACTION * settings.thickness,
+                pairs.vf_lower, pairs.ee_lower,
             )
             flagged = int(hit_vf.sum() + hit_ee.sum())
             if flagged == 0:

@@ -306,14 +306,10 @@ def project_proximity(
 
 
 @nb.njit(**JIT)
-def _advance(
-    x0: np.ndarray, x1: np.ndarray, ids: np.ndarray, is_vf: bool, buf: np.ndarray, origin: np.ndarray, seam: float
-) -> bool:
-    """Conservative advancement of one pair (its four vertices `ids`, VF: vertex then triangle;
-    EE: edge then edge) from x0 to x1: True when its distance may fall below SEPARATION times
-    its start value within the substep (a collision), False when it provably stays above.
-    A pair sharing an origin vertex (the two sides of a tear) closer than `seam` (m) is not
-    judged: it is still at the seam the tear opened."""
+def _relative_travel(x0: np.ndarray, x1: np.ndarray, ids: np.ndarray, is_vf: bool) -> float:
+    """A bound (m) on how much the distance of a pair (vertices `ids`, see `_advance`) can
+    shrink moving linearly from x0 to x1: the largest travel of each side beyond the four
+    vertices' mean travel, summed (a common translation changes no distance)."""
     mx = 0.0
     my = 0.0
     mz = 0.0
@@ -333,12 +329,35 @@ def _advance(
         else:
             second = max(second, travel)
     bound = first + second
+    return bound
+
+
+@nb.njit(**JIT)
+def _advance(
+    x0: np.ndarray,
+    x1: np.ndarray,
+    ids: np.ndarray,
+    is_vf: bool,
+    buf: np.ndarray,
+    origin: np.ndarray,
+    seam: float,
+    bound: float,
+) -> tuple[bool, float]:
+    """Conservative advancement of one pair (its four vertices `ids`, VF: vertex then triangle;
+    EE: edge then edge) from x0 to x1: True when its distance may fall below SEPARATION times
+    its start value within the substep (a collision), False when it provably stays above.
+    A pair sharing an origin vertex (the two sides of a tear) closer than `seam` (m) is not
+    judged: it is still at the seam the tear opened.
+
+    `bound`: the pair's `_relative_travel`. Returns the verdict and a lower bound of the
+    distance at x1 (the start distance less the travel)."""
     for i in range(4):
         for axis in range(3):
             buf[i, axis] = x0[ids[i], axis]
     start = _vf_gap(buf, 0, 1, 2, 3)[0] if is_vf else _ee_gap(buf, 0, 1, 2, 3)[0]
+    after = max(start - bound, 0.0)
     if bound <= 0.0:  # moving as one
-        return False
+        return False, after
     if start < seam:
         torn = (
             origin[ids[0]] == origin[ids[2]] or origin[ids[0]] == origin[ids[3]]
@@ -346,22 +365,22 @@ def _advance(
             or (is_vf and origin[ids[0]] == origin[ids[1]])
         )
         if torn or start <= 0.0:
-            return False
+            return False, 0.0
     floor = SEPARATION * start
     t = 0.0
     dist = start
     for _ in range(MAX_ADVANCE_STEPS):
         step = (1.0 - SEPARATION) * dist / bound
         if t + step >= 1.0:
-            return False
+            return False, after
         t += step
         for i in range(4):
             for axis in range(3):
                 buf[i, axis] = x0[ids[i], axis] + t * (x1[ids[i], axis] - x0[ids[i], axis])
         dist = _vf_gap(buf, 0, 1, 2, 3)[0] if is_vf else _ee_gap(buf, 0, 1, 2, 3)[0]
         if dist < floor:
-            return True
-    return True
+            return True, 0.0
+    return True, 0.0
 
 
 @nb.njit(**JIT)
@@ -374,9 +393,13 @@ def colliding_pairs(
     ee: np.ndarray,
     origin: np.ndarray,
     seam: float,
+    vf_lower: np.ndarray,
+    ee_lower: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Masks (P,), (Q,) of the VF and EE pairs that may come into contact moving linearly from x0
-    to x1 (conservative: no pair that touches is missed)."""
+    to x1 (conservative: no pair that touches is missed). vf_lower (P,), ee_lower (Q,): lower
+    bounds (m) of the pairs' distances at x0, replaced in place by lower bounds at x1 (so the
+    next substep skips the pairs that stay clear)."""
     buf = np.empty((4, 3))
     ids = np.empty(4, dtype=np.int64)
     hit_vf = np.zeros(vf.shape[0], dtype=np.bool_)
@@ -386,14 +409,22 @@ def colliding_pairs(
         ids[1] = triangles[t, 0]
         ids[2] = triangles[t, 1]
         ids[3] = triangles[t, 2]
-        hit_vf[k] = _advance(x0, x1, ids, True, buf, origin, seam)
+        bound = _relative_travel(x0, x1, ids, True)
+        if bound <= (1.0 - SEPARATION) * vf_lower[k]:  # provably safe: it cannot close the known gap
+            vf_lower[k] -= bound
+        else:
+            hit_vf[k], vf_lower[k] = _advance(x0, x1, ids, True, buf, origin, seam, bound)
     hit_ee = np.zeros(ee.shape[0], dtype=np.bool_)
     for k in range(ee.shape[0]):
         ids[0] = edges[ee[k, 0], 0]
         ids[1] = edges[ee[k, 0], 1]
         ids[2] = edges[ee[k, 1], 0]
         ids[3] = edges[ee[k, 1], 1]
-        hit_ee[k] = _advance(x0, x1, ids, False, buf, origin, seam)
+        bound = _relative_travel(x0, x1, ids, False)
+        if bound <= (1.0 - SEPARATION) * ee_lower[k]:
+            ee_lower[k] -= bound
+        else:
+            hit_ee[k], ee_lower[k] = _advance(x0, x1, ids, False, buf, origin, seam, bound)
     return hit_vf, hit_ee
 
 
