@@ -234,7 +234,7 @@ class SelfCollision(Constraint, Remappable):
             x, x0, inv_mass, topology.triangles, topology.edges,
             pairs.vf, pairs.vf_near, np.minimum(settings.thickness, pairs.vf_rest),
             pairs.ee, pairs.ee_near, np.minimum(settings.thickness, pairs.ee_rest),
-            settings.sweeps, settings.friction,
+            pairs.vf_lower, pairs.ee_lower, settings.sweeps, settings.friction,
         )
 
         _settle(state, x1, dt)
@@ -275,13 +275,13 @@ class SelfCollision(Constraint, Remappable):
 #: of the thickness (the seam the tear opened, see `self_kernels`)
 SEAM_FRACTION = 0.2
 #: the candidate pairs' margin: this fraction of the median rest edge length (at least the thickness)
-MARGIN_FRACTION = 0.25
+MARGIN_FRACTION = 0.5
 
 
 def _margin(model: SpringModel, topology: _Topology, thickness: float) -> float:
     """Metres beyond the thickness within which candidate pairs are gathered (see `_Pairs`): they
     hold until some vertex moves half of it, so a larger margin means fewer searches but more
-    pairs to check; a quarter of the typical edge keeps both small."""
+    pairs to check; half the typical edge keeps both small."""
     if topology.edges.shape[0] == 0:
         return thickness
     rest = model.rest_positions

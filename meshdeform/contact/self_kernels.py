@@ -193,6 +193,8 @@ def project_proximity(
     ee: np.ndarray,
     ee_near: np.ndarray,
     ee_gap: np.ndarray,
+    vf_lower: np.ndarray,
+    ee_lower: np.ndarray,
     sweeps: int,
     friction: float,
 ) -> int:
@@ -201,19 +203,34 @@ def project_proximity(
     the pairs flagged `near`: the others are rest neighbours); x is
     changed in place. Friction (position-based Coulomb, Macklin et al. 2014): the pair's
     relative tangential travel this substep shrinks by up to `friction` times the normal
-    correction. Returns how many pair projections moved something."""
+    correction. Pairs whose distance provably stays above twice their gap (a lower bound at x0,
+    `vf_lower`/`ee_lower` as `colliding_pairs` keeps them, less their relative travel to x) are
+    skipped. Returns how many pair projections moved something."""
     moved = 0
     rel = np.empty(3)
+    ids = np.empty(4, dtype=np.int64)
+    active_vf = np.zeros(vf.shape[0], dtype=np.bool_)
+    for k in range(vf.shape[0]):
+        if vf_near[k]:
+            t = vf[k, 1]
+            ids[0], ids[1], ids[2], ids[3] = vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2]
+            active_vf[k] = vf_lower[k] - _relative_travel(x0, x, ids, True) <= 2.0 * vf_gap[k]
+    active_ee = np.zeros(ee.shape[0], dtype=np.bool_)
+    for k in range(ee.shape[0]):
+        if ee_near[k]:
+            e, f = ee[k, 0], ee[k, 1]
+            ids[0], ids[1], ids[2], ids[3] = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
+            active_ee[k] = ee_lower[k] - _relative_travel(x0, x, ids, False) <= 2.0 * ee_gap[k]
     side_vf = np.empty((vf.shape[0], 3))
     for k in range(vf.shape[0]):
-        if not vf_near[k]:
+        if not active_vf[k]:
             continue
         t = vf[k, 1]
         nx, ny, nz = _vf_side(x0, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])
         side_vf[k, 0], side_vf[k, 1], side_vf[k, 2] = nx, ny, nz
     side_ee = np.empty((ee.shape[0], 3))
     for k in range(ee.shape[0]):
-        if not ee_near[k]:
+        if not active_ee[k]:
             continue
         e, f = ee[k, 0], ee[k, 1]
         dist, s, tt, dx, dy, dz = _ee_gap(x0, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])
@@ -222,7 +239,7 @@ def project_proximity(
         side_ee[k, 0], side_ee[k, 1], side_ee[k, 2] = dx, dy, dz
     for _ in range(sweeps):
         for k in range(vf.shape[0]):
-            if not vf_near[k]:
+            if not active_vf[k]:
                 continue
             v = vf[k, 0]
             t = vf[k, 1]
@@ -262,7 +279,7 @@ def project_proximity(
                         x[b, axis] += inv_mass[b] * wb * shift
                         x[c, axis] += inv_mass[c] * wc * shift
         for k in range(ee.shape[0]):
-            if not ee_near[k]:
+            if not active_ee[k]:
                 continue
             e, f = ee[k, 0], ee[k, 1]
             p0, p1, q0, q1 = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
