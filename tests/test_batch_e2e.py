@@ -74,7 +74,8 @@ def build_folder(root: Path, samples: Path, shared: Path) -> None:
     meshes = samples / "meshes"
     put(meshes / "rope.obj", "rope.obj")
     put(meshes / "sheet.obj", "sub dir/sheet copy.obj")
-    (root / "sub dir" / "sheet copy.toml").write_text("[simulation]\nframes = 2\n")  # sidecar
+    # sidecar; with self-collision, so that contact is run under every executor too
+    (root / "sub dir" / "sheet copy.toml").write_text("[simulation]\nframes = 2\n[self_collision]\nthickness = 0.004\n")
     put(meshes / "icosphere.ply", "ünï/ico sphère.ply")
     put(shared / "real" / "concave.obj", "real/concave.obj")
     put(shared / "real" / "cube-minimal-custom_props.ply", "real/cube-minimal-custom_props.ply")
