@@ -275,13 +275,13 @@ class SelfCollision(Constraint, Remappable):
 #: of the thickness (the seam the tear opened, see `self_kernels`)
 SEAM_FRACTION = 0.2
 #: the candidate pairs' margin: this fraction of the median rest edge length (at least the thickness)
-MARGIN_FRACTION = 0.5
+MARGIN_FRACTION = 0.25
 
 
 def _margin(model: SpringModel, topology: _Topology, thickness: float) -> float:
     """Metres beyond the thickness within which candidate pairs are gathered (see `_Pairs`): they
     hold until some vertex moves half of it, so a larger margin means fewer searches but more
-    pairs to check; half the typical edge keeps both small."""
+    pairs to check; a quarter of the typical edge keeps both small."""
     if topology.edges.shape[0] == 0:
         return thickness
     rest = model.rest_positions
