@@ -75,6 +75,7 @@ def run_job(
     """
     from meshdeform.export import ExportContext, ExportSession, FrameData
     from meshdeform.io import load
+    from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.live import RunPreview
     from meshdeform.simulate import simulate
     from meshdeform.strain import VertexStrain
@@ -115,7 +116,11 @@ def run_job(
             up_axis=recipe.output.up_axis,
             frame_count=settings.frames,
         )
-        preview = RunPreview(recipe.output.preview, context, formats, model) if recipe.output.preview else None
+        preview = (
+            RunPreview(recipe.output.preview, context, formats, model, scene_colliders(built.scene))
+            if recipe.output.preview
+            else None
+        )
         with session.open(context):  # an exception in the block aborts every exporter
             tick = time.perf_counter()
             for frame in simulate(model, built.scene, settings):
