@@ -320,23 +320,10 @@ def test_meshdeform_preview_redraws_the_runs_colliders(tmp_path: Path) -> None:
     assert grey_mask(first).mean() > 0.2  # the floor, the ball and the bar
     assert not np.array_equal(grey_mask(first), grey_mask(last))
 
-    def preview(folder: str, *extra: str):
-        result = runner.invoke(
-            app,
-            [
-                "preview",
-                str(out),
-                "-o",
-                str(tmp_path / folder),
-                "--every",
-                "5",
-                "--size",
-                "160x120",
-                "--color",
-                "flat",
-                *extra,
-            ],
-        )
+    options = ["--every", "5", "--size", "160x120", "--color", "flat"]
+
+    def preview(folder: str, *extra: str, result_dir: Path = out):
+        result = runner.invoke(app, ["preview", str(result_dir), "-o", str(tmp_path / folder), *options, *extra])
         assert result.exit_code == 0, result.output
         return result
 
@@ -348,6 +335,19 @@ def test_meshdeform_preview_redraws_the_runs_colliders(tmp_path: Path) -> None:
     preview("bare", "--no-colliders")
     bare = images(tmp_path / "bare")
     assert grey_mask(bare[0]).mean() < 0.02
+
+    # a run with command-line overrides: its colliders are still the recipe's
+    shorter = tmp_path / "shorter"
+    ran = runner.invoke(app, ["simulate", str(mesh_path), "-r", str(recipe), "-o", str(shorter), "-q", "--frames", "5"])
+    assert ran.exit_code == 0, ran.output
+    assert (
+        "colliders not drawn" not in preview("shorter-again", "--no-png", "--contact-sheet", result_dir=shorter).stderr
+    )
+    preview("shorter-bare", "--no-png", "--contact-sheet", "--no-colliders", result_dir=shorter)
+    sheets = [
+        iio.imread(tmp_path / f / "preview" / "contact_sheet.png")[..., :3] for f in ("shorter-again", "shorter-bare")
+    ]
+    assert grey_mask(sheets[0]).mean() > 10 * grey_mask(sheets[1]).mean()
 
     recipe.write_text(RECIPE.replace("radius = 0.3", "radius = 0.2"))  # not the recipe that ran any more
     stale = preview("stale")

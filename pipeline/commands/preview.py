@@ -3,8 +3,8 @@
 No re-simulation: the frames are read from the result folder by the first reader that finds its files
 (`meshdeform.preview.results.search_order`: `frames/*.obj|ply`, `positions.npz`, `scene.usdc`, `vtk/*.vtp`,
 `cache.pc2`, `cache.mdd`), with `report.json` for the input mesh (rest pose), fps and pinned vertices.
-The colliders are rebuilt from the recipe and the input mesh the report names (`run_colliders`) when that
-recipe is still the run's: a result folder holds no copy of its recipe.
+The colliders are rebuilt from the recipe and the input mesh the report names (`run_colliders`) while their
+hashes still match the report's: a result folder holds no copy of its recipe.
 """
 
 from __future__ import annotations
@@ -83,35 +83,40 @@ def run_colliders(result_dir: Path, report: dict[str, Any]) -> tuple[list[Collid
     """The colliders of the run that wrote `result_dir` (its `report`), the input mesh loaded for them,
     and why none could be rebuilt (None when they were, or the run had none).
 
-    They are rebuilt from the recipe file `report.json` names, with the [[assets]] rules for the input's
-    file name as `simulate` applies them, on the input mesh it names, only when that recipe hashes to the
-    report's `recipe_sha256`: a recipe edited since, a batch asset's merged recipe or a run with
-    command-line overrides (the folder keeps no copy of the recipe that ran) gives no colliders and a reason.
+    A result folder keeps no copy of its recipe: the colliders are rebuilt (`pipeline.build`) from the
+    recipe file `report.json` names, with the [[assets]] rules for the input's file name as `simulate`
+    applies them, on the input mesh it names, when that recipe's colliders still hash to the report's
+    `colliders_sha256` (`pipeline.job.colliders_hash`: command-line overrides do not change it) and the
+    input to its `input_sha256`. An edited recipe or collider mesh, a batch asset whose [[assets]] rules
+    or sidecar changed its colliders, or a moved file gives no colliders and the reason.
     """
     from meshdeform.errors import MeshdeformError
     from meshdeform.io import load
     from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.results import report_input
     from pipeline.build import build_simulation
-    from pipeline.recipe import load_recipe, recipe_hash
+    from pipeline.hashing import file_sha256
+    from pipeline.job import colliders_hash
+    from pipeline.recipe import load_recipe
 
-    source = report.get("recipe")
-    if not isinstance(source, str):  # the default recipe: no colliders
+    expected = report.get("colliders_sha256")
+    if not isinstance(expected, str):  # the run had none (or its report predates the key)
         return [], None, None
-    if not Path(source).is_file():
+    source = report.get("recipe")
+    if not isinstance(source, str) or not Path(source).is_file():
         return [], None, f"the recipe {source} named by report.json is not there"
     input_path = report_input(result_dir, report)
     if input_path is None:
         return [], None, "the input mesh named by report.json is not there"
     try:
+        if file_sha256(input_path) != report.get("input_sha256"):
+            return [], None, f"the input mesh {input_path} changed since the run"
         recipe = load_recipe(source).for_asset(Path(str(report["input"])).name)
-        if recipe_hash(recipe) != report.get("recipe_sha256"):
-            return [], None, f"{source} is not the recipe this result was run with (changed, or overridden)"
-        if not recipe.colliders:
-            return [], None, None
+        if colliders_hash(recipe) != expected:
+            return [], None, f"the colliders of {source} (or their mesh files) changed since the run"
         mesh = load(input_path)
         return scene_colliders(build_simulation(recipe, mesh).scene), mesh, None
-    except MeshdeformError as exc:
+    except (MeshdeformError, OSError) as exc:
         return [], None, f"they could not be rebuilt ({exc})"
 
 
