@@ -10,6 +10,7 @@ folders may be written, the `.meshdeform.json` marker, staging, locks).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from collections.abc import Callable
@@ -25,7 +26,7 @@ from meshdeform.mesh import Mesh
 from pipeline import __version__
 from pipeline.hashing import file_sha256
 from pipeline.output_folder import REPORT_NAME, check_output_folder, staged_directory
-from pipeline.recipe import Recipe, recipe_hash
+from pipeline.recipe import Recipe, recipe_hash, resolve_path
 
 if TYPE_CHECKING:
     from meshdeform.preview.live import RunPreview
@@ -75,6 +76,7 @@ def run_job(
     """
     from meshdeform.export import ExportContext, ExportSession, FrameData
     from meshdeform.io import load
+    from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.live import RunPreview
     from meshdeform.simulate import simulate
     from meshdeform.strain import VertexStrain
@@ -116,7 +118,11 @@ def run_job(
             up_axis=recipe.output.up_axis,
             frame_count=settings.frames,
         )
-        preview = RunPreview(recipe.output.preview, context, formats, model) if recipe.output.preview else None
+        preview = (
+            RunPreview(recipe.output.preview, context, formats, model, scene_colliders(built.scene))
+            if recipe.output.preview
+            else None
+        )
         with session.open(context):  # an exception in the block aborts every exporter
             tick = time.perf_counter()
             for frame in simulate(model, built.scene, settings):
@@ -170,6 +176,7 @@ def run_job(
             "input_sha256": file_sha256(mesh_path) if mesh_path.is_file() else None,
             "recipe": str(recipe.source) if recipe.source else None,
             "recipe_sha256": recipe_hash(recipe),
+            "colliders_sha256": colliders_hash(recipe) if recipe.colliders else None,
             "solver": settings.solver,
             "fps": settings.fps,
             "substeps": settings.substeps,
@@ -215,6 +222,20 @@ def run_job(
         }
         write_text_atomic(stage / REPORT_NAME, json.dumps(report, indent=2) + "\n")
     return JobResult(out_dir=Path(out_dir), report=report, outputs=[Path(out_dir) / r for r in report["outputs"]])
+
+
+def colliders_hash(recipe: Recipe) -> str:
+    """sha256 of what a run's colliders are built from: the recipe's [[colliders]] tables (normalised),
+    its up axis (the ground's) and the collider mesh files' contents. Command-line overrides do not
+    reach them, so `meshdeform preview` rebuilds a run's colliders from its recipe file while this matches
+    the report's `colliders_sha256` (the input mesh, which relative colliders need, is checked apart)."""
+    content = {"colliders": [c.model_dump(mode="json") for c in recipe.colliders], "up": recipe.simulation.up}
+    digest = hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode("utf-8"))
+    for collider in recipe.colliders:
+        if collider.mesh is not None:
+            path = resolve_path(recipe, collider.mesh.path)
+            digest.update(file_sha256(path).encode("ascii") if path.is_file() else b"missing")
+    return digest.hexdigest()
 
 
 def render_job_previews(preview: RunPreview, stage: Path) -> list[Path]:

@@ -5,7 +5,9 @@
 (called before the run's report.json exists): the frames as the reader `open_result` would pick reads
 them back (`meshdeform.export.results.ReadBack`: the positions at the precision the files hold them,
 the base mesh, fps, pinned flags, strain and the reading errors), and the run's model for the pinned
-vertices and the strain when the base has the input's vertex count.
+vertices and the strain when the base has the input's vertex count. The run's colliders are drawn at
+each frame's time by the run's fps (`ctx.fps`), as `render_result` given them draws them by the fps of
+the report the run writes.
 
 Memory: each frame is measured (bounds, colour range) as it comes; only the frames to render are
 kept (every frame with a video), at the files' precision (float32 for all but OBJ). Errors are kept
@@ -26,13 +28,15 @@ from meshdeform.mesh import Mesh
 from meshdeform.preview.options import PreviewOptions, PreviewResult
 from meshdeform.preview.results import frame_pinned, no_frames_found, read_back_for, welded_strain
 from meshdeform.preview.sequence import SequencePreview
+from meshdeform.scene.colliders import Collider
 
 
 class RunPreview:
     """Previews of a run written into `ctx.out_dir` in `formats`, from its frames (`add` each, then `render`).
 
     options: as `render_previews` takes them (a recipe's `[output] preview` table). model: the run's
-    SpringModel (its `vertex_map`, `pinned` and springs for the strain).
+    SpringModel (its `vertex_map`, `pinned` and springs for the strain). colliders: the run's scene's
+    colliders, drawn at each frame's time (frame number / `ctx.fps`).
     """
 
     def __init__(
@@ -41,8 +45,10 @@ class RunPreview:
         ctx: ExportContext,
         formats: Sequence[str],
         model: Any,
+        colliders: Sequence[Collider] = (),
     ) -> None:
         self.ctx = ctx
+        self.colliders = list(colliders)
         self.formats = list(formats)
         self.model = model
         self._options = options
@@ -115,6 +121,8 @@ class RunPreview:
             rest_positions=np.asarray(base.positions, dtype=np.float64),
             pinned=pinned,
             strain=strain,
+            colliders=self.colliders,
+            scene_fps=self.ctx.fps,
         )
 
     def render(self, out_dir: str | Path | None = None) -> PreviewResult:

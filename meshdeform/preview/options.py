@@ -32,6 +32,8 @@ class PreviewOptions:
     anti_aliasing: 4x MSAA (most of the render cost with software OpenGL: docs/performance.md).
     sheet_columns: contact sheet columns (default about square); sheet_tile_width: tile width in px.
     clim: fixed colour range (default: from the whole sequence).
+    colliders: draw the scene's colliders, when the previewer is given them (grey solids, planes as a
+        floor under the cloth; `meshdeform.preview.colliders`).
     """
 
     every: int = 1
@@ -54,6 +56,7 @@ class PreviewOptions:
     sheet_columns: int | None = None
     sheet_tile_width: int = 320
     clim: tuple[float, float] | None = None
+    colliders: bool = True
 
     def __post_init__(self) -> None:
         def bad(what: str) -> ExportError:
@@ -86,6 +89,8 @@ class PreviewOptions:
             raise bad("sheet_tile_width must be at least 16 pixels")
         if self.sheet_columns is not None and int(self.sheet_columns) < 1:
             raise bad("sheet_columns must be at least 1")
+        if not isinstance(self.colliders, bool):
+            raise bad(f"colliders must be true or false, not {self.colliders!r}")
         if self.clim is not None:
             lo, hi = (float(c) for c in self.clim)
             if not hi > lo:

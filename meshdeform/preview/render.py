@@ -1,4 +1,10 @@
-"""One off-screen PyVista Plotter that renders frame after frame (`FrameRenderer`), and what it highlights."""
+"""One off-screen PyVista Plotter that renders frame after frame (`FrameRenderer`), and what it highlights.
+
+Colliders (`meshdeform.preview.colliders`) are drawn opaque and lit in neutral greys (`SOLID_COLOR`,
+planes as a floor in `FLOOR_COLOR`), pushed slightly back in depth so the cloth resting on them wins
+ties; the camera stays framed on the cloth (colliders may be cropped), only its clipping range grows
+to take them in.
+"""
 
 from __future__ import annotations
 
@@ -13,8 +19,17 @@ from meshdeform.arrays import isin_int
 from meshdeform.errors import ExportError
 from meshdeform.mesh import Mesh
 from meshdeform.preview.camera import frame_camera
+from meshdeform.preview.colliders import ColliderSurfaces, Surface
 from meshdeform.preview.options import PreviewOptions
 from meshdeform.topology import boundary_edges as topology_boundary_edges
+
+#: colliders: a mid grey for solids, a lighter grey for floors (planes), apart from the cloth's colours
+SOLID_COLOR = "#8c8c8c"
+FLOOR_COLOR = "#c8c8c8"
+#: depth offset (VTK polygon offset factor, units) of collider surfaces: behind the cloth where they touch
+COLLIDER_DEPTH_OFFSET = (2.0, 4.0)
+#: the near clipping plane never comes closer to the camera than this fraction of the focal distance
+NEAR_FRACTION = 0.02
 
 
 def boundary_edges(mesh: Mesh) -> np.ndarray:
@@ -70,6 +85,7 @@ class FrameRenderer:
         bounds: np.ndarray,
         clim: tuple[float, float] | None,
         pinned: np.ndarray | Sequence[int] | None = None,
+        colliders: ColliderSurfaces | None = None,
     ) -> None:
         import pyvista as pv
         from vtkmodules.vtkCommonCore import vtkObject
@@ -138,6 +154,11 @@ class FrameRenderer:
         else:
             kwargs.update(color=options.flat_color, show_scalar_bar=False)
         self.actor = p.add_mesh(self.poly, **kwargs)
+        self._colliders = colliders if options.colliders else None
+        self._collider_polys: list[Any] = []
+        if self._colliders is not None:
+            for surface in self._colliders.at(0.0):
+                self._collider_polys.append(self._add_collider(surface))
         self.pins: Any = None
         if options.highlight_pins and self._pinned_rest is not None and self._pinned_rest.any():
             self.pins = pv.PolyData(np.asarray(mesh.positions[self._pinned_rest], dtype=np.float32))
@@ -182,6 +203,50 @@ class FrameRenderer:
         p.camera_set = True
         self.camera = camera
 
+    def _add_collider(self, surface: Surface) -> Any:
+        """One collider's surface as an opaque grey actor; returns its PolyData (updated per frame)."""
+        pv = self._pv
+        faces = np.hstack([np.full((surface.triangles.shape[0], 1), 3), surface.triangles]).ravel()
+        poly = pv.PolyData(np.asarray(surface.points, dtype=np.float32), faces=faces)
+        if surface.smooth:
+            poly.point_data["Normals"] = surface.normals.astype(np.float32)
+            poly.point_data.active_normals_name = "Normals"
+        actor = self.plotter.add_mesh(
+            poly,
+            color=FLOOR_COLOR if surface.floor else SOLID_COLOR,
+            ambient=0.35,
+            diffuse=0.7,
+            specular=0.05,
+            smooth_shading=False,
+            interpolation="gouraud" if surface.smooth else "flat",
+            show_scalar_bar=False,
+            reset_camera=False,
+        )
+        actor.mapper.SetRelativeCoincidentTopologyPolygonOffsetParameters(*COLLIDER_DEPTH_OFFSET)
+        return poly
+
+    def _update_colliders(self, time: float) -> None:
+        """Move the collider surfaces to `time` and widen the clipping range to hold them."""
+        colliders = self._colliders
+        if colliders is None or not self._collider_polys:
+            return
+        surfaces = colliders.at(time)
+        if colliders.animated:
+            for poly, surface in zip(self._collider_polys, surfaces, strict=True):
+                poly.points[:] = np.asarray(surface.points, dtype=np.float32)
+                poly.GetPoints().Modified()
+                if surface.smooth:
+                    poly.point_data["Normals"] = surface.normals.astype(np.float32)
+                poly.Modified()
+        camera = self.camera
+        position = np.asarray(camera.position)
+        view = np.asarray(camera.focal_point) - position
+        distance = float(np.linalg.norm(view))
+        depth = np.concatenate([(s.points - position) @ (view / distance) for s in surfaces])
+        near = max(min(camera.clipping[0], float(depth.min()) * 0.98), NEAR_FRACTION * distance)
+        far = max(camera.clipping[1], float(depth.max()) * 1.02, near * 1.01)
+        self.plotter.camera.clipping_range = (near, far)
+
     @staticmethod
     def _keys(edges: np.ndarray, n: int) -> np.ndarray:
         return edges[:, 0] * max(n, 1) + edges[:, 1]
@@ -211,9 +276,15 @@ class FrameRenderer:
         self._mesh = mesh
 
     def render(
-        self, positions: np.ndarray, number: int, scalars: np.ndarray | None = None, mesh: Mesh | None = None
+        self,
+        positions: np.ndarray,
+        number: int,
+        scalars: np.ndarray | None = None,
+        mesh: Mesh | None = None,
+        time: float = 0.0,
     ) -> np.ndarray:
-        """Update the scene in place to this frame and return the image."""
+        """Update the scene in place to this frame (colliders at `time` seconds) and return the image."""
+        self._update_colliders(time)
         if mesh is not None and mesh is not self._mesh:
             self._set_topology(mesh, positions)
         current = self._mesh
@@ -239,8 +310,21 @@ class FrameRenderer:
             self.tears.Modified()
         if self.label is not None:
             self.label.set_text("upper_left", f"frame {number}")
-        self.plotter.render()  # pyvista renders by itself only before the first screenshot
-        return np.asarray(self.plotter.screenshot(return_img=True))[..., :3].copy()
+        return self._draw()
+
+    def _draw(self) -> np.ndarray:
+        """Render and grab the image; with colliders, in the polygon-offset mode their depth offsets need
+        (a process-wide VTK setting, restored at once; the cloth's own offsets are zero)."""
+        from vtkmodules.vtkRenderingCore import vtkMapper
+
+        previous = vtkMapper.GetResolveCoincidentTopology()
+        if self._collider_polys:
+            vtkMapper.SetResolveCoincidentTopologyToPolygonOffset()
+        try:
+            self.plotter.render()  # pyvista renders by itself only before the first screenshot
+            return np.asarray(self.plotter.screenshot(return_img=True))[..., :3].copy()
+        finally:
+            vtkMapper.SetResolveCoincidentTopology(previous)
 
     def close(self) -> None:
         from vtkmodules.vtkCommonCore import vtkObject

@@ -25,6 +25,7 @@ from meshdeform.mesh import Mesh
 from meshdeform.preview.options import PreviewOptions, PreviewResult
 from meshdeform.preview.render import as_pinned_mask
 from meshdeform.preview.sequence import render_previews
+from meshdeform.scene.colliders import Collider
 
 
 def readings(formats: Iterable[str]) -> list[ResultReading]:
@@ -82,7 +83,7 @@ class ResultSequence:
     report: dict[str, Any]
 
 
-def _read_report(result_dir: Path) -> dict[str, Any]:
+def read_report(result_dir: Path) -> dict[str, Any]:
     path = result_dir / "report.json"
     if not path.is_file():
         return {}
@@ -114,6 +115,17 @@ def no_frames_found(root: Path) -> MeshLoadError:
     return MeshLoadError(f"{root}: no frames found (looked for {looked_for})")
 
 
+def report_input(root: Path, report: Mapping[str, Any]) -> Path | None:
+    """The input mesh `report.json` names (key `input`) if it is still a file: as written (relative to
+    the current folder), else relative to the result folder; None otherwise."""
+    if not isinstance(report.get("input"), str):
+        return None
+    candidate = Path(report["input"])
+    if not candidate.is_absolute() and not candidate.exists():
+        candidate = root / candidate
+    return candidate if candidate.is_file() else None
+
+
 def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str | None = None) -> ResultSequence:
     """Find a result folder's frames with the first reader of `search_order` that finds its files (the
     exporters' `ResultReading.priority`: per-frame files first, point caches last).
@@ -131,15 +143,11 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
     root = Path(result_dir)
     if not root.is_dir():
         raise MeshLoadError(f"{root}: no such result folder")
-    report = _read_report(root)
+    report = read_report(root)
     input_mesh = mesh
-    if input_mesh is None and isinstance(report.get("input"), str):
-        candidate = Path(report["input"])
-        if not candidate.is_absolute() and not candidate.exists():
-            candidate = root / candidate
-        if candidate.is_file():
-            with contextlib.suppress(MeshLoadError):
-                input_mesh = load(candidate)
+    if input_mesh is None and (candidate := report_input(root, report)) is not None:
+        with contextlib.suppress(MeshLoadError):
+            input_mesh = load(candidate)
     if up_axis is None and report.get("up_axis") in ("y", "z"):
         up_axis = str(report["up_axis"])
     # the first reader that finds its files wins
@@ -173,12 +181,14 @@ def render_result(
     model: Any = None,
     out_dir: str | Path | None = None,
     up_axis: str | None = None,
+    colliders: Sequence[Collider] = (),
 ) -> tuple[ResultSequence, PreviewResult]:
     """Render previews of a result folder's frames (see `open_result`) into it (or `out_dir`).
 
     With the SpringModel of the run (`model`), pinned vertices and strain come from it exactly
     (strain: the largest stretch of each vertex's structural springs, as in the VTK output).
-    `up_axis` is the convention point caches were written in (default: detected).
+    `up_axis` is the convention point caches were written in (default: detected). `colliders`: the
+    run's scene's colliders, drawn at each frame's time (frame number / the result's fps).
     Returns the sequence read and what was rendered.
     """
     seq = open_result(result_dir, mesh=mesh, up_axis=up_axis)
@@ -201,6 +211,7 @@ def render_result(
         rest_positions=seq.rest_positions,
         pinned=pinned,
         strain=strain,
+        colliders=colliders,
     )
     return seq, result
 
@@ -213,9 +224,12 @@ def render_result_previews(
     model: Any = None,
     out_dir: str | Path | None = None,
     up_axis: str | None = None,
+    colliders: Sequence[Collider] = (),
 ) -> list[Path]:
     """`render_result`, returning only the files written."""
-    _, result = render_result(result_dir, options, mesh=mesh, model=model, out_dir=out_dir, up_axis=up_axis)
+    _, result = render_result(
+        result_dir, options, mesh=mesh, model=model, out_dir=out_dir, up_axis=up_axis, colliders=colliders
+    )
     return result.files
 
 

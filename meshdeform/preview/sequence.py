@@ -16,10 +16,12 @@ from meshdeform.errors import ExportError
 from meshdeform.export.base import frame_file_name
 from meshdeform.export.results import FrameItem
 from meshdeform.mesh import Mesh
+from meshdeform.preview.colliders import ColliderSurfaces
 from meshdeform.preview.media import VideoWriter, contact_sheet, downscale, write_png
 from meshdeform.preview.options import CONTACT_SHEET_NAME, PREVIEW_FOLDER, PreviewOptions, PreviewResult
 from meshdeform.preview.render import FrameRenderer, as_pinned_mask
 from meshdeform.preview.scalars import FrameScalars, nice_ceiling
+from meshdeform.scene.colliders import Collider
 
 
 def _positions_and_mesh(item: FrameItem, base: Mesh) -> tuple[np.ndarray, Mesh]:
@@ -55,7 +57,8 @@ class SequencePreview:
     `render` then renders the frames it `wants` (PNG and contact-sheet frames, or every frame for a video).
     `render_previews` runs both over a sequence; a run measures its frames as they are simulated and keeps
     only the wanted ones (`meshdeform.preview.live`). Arguments as `render_previews`'s; `strain` frames are
-    indexed by the frame's position (from 0) in the order measured.
+    indexed by the frame's position (from 0) in the order measured. `scene_fps`: the simulation's frame
+    rate, which times the colliders (frame n at n / scene_fps seconds; default `fps`).
     """
 
     def __init__(
@@ -67,10 +70,14 @@ class SequencePreview:
         rest_positions: np.ndarray | None = None,
         pinned: np.ndarray | Sequence[int] | None = None,
         strain: Sequence[np.ndarray] | Mapping[int, np.ndarray] | Callable[[np.ndarray], np.ndarray] | None = None,
+        colliders: Sequence[Collider] = (),
+        scene_fps: float | None = None,
     ) -> None:
         self.options = PreviewOptions.from_mapping(options)
         self.mesh = mesh
         self.fps = fps
+        self.colliders = list(colliders)
+        self.scene_fps = scene_fps
         rest = np.asarray(mesh.positions if rest_positions is None else rest_positions, dtype=np.float64)
         self.pinned = as_pinned_mask(pinned, mesh.vertex_count)
         strain_fn = strain if callable(strain) else None
@@ -146,11 +153,14 @@ class SequencePreview:
             if options.video is not None:
                 video = VideoWriter(out_dir / f"preview.{options.video}", options.video, options.fps or self.fps)
             bounds = np.stack([self._lo, self._hi])
-            with FrameRenderer(mesh, options, bounds, self._clim(), self.pinned) as renderer:
+            surfaces = ColliderSurfaces(self.colliders, bounds) if self.colliders else None
+            scene_fps = self.scene_fps or self.fps
+            with FrameRenderer(mesh, options, bounds, self._clim(), self.pinned, surfaces) as renderer:
                 for k, item in frames:
                     positions, frame_mesh = _positions_and_mesh(item, mesh)
                     values = self.scalars(k, frame_mesh, positions)
-                    image = renderer.render(positions, numbers[k], values, frame_mesh)
+                    time_k = numbers[k] / scene_fps  # seconds: frame n is the state after n frames
+                    image = renderer.render(positions, numbers[k], values, frame_mesh, time_k)
                     result.frames_rendered += 1
                     if video is not None:
                         video.append(image)
@@ -191,6 +201,7 @@ def render_previews(
     rest_positions: np.ndarray | None = None,
     pinned: np.ndarray | Sequence[int] | None = None,
     strain: Sequence[np.ndarray] | Callable[[np.ndarray], np.ndarray] | None = None,
+    colliders: Sequence[Collider] = (),
 ) -> PreviewResult:
     """Render the previews of a sequence into `out_dir` (see the package docstring for file names).
 
@@ -201,6 +212,8 @@ def render_previews(
     pinned: (V,) bool mask or vertex indices to highlight.
     strain: per-frame (V,) stretch ratios, or a function positions -> ratios; default: computed
         from the mesh's edges against the rest pose.
+    colliders: the scene's colliders, drawn at each frame's time (frame number / fps) unless
+        `options.colliders` is off.
     """
     options = PreviewOptions.from_mapping(options)
     count = len(positions_by_frame)
@@ -209,7 +222,9 @@ def render_previews(
     numbers = list(frame_numbers) if frame_numbers is not None else list(range(1, count + 1))
     if len(numbers) != count:
         raise ExportError(f"preview: {len(numbers)} frame numbers for {count} frames")
-    preview = SequencePreview(mesh, options, fps=fps, rest_positions=rest_positions, pinned=pinned, strain=strain)
+    preview = SequencePreview(
+        mesh, options, fps=fps, rest_positions=rest_positions, pinned=pinned, strain=strain, colliders=colliders
+    )
     if not any(preview.wants(n) for n in numbers):
         raise ExportError("preview: none of the requested frames is in the sequence")
     for k in range(count):  # pass 1: bounds of every frame and the colour range

@@ -3,6 +3,8 @@
 No re-simulation: the frames are read from the result folder by the first reader that finds its files
 (`meshdeform.preview.results.search_order`: `frames/*.obj|ply`, `positions.npz`, `scene.usdc`, `vtk/*.vtp`,
 `cache.pc2`, `cache.mdd`), with `report.json` for the input mesh (rest pose), fps and pinned vertices.
+The colliders are rebuilt from the recipe and the input mesh the report names (`run_colliders`) while their
+hashes still match the report's: a result folder holds no copy of its recipe.
 """
 
 from __future__ import annotations
@@ -10,10 +12,15 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from pipeline.commands.errors import cli_errors, fail
+
+if TYPE_CHECKING:
+    from meshdeform.mesh import Mesh
+    from meshdeform.scene.colliders import Collider
 
 
 def parse_frames(text: str) -> tuple[int, ...]:
@@ -72,6 +79,47 @@ def record_previews(folder: Path, files: list[Path]) -> None:
     write_marker(real, [*(read_marker(real) or ()), *written], {**marker_sizes(real), **file_sizes(real, written)})
 
 
+def run_colliders(result_dir: Path, report: dict[str, Any]) -> tuple[list[Collider], Mesh | None, str | None]:
+    """The colliders of the run that wrote `result_dir` (its `report`), the input mesh loaded for them,
+    and why none could be rebuilt (None when they were, or the run had none).
+
+    A result folder keeps no copy of its recipe: the colliders are rebuilt (`pipeline.build`) from the
+    recipe file `report.json` names, with the [[assets]] rules for the input's file name as `simulate`
+    applies them, on the input mesh it names, when that recipe's colliders still hash to the report's
+    `colliders_sha256` (`pipeline.job.colliders_hash`: command-line overrides do not change it) and the
+    input to its `input_sha256`. An edited recipe or collider mesh, a batch asset whose [[assets]] rules
+    or sidecar changed its colliders, or a moved file gives no colliders and the reason.
+    """
+    from meshdeform.errors import MeshdeformError
+    from meshdeform.io import load
+    from meshdeform.preview.colliders import scene_colliders
+    from meshdeform.preview.results import report_input
+    from pipeline.build import build_simulation
+    from pipeline.hashing import file_sha256
+    from pipeline.job import colliders_hash
+    from pipeline.recipe import load_recipe
+
+    expected = report.get("colliders_sha256")
+    if not isinstance(expected, str):  # the run had none (or its report predates the key)
+        return [], None, None
+    source = report.get("recipe")
+    if not isinstance(source, str) or not Path(source).is_file():
+        return [], None, f"the recipe {source} named by report.json is not there"
+    input_path = report_input(result_dir, report)
+    if input_path is None:
+        return [], None, "the input mesh named by report.json is not there"
+    try:
+        if file_sha256(input_path) != report.get("input_sha256"):
+            return [], None, f"the input mesh {input_path} changed since the run"
+        recipe = load_recipe(source).for_asset(Path(str(report["input"])).name)
+        if colliders_hash(recipe) != expected:
+            return [], None, f"the colliders of {source} (or their mesh files) changed since the run"
+        mesh = load(input_path)
+        return scene_colliders(build_simulation(recipe, mesh).scene), mesh, None
+    except (MeshdeformError, OSError) as exc:
+        return [], None, f"they could not be rebuilt ({exc})"
+
+
 def register(app: typer.Typer) -> None:
     @app.command()
     def preview(
@@ -91,9 +139,13 @@ def register(app: typer.Typer) -> None:
         pngs: bool = typer.Option(True, "--png/--no-png", help="Write the per-frame PNG files."),
         fps: float | None = typer.Option(None, min=1e-6, help="Video frame rate (default: the result's)."),
         up: str = typer.Option("y", help="Up axis of the meshes for the named views: y | z."),
+        colliders: bool = typer.Option(
+            True, "--colliders/--no-colliders", help="Draw the run's colliders (rebuilt from its recipe)."
+        ),
     ) -> None:
         """Render preview PNGs, a contact sheet and an MP4/GIF of a result folder without re-simulating."""
         from meshdeform.preview import PreviewOptions, render_result
+        from meshdeform.preview.results import read_report
 
         frame_list = parse_frames(frames) if frames else None
         width, height = parse_size(size)
@@ -113,12 +165,16 @@ def register(app: typer.Typer) -> None:
                 pngs=pngs,
                 fps=fps,
                 up_axis=up.lower(),
+                colliders=colliders,
             )
             if not (pngs or contact_sheet or options.video):
                 raise fail("nothing to render: --no-png without --contact-sheet or --video")
             target = out if out is not None else result_dir
             refuse_foreign_previews(target)
-            seq, result = render_result(result_dir, options, out_dir=out)
+            drawn, mesh, why_not = run_colliders(result_dir, read_report(result_dir)) if colliders else ([], None, None)
+            if why_not is not None:
+                typer.echo(f"warning: {result_dir}: colliders not drawn: {why_not}", err=True)
+            seq, result = render_result(result_dir, options, mesh=mesh, out_dir=out, colliders=drawn)
             record_previews(target, result.files)
         parts = [f"{len(result.images)} PNG" + ("" if len(result.images) == 1 else "s")]
         if result.contact_sheet is not None:
