@@ -354,6 +354,7 @@ SAMPLE_MESHES = {
     "stressball.toml": "icosphere.ply",
     "blackhole.toml": "sheet.obj",
     "drop.toml": "sheet.obj",
+    "fold.toml": "sheet.obj",
     "rope.toml": "rope.obj",
     "tear.toml": "curtain.obj",
 }
