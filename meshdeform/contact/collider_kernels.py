@@ -454,3 +454,51 @@ def respond(
                 v[i, 1] += f * dy
                 v[i, 2] += f * dz
                 touched[i] = True
+
+
+@numba.njit(**_JIT)
+def fail_safe(
+    shape: ShapeArrays,
+    x0: np.ndarray,
+    x1: np.ndarray,
+    prims: np.ndarray,
+    ids: np.ndarray,
+    hint: np.ndarray,
+    floor: float,
+    limit: float,
+    movable: np.ndarray,
+    reverted: np.ndarray,
+    moved: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The last resort, after the corrections: every primitive of `ids` still nearer than
+    `floor` at x1 (one the corrections could not free, typically pierced by an edge of the
+    shape while sliding along it) has its movable vertices put back at their start x0 (local:
+    they move with the collider this substep), which was clear; repeated until no primitive
+    with a vertex left at its end position fails (at worst every vertex of the failing region
+    goes back, and the start was clear). Returns how many vertices went back; reverted and
+    moved (V,) mark them."""
+    tri = np.empty((3, 3))
+    count = 0
+    changed = True
+    while changed:
+        changed = False
+        for k in range(ids.shape[0]):
+            p = ids[k]
+            i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+            free = False
+            for i in (i0, i1, i2):
+                if movable[i] and not reverted[i]:
+                    free = True
+            if not free:
+                continue
+            _fill(tri, x1, x1, i0, i1, i2, 0.0)
+            d = closest(shape, tri, i0, i1, i2, hint[p], limit)[0]
+            if d < floor:
+                for i in (i0, i1, i2):
+                    if movable[i] and not reverted[i]:
+                        x1[i, 0], x1[i, 1], x1[i, 2] = x0[i, 0], x0[i, 1], x0[i, 2]
+                        reverted[i] = True
+                        moved[i] = True
+                        count += 1
+                changed = True
+    return count

@@ -51,6 +51,9 @@ PLANE_SWEEPS = 2
 JOINT_SWEEPS = 4
 #: further sweep-and-solve rounds for primitives that the corrections moved into a new contact
 EXTRA_ROUNDS = 2
+#: a primitive left nearer than (1 - this) h after the corrections has its vertices put back
+#: where they started the substep (`collider_kernels.fail_safe`)
+FAIL_FRACTION = 0.1
 #: a contact counts as touching at the end (its velocity treated) within this fraction above h
 TOUCH_FRACTION = 1e-3
 
@@ -296,8 +299,9 @@ class ContactStats:
     substeps: projections run; contacts: primitive contacts touching at substep ends; swept:
     contacts the swept test found along a path that was clear of the shape at its start;
     crossed: of those, the ones whose end position, as the solver left it, was inside or
-    behind the surface or had passed beyond it (what a test at the end positions alone would
-    have got wrong); rounds: extra sweep-and-solve rounds after corrections made new contacts.
+    behind the surface, nearest to its other side or had passed beyond it (what a test at the
+    end positions alone would have got wrong); rounds: extra sweep-and-solve rounds after corrections made new contacts;
+    reverted: vertices put back at their start by the fail-safe (`collider_kernels.fail_safe`).
     """
 
     substeps: int = 0
@@ -305,6 +309,7 @@ class ContactStats:
     swept: int = 0
     crossed: int = 0
     rounds: int = 0
+    reverted: int = 0
 
     def __add__(self, other: ContactStats) -> ContactStats:
         return ContactStats(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
@@ -465,8 +470,9 @@ class Collider(Constraint, Remappable):
         plane_w, plane_q, plane_n = w[hit], q[hit], nrm[hit]
         swept = hit & (d0 > h) & (s < 1.0)
         if swept.any():
-            d_end, _, _, _ = ck.evaluate(shape, x1, prims, cand[swept], hint, np.inf)
-            crossed = int(np.count_nonzero((d_end < 0.0) | (d_end > h)))
+            d_end, _, _, n_end = ck.evaluate(shape, x1, prims, cand[swept], hint, np.inf)
+            behind = np.einsum("ij,ij->i", n_end, nrm[swept]) < 0.0  # nearest to the other side
+            crossed = int(np.count_nonzero((d_end < 0.0) | (d_end > h) | behind))
             stats = stats + ContactStats(swept=int(np.count_nonzero(swept)), crossed=crossed)
         push = np.zeros(ids.size)
         moved = np.zeros(n, dtype=bool)
@@ -518,8 +524,14 @@ class Collider(Constraint, Remappable):
                 push,
                 moved,
             )
+        reverted = np.zeros(n, dtype=bool)
+        floor = h - FAIL_FRACTION * h if h > 0 else -gap
+        back = ck.fail_safe(shape, x0, x1, prims, cand, hint, floor, h + gap, movable, reverted, moved)
+        stats = stats + ContactStats(reverted=int(back))
         planes = (plane_w, plane_q, plane_n)
-        self._respond(state, shape, prims, ids, x1, moved, inv_mass, hint, planes, push, h, gap, time, dt, stats)
+        self._respond(
+            state, shape, prims, ids, x1, x0, moved, reverted, inv_mass, hint, planes, push, h, gap, time, dt, stats
+        )
 
     def _respond(
         self,
@@ -528,7 +540,9 @@ class Collider(Constraint, Remappable):
         prims: np.ndarray,
         ids: np.ndarray,
         x1: np.ndarray,
+        x0: np.ndarray,
         moved: np.ndarray,
+        reverted: np.ndarray,
         inv_mass: np.ndarray,
         hint: np.ndarray,
         planes: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -561,5 +575,11 @@ class Collider(Constraint, Remappable):
             state.velocities, inv_mass, prims, ids, np.ascontiguousarray(w), np.ascontiguousarray(nrm),
             np.ascontiguousarray(surface_v), push * scale, self.friction, dt, touched,
         )  # fmt: skip
+        if reverted.any():  # they move with the collider
+            back = x0[reverted]
+            if self.keys is not None and dt > 0:
+                state.velocities[reverted] = (self._to_world(back, time) - self._to_world(back, time - dt)) / dt
+            else:
+                state.velocities[reverted] = 0.0
         state.previous[touched] = state.positions[touched] - state.velocities[touched] * dt
         self._stats = self._stats + stats + ContactStats(contacts=int(np.count_nonzero(touching)))
