@@ -171,7 +171,7 @@ def test_uneven_mesh_closest_points_are_exact_where_nearest_centroids_mislead() 
 
 
 def test_cloth_triangle_to_mesh_closest_pair_against_dense_sampling() -> None:
-    from meshdeform.contact.bvh import closest_to_triangle
+    from meshdeform.contact.bvh import closest_to_triangle, new_stack
 
     hull = uneven_hull()
     shape = TriangleMesh(np.asarray(hull.vertices), np.asarray(hull.faces))
@@ -179,8 +179,20 @@ def test_cloth_triangle_to_mesh_closest_pair_against_dense_sampling() -> None:
     rng = np.random.default_rng(2)
     for _ in range(40):
         tri = rng.uniform([-1.0, -0.1, -0.7], [0.7, 0.4, 0.7], size=(1, 3)) + rng.normal(scale=0.15, size=(3, 3))
+        b = surface.bvh
         d2, _, w0, w1, w2, *_ = closest_to_triangle(
-            surface.bvh, surface.vertices, surface.triangles, tri, 0, 1, 2, np.inf
+            b.bounds,
+            b.nodes,
+            b.order,
+            b.tri_bounds,
+            surface.vertices,
+            surface.triangles,
+            tri,
+            0,
+            1,
+            2,
+            np.inf,
+            new_stack(),
         )
         point = w0 * tri[0] + w1 * tri[1] + w2 * tri[2]
         assert mesh_distance(point[None], surface.vertices, surface.triangles)[0] == pytest.approx(

@@ -31,16 +31,16 @@ STACK = 96
 
 
 class TriangleBVH(NamedTuple):
-    """lo, hi: (N, 3) float64 node bounds; left, right: (N,) int64 children (-1 at leaves);
-    start, count: (N,) int64 a leaf's run of `order`; order: (T,) int64 triangle ids; depth: levels."""
+    """The hierarchy as flat arrays (kernels take them one by one: Numba passes a tuple of
+    arrays to a compiled call at a cost far above a sphere's query). bounds: (N, 6) float64
+    node boxes (lo xyz, hi xyz); nodes: (N, 4) int64 (left, right, start, count): children (-1
+    at a leaf), a leaf's run of `order`; order: (T,) int64 triangle ids; tri_bounds: (T, 6)
+    each triangle's box (leaves skip triangles by them); depth: levels."""
 
-    lo: np.ndarray
-    hi: np.ndarray
-    left: np.ndarray
-    right: np.ndarray
-    start: np.ndarray
-    count: np.ndarray
+    bounds: np.ndarray
+    nodes: np.ndarray
     order: np.ndarray
+    tri_bounds: np.ndarray
     depth: int
 
 
@@ -115,52 +115,76 @@ def build_bvh(vertices: np.ndarray, triangles: np.ndarray, leaf_size: int = LEAF
     lo, hi, left, right, start, count, order, depth = _build(tlo, thi, centroids, int(leaf_size))
     if depth + 1 >= STACK:
         raise ValueError(f"collider mesh too deep for the BVH stack ({depth} levels)")
-    return TriangleBVH(lo, hi, left, right, start, count, order, int(depth))
+    return TriangleBVH(
+        bounds=np.ascontiguousarray(np.concatenate([lo, hi], axis=1)),
+        nodes=np.ascontiguousarray(np.stack([left, right, start, count], axis=1)),
+        order=order,
+        tri_bounds=np.ascontiguousarray(np.concatenate([tlo, thi], axis=1)),
+        depth=int(depth),
+    )
 
 
 @numba.njit(**_JIT)
-def _box_point_d2(lo: np.ndarray, hi: np.ndarray, node: int, px: float, py: float, pz: float) -> float:
-    dx = max(lo[node, 0] - px, 0.0, px - hi[node, 0])
-    dy = max(lo[node, 1] - py, 0.0, py - hi[node, 1])
-    dz = max(lo[node, 2] - pz, 0.0, pz - hi[node, 2])
+def _box_point_d2(boxes: np.ndarray, i: int, px: float, py: float, pz: float) -> float:
+    """Squared distance of p to box i of boxes (B, 6)."""
+    dx = max(boxes[i, 0] - px, 0.0, px - boxes[i, 3])
+    dy = max(boxes[i, 1] - py, 0.0, py - boxes[i, 4])
+    dz = max(boxes[i, 2] - pz, 0.0, pz - boxes[i, 5])
     return dx * dx + dy * dy + dz * dz
 
 
 @numba.njit(**_JIT)
-def _box_box_d2(lo: np.ndarray, hi: np.ndarray, node: int, qlo: np.ndarray, qhi: np.ndarray) -> float:
-    s = 0.0
-    for k in range(3):
-        d = max(lo[node, k] - qhi[k], 0.0, qlo[k] - hi[node, k])
-        s += d * d
-    return s
+def _box_box_d2(boxes: np.ndarray, i: int, q: tuple[float, float, float, float, float, float]) -> float:
+    """Squared distance between box i of boxes (B, 6) and the box q = (x0, y0, z0, x1, y1, z1)."""
+    dx = max(boxes[i, 0] - q[3], 0.0, q[0] - boxes[i, 3])
+    dy = max(boxes[i, 1] - q[4], 0.0, q[1] - boxes[i, 4])
+    dz = max(boxes[i, 2] - q[5], 0.0, q[2] - boxes[i, 5])
+    return dx * dx + dy * dy + dz * dz
+
+
+@numba.njit(**_JIT)
+def new_stack() -> np.ndarray:
+    """A traversal stack for the queries (a kernel makes one and passes it to every query)."""
+    return np.empty(STACK, dtype=np.int64)
 
 
 @numba.njit(**_JIT)
 def closest_to_point(
-    bvh: TriangleBVH, vertices: np.ndarray, triangles: np.ndarray, px: float, py: float, pz: float, limit2: float
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    px: float,
+    py: float,
+    pz: float,
+    limit2: float,
+    stack: np.ndarray,
 ) -> tuple[float, int, float, float, float]:
     """(squared distance, triangle, wa, wb, wc) of the mesh point nearest to p, or (limit2, -1,
-    ...) when no triangle is nearer than sqrt(limit2) (np.inf: no limit)."""
-    stack = np.empty(STACK, dtype=np.int64)
+    ...) when no triangle is nearer than sqrt(limit2) (np.inf: no limit). The first four
+    arguments are a `TriangleBVH`'s arrays; stack: `new_stack()`."""
     stack[0] = 0
     top = 1
     best, tri, wa, wb, wc = limit2, -1, 1.0, 0.0, 0.0
-    lo, hi = bvh.lo, bvh.hi
     while top > 0:
         top -= 1
         node = stack[top]
-        if _box_point_d2(lo, hi, node, px, py, pz) >= best:
+        if _box_point_d2(bounds, node, px, py, pz) >= best:
             continue
-        if bvh.left[node] < 0:
-            for i in range(bvh.start[node], bvh.start[node] + bvh.count[node]):
-                t = bvh.order[i]
+        if nodes[node, 0] < 0:
+            for i in range(nodes[node, 2], nodes[node, 2] + nodes[node, 3]):
+                t = order[i]
+                if _box_point_d2(tri_bounds, t, px, py, pz) >= best:
+                    continue
                 d2, a, b, c = point_triangle_d2(px, py, pz, vertices, triangles[t, 0], triangles[t, 1], triangles[t, 2])
                 if d2 < best:
                     best, tri, wa, wb, wc = d2, t, a, b, c
             continue
-        near, far = bvh.left[node], bvh.right[node]
-        dn = _box_point_d2(lo, hi, near, px, py, pz)
-        df = _box_point_d2(lo, hi, far, px, py, pz)
+        near, far = nodes[node, 0], nodes[node, 1]
+        dn = _box_point_d2(bounds, near, px, py, pz)
+        df = _box_point_d2(bounds, far, px, py, pz)
         if df < dn:
             near, far, dn, df = far, near, df, dn
         if df < best:
@@ -174,7 +198,10 @@ def closest_to_point(
 
 @numba.njit(**_JIT)
 def closest_to_triangle(
-    bvh: TriangleBVH,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
     vertices: np.ndarray,
     triangles: np.ndarray,
     xq: np.ndarray,
@@ -182,39 +209,43 @@ def closest_to_triangle(
     q1: int,
     q2: int,
     limit2: float,
+    stack: np.ndarray,
 ) -> tuple[float, int, float, float, float, float, float, float]:
     """(squared distance, triangle, wq0, wq1, wq2, wm0, wm1, wm2): the closest points of the query
     triangle (rows q0, q1, q2 of xq; a segment (a, b, b) or a point (a, a, a) works) and the mesh,
     as weights on the query (wq) and on the mesh triangle (wm); triangle -1 (and limit2) when
-    nothing is nearer than sqrt(limit2)."""
-    qlo = np.empty(3)
-    qhi = np.empty(3)
-    for k in range(3):
-        qlo[k] = min(xq[q0, k], xq[q1, k], xq[q2, k])
-        qhi[k] = max(xq[q0, k], xq[q1, k], xq[q2, k])
-    stack = np.empty(STACK, dtype=np.int64)
+    nothing is nearer than sqrt(limit2). Arguments as for `closest_to_point`."""
+    qb = (
+        min(xq[q0, 0], xq[q1, 0], xq[q2, 0]),
+        min(xq[q0, 1], xq[q1, 1], xq[q2, 1]),
+        min(xq[q0, 2], xq[q1, 2], xq[q2, 2]),
+        max(xq[q0, 0], xq[q1, 0], xq[q2, 0]),
+        max(xq[q0, 1], xq[q1, 1], xq[q2, 1]),
+        max(xq[q0, 2], xq[q1, 2], xq[q2, 2]),
+    )
     stack[0] = 0
     top = 1
     best, tri = limit2, -1
     w0, w1, w2, m0, m1, m2 = 1.0, 0.0, 0.0, 1.0, 0.0, 0.0
-    lo, hi = bvh.lo, bvh.hi
     while top > 0:
         top -= 1
         node = stack[top]
-        if _box_box_d2(lo, hi, node, qlo, qhi) >= best:
+        if _box_box_d2(bounds, node, qb) >= best:
             continue
-        if bvh.left[node] < 0:
-            for i in range(bvh.start[node], bvh.start[node] + bvh.count[node]):
-                t = bvh.order[i]
+        if nodes[node, 0] < 0:
+            for i in range(nodes[node, 2], nodes[node, 2] + nodes[node, 3]):
+                t = order[i]
+                if _box_box_d2(tri_bounds, t, qb) >= best:
+                    continue
                 d2, a0, a1, a2, b0, b1, b2 = triangle_triangle_closest(
                     xq, q0, q1, q2, vertices, triangles[t, 0], triangles[t, 1], triangles[t, 2]
                 )
                 if d2 < best:
                     best, tri, w0, w1, w2, m0, m1, m2 = d2, t, a0, a1, a2, b0, b1, b2
             continue
-        near, far = bvh.left[node], bvh.right[node]
-        dn = _box_box_d2(lo, hi, near, qlo, qhi)
-        df = _box_box_d2(lo, hi, far, qlo, qhi)
+        near, far = nodes[node, 0], nodes[node, 1]
+        dn = _box_box_d2(bounds, near, qb)
+        df = _box_box_d2(bounds, far, qb)
         if df < dn:
             near, far, dn, df = far, near, df, dn
         if df < best:
@@ -224,19 +255,3 @@ def closest_to_triangle(
             stack[top] = near
             top += 1
     return best, tri, w0, w1, w2, m0, m1, m2
-
-
-@numba.njit(**_JIT)
-def closest_points(
-    bvh: TriangleBVH, vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """For points (N, 3): nearest triangle (N,) int64, its weights (N, 3), squared distance (N,)."""
-    n = points.shape[0]
-    tri = np.empty(n, dtype=np.int64)
-    weights = np.empty((n, 3))
-    d2 = np.empty(n)
-    for i in range(n):
-        d2[i], tri[i], weights[i, 0], weights[i, 1], weights[i, 2] = closest_to_point(
-            bvh, vertices, triangles, points[i, 0], points[i, 1], points[i, 2], np.inf
-        )
-    return tri, weights, d2

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from meshdeform.contact.bvh import TriangleBVH, build_bvh, closest_to_point
+from meshdeform.contact.bvh import STACK, TriangleBVH, build_bvh, closest_to_point
 from meshdeform.topology import is_closed
 
 _JIT = {"cache": True, "error_model": "numpy"}
@@ -26,16 +26,15 @@ FEATURE_EPS = 1e-9
 
 
 class Surface(NamedTuple):
-    """vertices (M, 3) float64; triangles (K, 3) int64; face_normals (K, 3) unit (zero for
-    zero-area triangles); edge_normals (K, 3, 3): pseudo-normal of the edge opposite each corner;
-    vertex_normals (M, 3): angle-weighted pseudo-normals; bvh over the triangles; closed: every
-    edge shared by exactly two triangles (a solid)."""
+    """vertices (M, 3) float64; triangles (K, 3) int64; normals (K, 7, 3) per triangle: its unit
+    face normal (zero for a zero-area triangle), the pseudo-normals of the edges opposite its
+    corners 0, 1, 2 and the angle-weighted pseudo-normals of its corners 0, 1, 2 (copied per
+    triangle, so a kernel reads one array); bvh over the triangles; closed: every edge shared by
+    exactly two triangles (a solid)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
-    face_normals: np.ndarray
-    edge_normals: np.ndarray
-    vertex_normals: np.ndarray
+    normals: np.ndarray
     bvh: TriangleBVH
     closed: bool
 
@@ -62,34 +61,30 @@ def surface_of(vertices: np.ndarray, triangles: np.ndarray) -> Surface:
         angle = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=1), np.einsum("ij,ij->i", e1, e2))
         for k in range(3):
             vertex_normals[:, k] += np.bincount(tri[:, corner], weights=angle * unit[:, k], minlength=m)
+    normals = np.concatenate([unit[:, None], edge_normals, vertex_normals[tri]], axis=1)
     return Surface(
         vertices=v,
         triangles=tri,
-        face_normals=np.ascontiguousarray(unit),
-        edge_normals=np.ascontiguousarray(edge_normals),
-        vertex_normals=vertex_normals,
+        normals=np.ascontiguousarray(normals),
         bvh=build_bvh(v, tri),
         closed=is_closed(tri),
     )
 
 
 @numba.njit(**_JIT)
-def pseudo_normal(surface: Surface, t: int, w0: float, w1: float, w2: float) -> tuple[float, float, float]:
-    """The (unnormalised) pseudo-normal at the point of triangle t with weights (w0, w1, w2)."""
+def pseudo_normal(normals: np.ndarray, t: int, w0: float, w1: float, w2: float) -> tuple[float, float, float]:
+    """The (unnormalised) pseudo-normal at the point of triangle t with weights (w0, w1, w2):
+    of the corner, edge or face the point lies on (normals: `Surface.normals`)."""
     z0 = w0 <= FEATURE_EPS
     z1 = w1 <= FEATURE_EPS
     z2 = w2 <= FEATURE_EPS
     zeros = int(z0) + int(z1) + int(z2)
+    row = 0
     if zeros >= 2:
-        corner = 0 if not z0 else (1 if not z1 else 2)
-        vn = surface.vertex_normals[surface.triangles[t, corner]]
-        return vn[0], vn[1], vn[2]
-    if zeros == 1:
-        edge = 0 if z0 else (1 if z1 else 2)
-        en = surface.edge_normals[t, edge]
-        return en[0], en[1], en[2]
-    fn = surface.face_normals[t]
-    return fn[0], fn[1], fn[2]
+        row = 4 + (0 if not z0 else (1 if not z1 else 2))
+    elif zeros == 1:
+        row = 1 + (0 if z0 else (1 if z1 else 2))
+    return normals[t, row, 0], normals[t, row, 1], normals[t, row, 2]
 
 
 @numba.njit(**_JIT)
@@ -104,11 +99,17 @@ def signed_closest(
     dist = np.empty(n)
     tris = surface.triangles
     x = surface.vertices
+    bvh = surface.bvh
+    bounds, nodes, order, tri_bounds = bvh.bounds, bvh.nodes, bvh.order, bvh.tri_bounds
+    pseudo = surface.normals
+    stack = np.empty(STACK, dtype=np.int64)
     for i in range(n):
-        d2, t, wa, wb, wc = closest_to_point(surface.bvh, x, tris, points[i, 0], points[i, 1], points[i, 2], np.inf)
+        d2, t, wa, wb, wc = closest_to_point(
+            bounds, nodes, order, tri_bounds, x, tris, points[i, 0], points[i, 1], points[i, 2], np.inf, stack
+        )
         for k in range(3):
             closest[i, k] = wa * x[tris[t, 0], k] + wb * x[tris[t, 1], k] + wc * x[tris[t, 2], k]
-        nx, ny, nz = pseudo_normal(surface, t, wa, wb, wc)
+        nx, ny, nz = pseudo_normal(pseudo, t, wa, wb, wc)
         length = np.sqrt(nx * nx + ny * ny + nz * nz)
         if length > 0.0:
             normals[i, 0], normals[i, 1], normals[i, 2] = nx / length, ny / length, nz / length

@@ -5,7 +5,9 @@ segment-segment, Ericson 5.1.5 and 5.1.9): two convex sets that do not intersect
 at a vertex of one against the other or at an edge against an edge, and a segment that
 pierces a triangle meets it at distance 0 (Moller-Trumbore). So
 - segment-triangle = min(2 ends vs the triangle, the segment vs 3 edges, the piercing point);
-- triangle-triangle = min(3 edges of A vs triangle B, 3 vertices of B vs A, 3 edges of B piercing A).
+- triangle-triangle = min(3 corners of each vs the other, 9 edge pairs, the edges of either
+  piercing the other; the piercing tests skipped when one lies strictly on one side of the
+  other's plane).
 Arguments are rows of (N, 3) float64 arrays given by index, as in `primitives`, so kernels call
 them without slicing. Degenerate inputs work: a segment (a, b, b) or a point (a, a, a) passed
 as a triangle, a zero-length segment. Results are squared distances and weights: barycentric
@@ -116,39 +118,81 @@ def segment_triangle_closest(
 
 
 @numba.njit(**_JIT)
+def _plane_sides(xp: np.ndarray, p0: int, p1: int, p2: int, xq: np.ndarray, q0: int, q1: int, q2: int) -> bool:
+    """True when triangle Q lies strictly on one side of the plane of triangle P (then the two
+    cannot intersect); False when it touches or straddles it, or P has no plane (zero area)."""
+    ux, uy, uz = xp[p1, 0] - xp[p0, 0], xp[p1, 1] - xp[p0, 1], xp[p1, 2] - xp[p0, 2]
+    vx, vy, vz = xp[p2, 0] - xp[p0, 0], xp[p2, 1] - xp[p0, 1], xp[p2, 2] - xp[p0, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    lo = np.inf
+    hi = -np.inf
+    for q in (q0, q1, q2):
+        d = (xq[q, 0] - xp[p0, 0]) * nx + (xq[q, 1] - xp[p0, 1]) * ny + (xq[q, 2] - xp[p0, 2]) * nz
+        lo = min(lo, d)
+        hi = max(hi, d)
+    return lo > 0.0 or hi < 0.0
+
+
+@numba.njit(**_JIT)
 def triangle_triangle_closest(
     xa: np.ndarray, a0: int, a1: int, a2: int, xb: np.ndarray, b0: int, b1: int, b2: int
 ) -> tuple[float, float, float, float, float, float, float]:
     """(squared distance, wa0, wa1, wa2, wb0, wb1, wb2): the closest points of triangles A
-    (rows a0, a1, a2 of xa) and B (rows b0, b1, b2 of xb) as barycentric weights on each."""
-    best, u, b_0, b_1, b_2 = segment_triangle_closest(xa, a0, a1, xb, b0, b1, b2)
-    w0, w1, w2 = 1.0 - u, u, 0.0
-    if best > 0.0:
-        d2, u, c0, c1, c2 = segment_triangle_closest(xa, a1, a2, xb, b0, b1, b2)
-        if d2 < best:
-            best, w0, w1, w2, b_0, b_1, b_2 = d2, 0.0, 1.0 - u, u, c0, c1, c2
-    if best > 0.0:
-        d2, u, c0, c1, c2 = segment_triangle_closest(xa, a2, a0, xb, b0, b1, b2)
-        if d2 < best:
-            best, w0, w1, w2, b_0, b_1, b_2 = d2, u, 0.0, 1.0 - u, c0, c1, c2
-    if best > 0.0:
-        d2, c0, c1, c2 = point_triangle_d2(xb[b0, 0], xb[b0, 1], xb[b0, 2], xa, a0, a1, a2)
-        if d2 < best:
-            best, w0, w1, w2, b_0, b_1, b_2 = d2, c0, c1, c2, 1.0, 0.0, 0.0
-        d2, c0, c1, c2 = point_triangle_d2(xb[b1, 0], xb[b1, 1], xb[b1, 2], xa, a0, a1, a2)
-        if d2 < best:
-            best, w0, w1, w2, b_0, b_1, b_2 = d2, c0, c1, c2, 0.0, 1.0, 0.0
-        d2, c0, c1, c2 = point_triangle_d2(xb[b2, 0], xb[b2, 1], xb[b2, 2], xa, a0, a1, a2)
-        if d2 < best:
-            best, w0, w1, w2, b_0, b_1, b_2 = d2, c0, c1, c2, 0.0, 0.0, 1.0
-    if best > 0.0:
-        hit, u, c0, c1, c2 = segment_pierces_triangle(xb, b0, b1, xa, a0, a1, a2)
+    (rows a0, a1, a2 of xa) and B (rows b0, b1, b2 of xb) as barycentric weights on each.
+
+    Candidates in order: A's corners against B, B's corners against A, the 9 edge pairs, then
+    (unless one triangle lies strictly on one side of the other's plane, so they cannot
+    intersect) the edges of each piercing the other."""
+    best, b_0, b_1, b_2 = point_triangle_d2(xa[a0, 0], xa[a0, 1], xa[a0, 2], xb, b0, b1, b2)
+    w0, w1, w2 = 1.0, 0.0, 0.0
+    d2, c0, c1, c2 = point_triangle_d2(xa[a1, 0], xa[a1, 1], xa[a1, 2], xb, b0, b1, b2)
+    if d2 < best:
+        best, w0, w1, w2, b_0, b_1, b_2 = d2, 0.0, 1.0, 0.0, c0, c1, c2
+    d2, c0, c1, c2 = point_triangle_d2(xa[a2, 0], xa[a2, 1], xa[a2, 2], xb, b0, b1, b2)
+    if d2 < best:
+        best, w0, w1, w2, b_0, b_1, b_2 = d2, 0.0, 0.0, 1.0, c0, c1, c2
+    d2, c0, c1, c2 = point_triangle_d2(xb[b0, 0], xb[b0, 1], xb[b0, 2], xa, a0, a1, a2)
+    if d2 < best:
+        best, w0, w1, w2, b_0, b_1, b_2 = d2, c0, c1, c2, 1.0, 0.0, 0.0
+    d2, c0, c1, c2 = point_triangle_d2(xb[b1, 0], xb[b1, 1], xb[b1, 2], xa, a0, a1, a2)
+    if d2 < best:
+        best, w0, w1, w2, b_0, b_1, b_2 = d2, c0, c1, c2, 0.0, 1.0, 0.0
+    d2, c0, c1, c2 = point_triangle_d2(xb[b2, 0], xb[b2, 1], xb[b2, 2], xa, a0, a1, a2)
+    if d2 < best:
+        best, w0, w1, w2, b_0, b_1, b_2 = d2, c0, c1, c2, 0.0, 0.0, 1.0
+    for ea in range(3):
+        e0 = a0 if ea == 0 else (a1 if ea == 1 else a2)
+        e1 = a1 if ea == 0 else (a2 if ea == 1 else a0)
+        for eb in range(3):
+            f0 = b0 if eb == 0 else (b1 if eb == 1 else b2)
+            f1 = b1 if eb == 0 else (b2 if eb == 1 else b0)
+            d2, u, t = segment_edge_d2(xa, e0, e1, xb, f0, f1)
+            if d2 < best:
+                best = d2
+                w0 = (1.0 - u) if ea == 0 else (0.0 if ea == 1 else u)
+                w1 = u if ea == 0 else ((1.0 - u) if ea == 1 else 0.0)
+                w2 = 0.0 if ea == 0 else (u if ea == 1 else (1.0 - u))
+                b_0 = (1.0 - t) if eb == 0 else (0.0 if eb == 1 else t)
+                b_1 = t if eb == 0 else ((1.0 - t) if eb == 1 else 0.0)
+                b_2 = 0.0 if eb == 0 else (t if eb == 1 else (1.0 - t))
+    if best == 0.0 or _plane_sides(xb, b0, b1, b2, xa, a0, a1, a2) or _plane_sides(xa, a0, a1, a2, xb, b0, b1, b2):
+        return best, w0, w1, w2, b_0, b_1, b_2
+    for ea in range(3):
+        e0 = a0 if ea == 0 else (a1 if ea == 1 else a2)
+        e1 = a1 if ea == 0 else (a2 if ea == 1 else a0)
+        hit, u, c0, c1, c2 = segment_pierces_triangle(xa, e0, e1, xb, b0, b1, b2)
         if hit:
-            return 0.0, c0, c1, c2, 1.0 - u, u, 0.0
-        hit, u, c0, c1, c2 = segment_pierces_triangle(xb, b1, b2, xa, a0, a1, a2)
+            w0 = (1.0 - u) if ea == 0 else (0.0 if ea == 1 else u)
+            w1 = u if ea == 0 else ((1.0 - u) if ea == 1 else 0.0)
+            w2 = 0.0 if ea == 0 else (u if ea == 1 else (1.0 - u))
+            return 0.0, w0, w1, w2, c0, c1, c2
+    for eb in range(3):
+        f0 = b0 if eb == 0 else (b1 if eb == 1 else b2)
+        f1 = b1 if eb == 0 else (b2 if eb == 1 else b0)
+        hit, t, c0, c1, c2 = segment_pierces_triangle(xb, f0, f1, xa, a0, a1, a2)
         if hit:
-            return 0.0, c0, c1, c2, 0.0, 1.0 - u, u
-        hit, u, c0, c1, c2 = segment_pierces_triangle(xb, b2, b0, xa, a0, a1, a2)
-        if hit:
-            return 0.0, c0, c1, c2, u, 0.0, 1.0 - u
+            b_0 = (1.0 - t) if eb == 0 else (0.0 if eb == 1 else t)
+            b_1 = t if eb == 0 else ((1.0 - t) if eb == 1 else 0.0)
+            b_2 = 0.0 if eb == 0 else (t if eb == 1 else (1.0 - t))
+            return 0.0, c0, c1, c2, b_0, b_1, b_2
     return best, w0, w1, w2, b_0, b_1, b_2

@@ -129,14 +129,16 @@ def _arrays(
     radius: float = 0.0,
     surface: Surface | None = None,
 ) -> ck.ShapeArrays:
-    return ck.ShapeArrays(
-        kind=kind,
-        point=np.zeros(3) if point is None else np.ascontiguousarray(point, dtype=np.float64),
-        normal=np.array([0.0, 1.0, 0.0]) if normal is None else np.ascontiguousarray(normal, dtype=np.float64),
-        axis=np.zeros((2, 3)) if axis is None else np.ascontiguousarray(axis, dtype=np.float64),
-        radius=float(radius),
-        surface=_placeholder_surface() if surface is None else surface,
-    )
+    params = np.zeros((5, 3))
+    params[1] = (0.0, 1.0, 0.0)
+    if point is not None:
+        params[0] = point
+    if normal is not None:
+        params[1] = normal
+    if axis is not None:
+        params[2:4] = axis
+    params[4, 0] = radius
+    return ck.shape_arrays(kind, params, _placeholder_surface() if surface is None else surface)
 
 
 class Plane(Shape):
@@ -273,7 +275,7 @@ class TriangleMesh(Shape):
                 self.triangles = outward
                 surface = surface_of(self.vertices, self.triangles)
         self.surface = surface
-        self.face_normals = surface.face_normals
+        self.face_normals = surface.normals[:, 0]
         self.solid = surface.closed
 
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -439,132 +441,34 @@ class Collider(Constraint, Remappable):
         prims = self._primitives(model)
         n = state.positions.shape[0]
         scale = self._scale(time)
-        sheet = shape.kind == ck.MESH and not shape.surface.closed
+        sheet = shape.kind == ck.MESH and not shape.closed
         h = self.thickness / scale
         if sheet:
             h = max(h, MIN_SHEET_GAP / scale)
         gap = 0.5 * h if h > 0 else MIN_SHEET_GAP / scale
+        floor = h - FAIL_FRACTION * h if h > 0 else -gap
         x0 = np.ascontiguousarray(self._to_local(state.previous, time - dt), dtype=np.float64)
         x1 = np.array(self._to_local(state.positions, time), dtype=np.float64, order="C")
-        bounds = self.shape.bounds() if shape.kind != ck.MESH else (shape.surface.bvh.lo[0], shape.surface.bvh.hi[0])
+        bounds = self.shape.bounds() if shape.kind != ck.MESH else (shape.bounds[0, :3], shape.bounds[0, 3:])
         lo, hi = (np.zeros(3), np.zeros(3)) if bounds is None else bounds
-        movable = model.inv_mass > 0
-        cand = ck.candidates(x0, x1, prims, movable, shape, lo, hi, h + gap)
-        hint = self._hints(prims, n, sheet)
-        stats = ContactStats(substeps=1)
-        if cand.size == 0:
-            if sheet:
-                self._side[:] = 0.0
-            self._stats = self._stats + stats
-            return
-        hit, s, d0, w, q, nrm = ck.sweep(shape, x0, x1, prims, cand, hint, h, gap, MAX_ADVANCE_STEPS)
-        if sheet:  # each vertex's side as the sweep found it at the start (none crosses)
-            vertex_rows = cand[cand < n]
-            side = np.zeros(n)
-            side[vertex_rows] = hint[vertex_rows]
-            self._side = side
-        ids = cand[hit]
-        if ids.size == 0:
-            self._stats = self._stats + stats
-            return
-        plane_w, plane_q, plane_n = w[hit], q[hit], nrm[hit]
-        swept = hit & (d0 > h) & (s < 1.0)
-        if swept.any():
-            d_end, _, _, n_end = ck.evaluate(shape, x1, prims, cand[swept], hint, np.inf)
-            behind = np.einsum("ij,ij->i", n_end, nrm[swept]) < 0.0  # nearest to the other side
-            crossed = int(np.count_nonzero((d_end < 0.0) | (d_end > h) | behind))
-            stats = stats + ContactStats(swept=int(np.count_nonzero(swept)), crossed=crossed)
-        push = np.zeros(ids.size)
-        moved = np.zeros(n, dtype=bool)
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
-        ck.solve(
-            shape,
-            x1,
-            inv_mass,
-            prims,
-            ids,
-            plane_w,
-            plane_q,
-            plane_n,
-            hint,
-            h,
-            gap,
-            PLANE_SWEEPS,
-            JOINT_SWEEPS,
-            push,
-            moved,
-        )
-        for _ in range(EXTRA_ROUNDS):  # primitives the corrections moved into contact
-            rest = cand[~np.isin(cand, ids) & moved[prims[cand]].any(axis=1)]
-            if rest.size == 0:
-                break
-            hit, _, _, w, q, nrm = ck.sweep(shape, x0, x1, prims, rest, hint, h, gap, MAX_ADVANCE_STEPS)
-            if not hit.any():
-                break
-            stats = stats + ContactStats(rounds=1)
-            ids = np.concatenate([ids, rest[hit]])
-            plane_w = np.concatenate([plane_w, w[hit]])
-            plane_q = np.concatenate([plane_q, q[hit]])
-            plane_n = np.concatenate([plane_n, nrm[hit]])
-            push = np.concatenate([push, np.zeros(int(np.count_nonzero(hit)))])
-            ck.solve(
-                shape,
-                x1,
-                inv_mass,
-                prims,
-                ids,
-                plane_w,
-                plane_q,
-                plane_n,
-                hint,
-                h,
-                gap,
-                PLANE_SWEEPS,
-                JOINT_SWEEPS,
-                push,
-                moved,
-            )
-        reverted = np.zeros(n, dtype=bool)
-        floor = h - FAIL_FRACTION * h if h > 0 else -gap
-        back = ck.fail_safe(shape, x0, x1, prims, cand, hint, floor, h + gap, movable, reverted, moved)
-        stats = stats + ContactStats(reverted=int(back))
-        planes = (plane_w, plane_q, plane_n)
-        self._respond(
-            state, shape, prims, ids, x1, x0, moved, reverted, inv_mass, hint, planes, push, h, gap, time, dt, stats
-        )
-
-    def _respond(
-        self,
-        state: State,
-        shape: ck.ShapeArrays,
-        prims: np.ndarray,
-        ids: np.ndarray,
-        x1: np.ndarray,
-        x0: np.ndarray,
-        moved: np.ndarray,
-        reverted: np.ndarray,
-        inv_mass: np.ndarray,
-        hint: np.ndarray,
-        planes: tuple[np.ndarray, np.ndarray, np.ndarray],
-        push: np.ndarray,
-        h: float,
-        gap: float,
-        time: float,
-        dt: float,
-        stats: ContactStats,
-    ) -> None:
-        """Write the corrected positions back, then the contact velocities (world frame)."""
-        d, w, q, nrm = ck.evaluate(shape, x1, prims, ids, hint, h + gap)
-        touching = d <= h * (1.0 + TOUCH_FRACTION) + 1e-12
-        pushed = ~touching & (push > 0)
-        w = np.where(touching[:, None], w, planes[0])
-        q = np.where(touching[:, None], q, planes[1])
-        nrm = np.where(touching[:, None], nrm, planes[2])
-        active = touching | pushed
-        ids, w, q, nrm, push = ids[active], w[active], q[active], nrm[active], push[active]
+        hint = self._hints(prims, n, sheet)
+        ids, plane, end, d_end, push, moved, reverted, counts = ck.contact_kernel(shape.kind)(
+            *shape, x0, x1, prims, inv_mass > 0, inv_mass, hint, lo, hi, h, gap, floor,
+            MAX_ADVANCE_STEPS, PLANE_SWEEPS, JOINT_SWEEPS, EXTRA_ROUNDS,
+        )  # fmt: skip
+        if sheet:  # each vertex's side as the sweep found it (none crosses)
+            self._side = hint[:n].copy()
+        swept, crossed, rounds, back = (int(c) for c in counts)
+        stats = ContactStats(substeps=1, swept=swept, crossed=crossed, rounds=rounds, reverted=back)
+        # velocities: at the final contact where it touches, else where a time-of-impact plane pushed
+        touching = d_end <= h * (1.0 + TOUCH_FRACTION) + 1e-12
+        active = touching | (push > 0)
+        contact = np.where(touching[:, None], end, plane)[active]
+        ids, push = ids[active], push[active]
+        w, q, nrm = contact[:, 0:3], contact[:, 3:6], contact[:, 6:9]
         if moved.any():
             state.positions[moved] = self._to_world(x1[moved], time)
-        scale = self._scale(time)
         if self.keys is not None:
             nrm = nrm @ self.keys.rotation(time).T
             surface_v = (self._to_world(q, time) - self._to_world(q, time - dt)) / dt if dt > 0 else np.zeros_like(q)
@@ -576,9 +480,9 @@ class Collider(Constraint, Remappable):
             np.ascontiguousarray(surface_v), push * scale, self.friction, dt, touched,
         )  # fmt: skip
         if reverted.any():  # they move with the collider
-            back = x0[reverted]
+            back_x = x0[reverted]
             if self.keys is not None and dt > 0:
-                state.velocities[reverted] = (self._to_world(back, time) - self._to_world(back, time - dt)) / dt
+                state.velocities[reverted] = (self._to_world(back_x, time) - self._to_world(back_x, time - dt)) / dt
             else:
                 state.velocities[reverted] = 0.0
         state.previous[touched] = state.positions[touched] - state.velocities[touched] * dt
