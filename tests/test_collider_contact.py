@@ -180,19 +180,9 @@ def test_cloth_triangle_to_mesh_closest_pair_against_dense_sampling() -> None:
     for _ in range(40):
         tri = rng.uniform([-1.0, -0.1, -0.7], [0.7, 0.4, 0.7], size=(1, 3)) + rng.normal(scale=0.15, size=(3, 3))
         b = surface.bvh
+        mesh = (surface.vertices, surface.triangles, surface.normals[:, 0])
         d2, _, w0, w1, w2, *_ = closest_to_triangle(
-            b.bounds,
-            b.nodes,
-            b.order,
-            b.tri_bounds,
-            surface.vertices,
-            surface.triangles,
-            tri,
-            0,
-            1,
-            2,
-            np.inf,
-            new_stack(),
+            b.bounds, b.nodes, b.order, b.tri_bounds, *mesh, tri, 0, 1, 2, np.inf, new_stack()
         )
         point = w0 * tri[0] + w1 * tri[1] + w2 * tri[2]
         assert mesh_distance(point[None], surface.vertices, surface.triangles)[0] == pytest.approx(

@@ -143,6 +143,29 @@ def _box_box_d2(boxes: np.ndarray, i: int, q: tuple[float, float, float, float, 
 
 
 @numba.njit(**_JIT)
+def _plane_gap2(
+    vertices: np.ndarray, triangles: np.ndarray, face_normals: np.ndarray, t: int, xq: np.ndarray, q0: int, q1: int,
+    q2: int,
+) -> float:  # fmt: skip
+    """Squared distance from the plane of triangle t to the query triangle when the query lies
+    strictly on one side of it (a lower bound of their distance), else 0."""
+    nx, ny, nz = face_normals[t, 0], face_normals[t, 1], face_normals[t, 2]
+    a = triangles[t, 0]
+    lo = np.inf
+    hi = -np.inf
+    for r in range(3):
+        q = q0 if r == 0 else (q1 if r == 1 else q2)
+        d = (xq[q, 0] - vertices[a, 0]) * nx + (xq[q, 1] - vertices[a, 1]) * ny + (xq[q, 2] - vertices[a, 2]) * nz
+        lo = min(lo, d)
+        hi = max(hi, d)
+    if lo > 0.0:
+        return lo * lo
+    if hi < 0.0:
+        return hi * hi
+    return 0.0
+
+
+@numba.njit(**_JIT)
 def new_stack() -> np.ndarray:
     """A traversal stack for the queries (a kernel makes one and passes it to every query)."""
     return np.empty(STACK, dtype=np.int64)
@@ -204,6 +227,7 @@ def closest_to_triangle(
     tri_bounds: np.ndarray,
     vertices: np.ndarray,
     triangles: np.ndarray,
+    face_normals: np.ndarray,
     xq: np.ndarray,
     q0: int,
     q1: int,
@@ -214,7 +238,9 @@ def closest_to_triangle(
     """(squared distance, triangle, wq0, wq1, wq2, wm0, wm1, wm2): the closest points of the query
     triangle (rows q0, q1, q2 of xq; a segment (a, b, b) or a point (a, a, a) works) and the mesh,
     as weights on the query (wq) and on the mesh triangle (wm); triangle -1 (and limit2) when
-    nothing is nearer than sqrt(limit2). Arguments as for `closest_to_point`."""
+    nothing is nearer than sqrt(limit2). Arguments as for `closest_to_point`, and face_normals
+    (K, 3) unit (zero for zero-area triangles): a mesh triangle whose plane the query lies
+    wholly in front of (or behind), no nearer than the best so far, is skipped."""
     qb = (
         min(xq[q0, 0], xq[q1, 0], xq[q2, 0]),
         min(xq[q0, 1], xq[q1, 1], xq[q2, 1]),
@@ -236,6 +262,8 @@ def closest_to_triangle(
             for i in range(nodes[node, 2], nodes[node, 2] + nodes[node, 3]):
                 t = order[i]
                 if _box_box_d2(tri_bounds, t, qb) >= best:
+                    continue
+                if _plane_gap2(vertices, triangles, face_normals, t, xq, q0, q1, q2) >= best:
                     continue
                 d2, a0, a1, a2, b0, b1, b2 = triangle_triangle_closest(
                     xq, q0, q1, q2, vertices, triangles[t, 0], triangles[t, 1], triangles[t, 2]

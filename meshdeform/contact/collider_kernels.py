@@ -214,6 +214,7 @@ def closest_mesh(
     vertex = i0 == i1 and i1 == i2
     verts = vertices
     tris = triangles
+    face = normals[:, 0]
     limit2 = limit * limit if limit < np.inf else np.inf
     if vertex:
         d2, t, m0, m1, m2 = closest_to_point(
@@ -222,7 +223,7 @@ def closest_mesh(
         w0, w1, w2 = 1.0, 0.0, 0.0
     else:
         d2, t, w0, w1, w2, m0, m1, m2 = closest_to_triangle(
-            bounds, nodes, order, tri_bounds, verts, tris, tri, 0, 1, 2, limit2, stack
+            bounds, nodes, order, tri_bounds, verts, tris, face, tri, 0, 1, 2, limit2, stack
         )
     if t < 0:
         return limit, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, hint

@@ -134,6 +134,48 @@ def _plane_sides(xp: np.ndarray, p0: int, p1: int, p2: int, xq: np.ndarray, q0: 
 
 
 @numba.njit(**_JIT)
+def _over_face(
+    xp: np.ndarray, p0: int, p1: int, p2: int, xq: np.ndarray, q0: int, q1: int, q2: int
+) -> tuple[bool, float, int, float, float, float]:
+    """When every corner of triangle Q lies strictly on one side of triangle P's plane and
+    projects inside P, Q's nearest point to P is its corner nearest that plane (the projection
+    of Q lies in P, and the distance to a plane is linear over Q): (True, squared distance,
+    that corner (0, 1, 2), its projection's weights on P). Otherwise (False, ...)."""
+    ux, uy, uz = xp[p1, 0] - xp[p0, 0], xp[p1, 1] - xp[p0, 1], xp[p1, 2] - xp[p0, 2]
+    vx, vy, vz = xp[p2, 0] - xp[p0, 0], xp[p2, 1] - xp[p0, 1], xp[p2, 2] - xp[p0, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    nn = nx * nx + ny * ny + nz * nz
+    uu = ux * ux + uy * uy + uz * uz
+    uv = ux * vx + uy * vy + uz * vz
+    vv = vx * vx + vy * vy + vz * vz
+    det = uu * vv - uv * uv
+    if not (nn > 0.0 and det > 0.0):
+        return False, 0.0, 0, 0.0, 0.0, 0.0
+    best = np.inf
+    corner = 0
+    sign = 0.0
+    bb = 0.0
+    bc = 0.0
+    for r in range(3):
+        q = q0 if r == 0 else (q1 if r == 1 else q2)
+        wx, wy, wz = xq[q, 0] - xp[p0, 0], xq[q, 1] - xp[p0, 1], xq[q, 2] - xp[p0, 2]
+        h = wx * nx + wy * ny + wz * nz
+        if h == 0.0 or (sign != 0.0 and (h > 0.0) != (sign > 0.0)):
+            return False, 0.0, 0, 0.0, 0.0, 0.0
+        sign = h
+        wu = wx * ux + wy * uy + wz * uz
+        wv = wx * vx + wy * vy + wz * vz
+        b = (vv * wu - uv * wv) / det
+        c = (uu * wv - uv * wu) / det
+        if b < 0.0 or c < 0.0 or b + c > 1.0:
+            return False, 0.0, 0, 0.0, 0.0, 0.0
+        d2 = h * h / nn
+        if d2 < best:
+            best, corner, bb, bc = d2, r, b, c
+    return True, best, corner, 1.0 - bb - bc, bb, bc
+
+
+@numba.njit(**_JIT)
 def triangle_triangle_closest(
     xa: np.ndarray, a0: int, a1: int, a2: int, xb: np.ndarray, b0: int, b1: int, b2: int
 ) -> tuple[float, float, float, float, float, float, float]:
@@ -142,7 +184,14 @@ def triangle_triangle_closest(
 
     Candidates in order: A's corners against B, B's corners against A, the 9 edge pairs, then
     (unless one triangle lies strictly on one side of the other's plane, so they cannot
-    intersect) the edges of each piercing the other."""
+    intersect) the edges of each piercing the other. First the common case of cloth on a face:
+    one triangle lying over the other's face (`_over_face`), exact without the edge pairs."""
+    over, d2, corner, c0, c1, c2 = _over_face(xb, b0, b1, b2, xa, a0, a1, a2)
+    if over:
+        return d2, 1.0 if corner == 0 else 0.0, 1.0 if corner == 1 else 0.0, 1.0 if corner == 2 else 0.0, c0, c1, c2
+    over, d2, corner, c0, c1, c2 = _over_face(xa, a0, a1, a2, xb, b0, b1, b2)
+    if over:
+        return d2, c0, c1, c2, 1.0 if corner == 0 else 0.0, 1.0 if corner == 1 else 0.0, 1.0 if corner == 2 else 0.0
     best, b_0, b_1, b_2 = point_triangle_d2(xa[a0, 0], xa[a0, 1], xa[a0, 2], xb, b0, b1, b2)
     w0, w1, w2 = 1.0, 0.0, 0.0
     d2, c0, c1, c2 = point_triangle_d2(xa[a1, 0], xa[a1, 1], xa[a1, 2], xb, b0, b1, b2)
