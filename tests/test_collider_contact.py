@@ -316,3 +316,76 @@ def test_fast_plate_never_passes_through_a_hanging_cloth() -> None:
         farthest = max(farthest, p[:, 2].max())
     assert plate.stats.swept > 0
     assert farthest > 0.3  # the plate carried the cloth along
+
+
+# -- the exact distances under the contact ------------------------------------------------------------
+def test_triangle_triangle_closest_points_against_dense_sampling() -> None:
+    from meshdeform.contact.triangle_distance import triangle_triangle_closest
+
+    rng = np.random.default_rng(9)
+    one = np.array([[0, 1, 2]])
+    for case in range(150):
+        a = rng.normal(size=(3, 3))
+        b = rng.normal(size=(3, 3)) + rng.normal(scale=1.5, size=3)
+        if case % 5 == 0:  # a small triangle lying over a big one's face (the fast path)
+            b = np.array([[0.0, 0, 0], [4.0, 0, 0], [0.0, 4.0, 0]])
+            a = np.array([[0.5, 0.5, 0.3], [0.9, 0.6, 0.5], [0.7, 1.0, 0.2]]) + rng.normal(scale=0.05, size=(3, 3))
+        d2, *w = triangle_triangle_closest(a, 0, 1, 2, b, 0, 1, 2)
+        pa, pb = np.asarray(w[:3]) @ a, np.asarray(w[3:]) @ b
+        assert np.linalg.norm(pa - pb) == pytest.approx(np.sqrt(d2), abs=1e-12)
+        sa, sb = lattice(a, one, n=40), lattice(b, one, n=40)
+        sampled = np.sqrt(((sa[:, None, :] - sb[None, :, :]) ** 2).sum(axis=2).min())
+        assert np.sqrt(d2) <= sampled + 1e-12
+        scale = max(np.abs(np.diff(a, axis=0)).max(), np.abs(np.diff(b, axis=0)).max())
+        assert np.sqrt(d2) >= sampled - 0.06 * scale
+
+
+def test_intersecting_triangles_are_at_distance_zero() -> None:
+    from meshdeform.contact.triangle_distance import triangle_triangle_closest
+
+    a = np.array([[0.0, 0, -1], [1.0, 0, 1], [0.0, 1, 1]])  # crosses the plane z = 0
+    b = np.array([[-1.0, -1, 0], [3.0, -1, 0], [-1.0, 3, 0]])
+    d2, *w = triangle_triangle_closest(a, 0, 1, 2, b, 0, 1, 2)
+    assert d2 == 0.0
+    np.testing.assert_allclose(np.asarray(w[:3]) @ a, np.asarray(w[3:]) @ b, atol=1e-12)
+
+
+# -- ropes and moving, turning colliders ---------------------------------------------------------------
+def test_a_coarse_rope_falling_on_a_thin_bar_keeps_its_edges_off_it() -> None:
+    from meshdeform.mesh import Mesh
+
+    n = 8  # 7 segments of 20 cm falling across a bar of radius 1.5 cm, between two vertices
+    positions = np.stack([np.linspace(-0.7, 0.7, n), np.full(n, 0.1), np.full(n, 0.03)], axis=1)
+    rope = Mesh(
+        positions=positions,
+        face_indices=np.zeros(0, dtype=np.int64),
+        face_offsets=np.zeros(1, dtype=np.int64),
+        line_indices=np.arange(n, dtype=np.int64),
+        line_offsets=np.array([0, n], dtype=np.int64),
+    )
+    model = SpringModel.from_mesh(rope)
+    a, b = np.array([0.0, 0.0, -0.5]), np.array([0.0, 0.0, 0.5])  # the bar along z, under x = 0
+    bar = Collider(Capsule(a, b, 0.015), friction=0.5, thickness=THICKNESS)
+    t = np.linspace(0.0, 1.0, 41)
+    nearest = np.inf
+    for frame in simulate(model, Scene(constraints=[bar]), Settings(fps=24, frames=16)):
+        p = frame.welded_positions
+        samples = (p[:-1, None, :] + t[None, :, None] * (p[1:, None, :] - p[:-1, None, :])).reshape(-1, 3)
+        d = capsule_distance(samples, a, b, 0.015)
+        assert d.min() >= THICKNESS - SLACK, (frame.index, d.min())
+        nearest = min(nearest, d.min())
+    assert nearest < THICKNESS + 0.003  # it hangs on the bar
+
+
+def test_a_turning_box_keeps_a_draped_cloth_outside() -> None:
+    lo, hi = np.array([-0.3, -0.3, -0.3]), np.array([0.3, 0.0, 0.3])
+    keys = Keyframes(
+        [Keyframe(0.0, rotate=(0, 0, 0), translate=(0, 0, 0)), Keyframe(1.0, rotate=(0, 0, 60), translate=(0, 0.2, 0))],
+        pivot=(0.0, -0.15, 0.0),
+    )
+    box = Collider(Box(lo, hi), friction=0.5, thickness=THICKNESS, keys=keys)
+    model = grid_cloth(8, size=0.9, plane="xz", centred=True, offset=(0.0, 0.05, 0.0)).model
+    for frame in simulate(model, Scene(constraints=[box]), Settings(fps=24, frames=24)):
+        local = keys.inverse(surface_samples(frame), frame.time)  # rigid: distances are the same
+        d = box_distance(local, lo, hi)
+        assert d.min() >= THICKNESS - SLACK, (frame.index, d.min())
