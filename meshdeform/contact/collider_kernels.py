@@ -6,25 +6,29 @@ positions (V, 3) at the start (x0) and at the end (x1) of the substep, the path 
 linear. A shape is a `ShapeArrays`: a plane, a sphere, a capsule or a triangle mesh (`Surface`,
 with its BVH); boxes are 12-triangle closed meshes.
 
-`closest` gives, for one primitive in one configuration, the signed clearance d (negative:
-inside a solid, or on the far side of an open sheet from the side it keeps), the contact point
-on the cloth as weights (w0, w1, w2) on its vertices, the surface point q and the outward unit
-normal n, with d = n . (p - q) for the cloth point p = sum w_k x_k. The contact asks for
-d >= h (h: the collider's thickness in local units).
+`closest_simple` (planes, spheres, capsules) and `closest_mesh` give, for one primitive in one
+configuration, the signed clearance d (negative: inside a solid, or on the far side of an open
+sheet from the side it keeps), the contact point on the cloth as weights (w0, w1, w2) on its
+vertices, the surface point q and the outward unit normal n, with d = n . (p - q) for the
+cloth point p = sum w_k x_k. The contact asks for d >= h (h: the collider's thickness in local
+units).
 
-`sweep` is conservative advancement (Mirtich 1996; Zhang et al., "Continuous collision
-detection for articulated models using Taylor models and temporal culling", 2007): along the
-path a point of the primitive moves at most L = max_k |x1_k - x0_k| (its vertices move
-linearly), so after the clearance d at path parameter s it cannot come nearer than h - gap
-before s + (d - h + gap) / L. Stepping by that never passes through anything, whatever the
-speed and however thin the shape; the first configuration found within h is the time of
-impact, and its (w, n, q) a plane the end position must stay in front of. `solve` enforces
-those planes and the closest-point contacts at the end position by Gauss-Seidel position
-corrections weighted by the contact weights and inverse masses (position-based dynamics:
-lambda = depth / sum_k w_k^2 m_k^-1, dx_k = lambda w_k m_k^-1 n). `respond` removes the
-approaching normal velocity of every contact point (relative to the surface) and applies
-Coulomb friction, spread over the vertices the same way. Everything runs serially in the
-primitives' order: the same input gives the same bytes.
+`contact` runs one substep for one shape (compiled once per query: `contact_kernel(kind)`):
+- `_advance` is conservative advancement (Mirtich 1996; Zhang et al., "Continuous collision
+  detection for articulated models using Taylor models and temporal culling", 2007): along the
+  path a point of the primitive moves at most L = max_k |x1_k - x0_k| (its vertices move
+  linearly), so after the clearance d at path parameter s it cannot come nearer than h - gap
+  before s + (d - h + gap) / L. Stepping by that never passes through anything, whatever the
+  speed and however thin the shape; the first configuration found within h is the time of
+  impact, and its (w, n, q) a plane the end position must stay in front of;
+- `_solve` enforces those planes and the closest-point contacts at the end positions by
+  Gauss-Seidel position corrections weighted by the contact weights and inverse masses
+  (position-based dynamics: lambda = depth / sum_k w_k^2 m_k^-1, dx_k = lambda w_k m_k^-1 n);
+- a fail-safe puts back at their start the vertices of any primitive the corrections could
+  not free (the start was clear, so the end is).
+`respond` then removes the approaching normal velocity of every contact point (relative to the
+surface) and applies Coulomb friction, spread over the vertices the same way. Everything runs
+serially in the primitives' order: the same input gives the same bytes.
 """
 
 from __future__ import annotations

@@ -437,6 +437,10 @@ class Collider(Constraint, Remappable):
         return hint
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
+        """Keep the cloth's surface `thickness` out of the shape after a substep (module
+        docstring): state.previous and state.positions are the substep's start and end (time
+        - dt, time); corrected positions, velocities and previous positions are written back
+        for the vertices that changed only, so the others keep their bytes."""
         shape = self.shape.arrays()
         prims = self._primitives(model)
         n = state.positions.shape[0]
