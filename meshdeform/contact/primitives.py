@@ -72,7 +72,9 @@ def point_triangle_weights(
 
 
 @numba.njit(**_JIT)
-def segment_segment_params(xp: np.ndarray, p0: int, p1: int, xq: np.ndarray, q0: int, q1: int) -> tuple[float, float]:
+def segment_segment_params(
+    xp: np.ndarray, p0: int, p1: int, xq: np.ndarray, q0: int, q1: int
+) -> tuple[float, float]:
     """Parameters (s, t) in [0, 1] of the closest points p0 + s (p1 - p0) and q0 + t (q1 - q0) of
     two segments, rows p0, p1 of xp and q0, q1 of xq (Ericson 5.1.9; parallel segments take
     s = 0 or the clamp)."""
