@@ -1,25 +1,61 @@
 """Colliders: ground/plane, sphere, box, capsule and static triangle meshes, as Constraints.
 
-Each shape answers a vectorised closest-surface query in its own rest frame: signed distance
-(negative inside), outward unit normal. `Collider.project` runs after every solver substep:
-vertices closer than `thickness` to the surface (or inside it) are pushed out along the normal
-to exactly `thickness`, their velocity into the surface is removed and their tangential velocity
-(relative to a moving collider) is reduced by Coulomb friction. Fast vertices are also tested at
-points along their path from the previous position, so thin colliders are not tunnelled through.
-Colliders can follow keyframes (rigid motion plus uniform scale) like pins.
+Each shape answers a vectorised closest-surface query in its own rest frame (`Shape.query`:
+signed distance, negative inside, and outward unit normal; `Collider.signed_distance` in the
+world). `Collider.project` runs after every solver substep and keeps the whole cloth surface,
+not only its vertices, `thickness` away from the shape: every triangle, every edge outside a
+triangle (ropes) and every vertex (`meshdeform.contact.collider_kernels`):
+
+- continuous: each primitive's linear path from its start-of-substep position to its end
+  position (in the collider's rest frame, so a keyframed collider's motion is included) is
+  swept by conservative advancement on the exact distance, so nothing passes through a shape
+  however thin or fast; the first contact found gives a plane the end position is kept in front of;
+- then the contacts at the end positions (exact closest points of each triangle or edge to the
+  shape) are resolved by position corrections weighted by the contact point's barycentric
+  weights and the vertices' inverse masses, Gauss-Seidel in a fixed order;
+- the velocity into the surface (relative to a moving collider) is removed at every contact
+  point and the tangential velocity reduced by Coulomb friction.
+
+Planes are tested at the vertices only: a half-space is convex and a triangle's distance to a
+plane is linear over it, so its nearest point is always a vertex, and a vertex's path is a
+straight line in the plane's frame. Boxes are closed 12-triangle meshes for contact (their
+`query` stays analytic). Mesh colliders find exact closest points with a BVH over their
+triangles; closed meshes are solids (inside: behind the nearest surface point by its
+angle-weighted pseudo-normal), open ones two-sided sheets (each vertex keeps the side it was
+last seen on; they keep at least `MIN_SHEET_GAP`). Colliders can follow keyframes (rigid motion
+plus uniform scale) like pins. `Collider.stats` counts the contacts and how often the swept
+test found what the end positions alone would have missed.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from meshdeform.contact import collider_kernels as ck
+from meshdeform.contact.surface import Surface, signed_closest, surface_of
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 from meshdeform.scene.pins import Keyframes
-from meshdeform.topology import is_closed
+from meshdeform.topology import SpringKind
+
+#: scene units: the least contact gap of an open mesh collider (two-sided: a sheet's side is
+#: only known while the cloth keeps clear of it) and the advancement's tolerance at thickness 0
+MIN_SHEET_GAP = 1e-4
+#: steps of conservative advancement per primitive and substep before a grazing path counts as a hit
+MAX_ADVANCE_STEPS = 256
+#: Gauss-Seidel sweeps: over the time-of-impact planes alone, then over planes and closest points
+PLANE_SWEEPS = 2
+JOINT_SWEEPS = 4
+#: further sweep-and-solve rounds for primitives that the corrections moved into a new contact
+EXTRA_ROUNDS = 2
+#: a primitive left nearer than (1 - this) h after the corrections has its vertices put back
+#: where they started the substep (`collider_kernels.fail_safe`)
+FAIL_FRACTION = 0.1
+#: a contact counts as touching at the end (its velocity treated) within this fraction above h
+TOUCH_FRACTION = 1e-3
 
 
 def _unit(v: Sequence[float]) -> np.ndarray:
@@ -34,6 +70,24 @@ def _normalise_rows(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     out[ok] = v[ok] / length[ok, None]
     out[~ok] = fallback
     return out
+
+
+#: the 12 triangles of a box over its corners (index bit 0: x, bit 1: y, bit 2: z at hi), outward
+_BOX_TRIANGLES = np.array(
+    [
+        [0, 4, 6], [0, 6, 2],  # x = lo
+        [1, 3, 7], [1, 7, 5],  # x = hi
+        [0, 1, 5], [0, 5, 4],  # y = lo
+        [2, 6, 7], [2, 7, 3],  # y = hi
+        [0, 2, 3], [0, 3, 1],  # z = lo
+        [4, 5, 7], [4, 7, 6],  # z = hi
+    ],
+    dtype=np.int64,
+)  # fmt: skip
+
+
+def _placeholder_surface() -> Surface:
+    return surface_of(np.eye(3), np.array([[0, 1, 2]]))
 
 
 class Shape:
@@ -55,6 +109,37 @@ class Shape:
         b = self.bounds()
         return np.zeros(3) if b is None else 0.5 * (b[0] + b[1])
 
+    def arrays(self) -> ck.ShapeArrays:
+        """The shape as the contact kernels read it (`collider_kernels.ShapeArrays`), built once."""
+        cached = self.__dict__.get("_arrays")
+        if cached is None:
+            cached = self._make_arrays()
+            self.__dict__["_arrays"] = cached
+        return cached
+
+    def _make_arrays(self) -> ck.ShapeArrays:
+        raise NotImplementedError
+
+
+def _arrays(
+    kind: int,
+    point: np.ndarray | None = None,
+    normal: np.ndarray | None = None,
+    axis: np.ndarray | None = None,
+    radius: float = 0.0,
+    surface: Surface | None = None,
+) -> ck.ShapeArrays:
+    params = np.zeros((5, 3))
+    params[1] = (0.0, 1.0, 0.0)
+    if point is not None:
+        params[0] = point
+    if normal is not None:
+        params[1] = normal
+    if axis is not None:
+        params[2:4] = axis
+    params[4, 0] = radius
+    return ck.shape_arrays(kind, params, _placeholder_surface() if surface is None else surface)
+
 
 class Plane(Shape):
     """The half-space behind a plane through `point` with `normal` (the ground)."""
@@ -64,12 +149,14 @@ class Plane(Shape):
         self.normal = _unit(normal)
 
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # a writable (N, 3) copy, not a broadcast view: the swept test overwrites rows of it
         return (points - self.point) @ self.normal, np.tile(self.normal, (points.shape[0], 1))
 
     @property
     def center(self) -> np.ndarray:
         return self.point
+
+    def _make_arrays(self) -> ck.ShapeArrays:
+        return _arrays(ck.PLANE, point=self.point, normal=self.normal)
 
 
 class Sphere(Shape):
@@ -84,6 +171,9 @@ class Sphere(Shape):
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return self.c - self.radius, self.c + self.radius
+
+    def _make_arrays(self) -> ck.ShapeArrays:
+        return _arrays(ck.SPHERE, point=self.c, radius=self.radius)
 
 
 class Box(Shape):
@@ -115,6 +205,14 @@ class Box(Shape):
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return self.lo, self.hi
 
+    def corners(self) -> np.ndarray:
+        """The 8 corners (8, 3): bit 0 of the index picks hi in x, bit 1 in y, bit 2 in z."""
+        bits = (np.arange(8)[:, None] >> np.arange(3)) & 1
+        return np.where(bits == 1, self.hi, self.lo)
+
+    def _make_arrays(self) -> ck.ShapeArrays:
+        return _arrays(ck.MESH, surface=surface_of(self.corners(), _BOX_TRIANGLES))
+
 
 class Capsule(Shape):
     """All points within `radius` of the segment a-b."""
@@ -124,120 +222,145 @@ class Capsule(Shape):
         self.b = np.asarray(b, dtype=np.float64)
         self.radius = float(radius)
 
+    def _fallback(self) -> np.ndarray:
+        """A unit vector across the axis: the push direction of a point on the axis."""
+        ab = self.b - self.a
+        if float(ab @ ab) == 0.0:
+            return np.array([0.0, 1.0, 0.0])
+        fallback = np.cross(ab, [1.0, 0.0, 0.0])
+        if np.linalg.norm(fallback) < 1e-12 * np.linalg.norm(ab):
+            fallback = np.cross(ab, [0.0, 1.0, 0.0])
+        return _unit(fallback)
+
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ab = self.b - self.a
         denom = float(ab @ ab)
         t = np.clip((points - self.a) @ ab / denom, 0.0, 1.0) if denom > 0 else np.zeros(points.shape[0])
         d = points - (self.a + t[:, None] * ab)
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
-        fallback = np.cross(ab, [1.0, 0.0, 0.0]) if denom > 0 else np.array([0.0, 1.0, 0.0])
-        if np.linalg.norm(fallback) < 1e-12:
-            fallback = np.cross(ab, [0.0, 1.0, 0.0])
-        return length - self.radius, _normalise_rows(d, _unit(fallback))
+        return length - self.radius, _normalise_rows(d, self._fallback())
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return np.minimum(self.a, self.b) - self.radius, np.maximum(self.a, self.b) + self.radius
 
+    def _make_arrays(self) -> ck.ShapeArrays:
+        return _arrays(ck.CAPSULE, normal=self._fallback(), axis=np.stack([self.a, self.b]), radius=self.radius)
 
-def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Closest point on triangle (a, b, c) to p, row by row (Ericson, Real-Time Collision Detection 5.1.5)."""
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1 = np.einsum("ij,ij->i", ab, ap)
-    d2 = np.einsum("ij,ij->i", ac, ap)
-    bp = p - b
-    d3 = np.einsum("ij,ij->i", ab, bp)
-    d4 = np.einsum("ij,ij->i", ac, bp)
-    cp = p - c
-    d5 = np.einsum("ij,ij->i", ab, cp)
-    d6 = np.einsum("ij,ij->i", ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = 1.0 / (va + vb + vc)
-        v = vb * denom
-        w = vc * denom
-        result = a + ab * v[:, None] + ac * w[:, None]  # inside the face
-        # edge bc
-        w_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        m = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
-        result[m] = b[m] + w_bc[m, None] * (c[m] - b[m])
-        # edge ac
-        w_ac = d2 / (d2 - d6)
-        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-        result[m] = a[m] + w_ac[m, None] * ac[m]
-        # edge ab
-        v_ab = d1 / (d1 - d3)
-        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-        result[m] = a[m] + v_ab[m, None] * ab[m]
-    # vertex regions last, they take precedence
-    m = (d6 >= 0) & (d5 <= d6)
-    result[m] = c[m]
-    m = (d3 >= 0) & (d4 <= d3)
-    result[m] = b[m]
-    m = (d1 <= 0) & (d2 <= 0)
-    result[m] = a[m]
-    return result
+
+def _outward(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Triangles of a closed mesh wound so that their normals point out (negative enclosed
+    volume: all flipped); a consistently wound mesh is assumed."""
+    a, b, c = (vertices[triangles[:, i]] for i in range(3))
+    volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum())
+    return triangles[:, ::-1].copy() if volume < 0 else triangles
 
 
 class TriangleMesh(Shape):
-    """A static triangle mesh. Closed meshes are solids (behind the nearest triangle = inside);
-    open ones are thin two-sided sheets whose side is remembered from the previous position.
+    """A static triangle mesh. Closed meshes are solids (behind the nearest surface point, by its
+    angle-weighted pseudo-normal, is inside; an inside-out winding is turned outward); open ones
+    are thin two-sided sheets whose side is remembered from the previous position.
 
-    Closest points: the `candidates` triangles with the nearest centroids (scipy cKDTree) are
-    tested exactly; exact for the usual evenly meshed colliders, approximate where very large
-    and very small triangles sit side by side.
+    Closest points are exact: a BVH over the triangles (`meshdeform.contact.bvh`), built once.
     """
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, candidates: int = 16) -> None:
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         if self.triangles.shape[0] == 0:
             raise ValueError("a mesh collider needs at least one triangle")
-        a, b, c = (self.vertices[self.triangles[:, i]] for i in range(3))
-        self.a, self.b, self.c = a, b, c
-        normals = np.cross(b - a, c - a)
-        length = np.linalg.norm(normals, axis=1)
-        self.face_normals = normals / np.where(length > 0, length, 1.0)[:, None]
-        self.tree = cKDTree((a + b + c) / 3.0)
-        self.k = int(min(candidates, self.triangles.shape[0]))
-        self.solid = is_closed(self.triangles)
-
-    def nearest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest surface points (N, 3), their triangle (N,) and unsigned distances (N,)."""
-        n = points.shape[0]
-        _, cand = self.tree.query(points, k=self.k)
-        cand = np.asarray(cand).reshape(n, self.k)
-        flat = cand.ravel()
-        rep = np.repeat(points, self.k, axis=0)
-        cp = closest_points_on_triangles(rep, self.a[flat], self.b[flat], self.c[flat])
-        d2 = np.einsum("ij,ij->i", rep - cp, rep - cp).reshape(n, self.k)
-        best = np.argmin(d2, axis=1)
-        rows = np.arange(n)
-        tri = cand[rows, best]
-        closest = cp.reshape(n, self.k, 3)[rows, best]
-        return closest, tri, np.sqrt(d2[rows, best])
+        surface = surface_of(self.vertices, self.triangles)
+        if surface.closed:
+            outward = _outward(self.vertices, self.triangles)
+            if outward is not self.triangles:
+                self.triangles = outward
+                surface = surface_of(self.vertices, self.triangles)
+        self.surface = surface
+        self.face_normals = surface.normals[:, 0]
+        self.solid = surface.closed
 
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        closest, tri, dist = self.nearest(points)
-        fn = self.face_normals[tri]
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        closest, pseudo, dist = signed_closest(self.surface, points)
         offset = points - closest
-        side = np.where(np.einsum("ij,ij->i", offset, fn) < 0, -1.0, 1.0)
+        side = np.where(np.einsum("ij,ij->i", offset, pseudo) < 0, -1.0, 1.0)
         direction = offset / np.where(dist > 1e-12, dist, np.inf)[:, None]
-        normal = np.where((dist > 1e-9)[:, None], direction * side[:, None], fn)
+        normal = np.where((dist > 1e-9)[:, None], direction * side[:, None], pseudo)
         return side * dist, normal
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
 
+    def _make_arrays(self) -> ck.ShapeArrays:
+        return _arrays(ck.MESH, surface=self.surface)
+
+
+@dataclass(frozen=True)
+class ContactStats:
+    """What a collider did, summed over the substeps it projected (subtract two to get a frame's).
+
+    substeps: projections run; contacts: primitive contacts touching at substep ends; swept:
+    contacts the swept test found along a path that was clear of the shape at its start;
+    crossed: of those, the ones whose end position, as the solver left it, was inside or
+    behind the surface, nearest to its other side or had passed beyond it (what a test at the
+    end positions alone would have got wrong); rounds: extra sweep-and-solve rounds after corrections made new contacts;
+    reverted: vertices put back at their start by the fail-safe (`collider_kernels.fail_safe`).
+    """
+
+    substeps: int = 0
+    contacts: int = 0
+    swept: int = 0
+    crossed: int = 0
+    rounds: int = 0
+    reverted: int = 0
+
+    def __add__(self, other: ContactStats) -> ContactStats:
+        return ContactStats(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+
+    def __sub__(self, other: ContactStats) -> ContactStats:
+        return ContactStats(*(getattr(self, f.name) - getattr(other, f.name) for f in fields(self)))
+
+
+@dataclass(frozen=True)
+class _ClothPrimitives:
+    """A model's contact primitives as rows (i0, i1, i2): vertices (a, a, a), edges outside any
+    triangle (a, b, b) (ropes, lines), triangles. `points`: every vertex (for planes);
+    `surface`: the vertices in no triangle or edge, the edges, the triangles (spheres, capsules:
+    a triangle's closest point covers its edges and corners); `every`: all vertices first (row i
+    is vertex i), then the edges and triangles (meshes: the vertices carry the inside test and a
+    sheet's side)."""
+
+    points: np.ndarray
+    surface: np.ndarray
+    every: np.ndarray
+
+    @classmethod
+    def of(cls, model: SpringModel) -> _ClothPrimitives:
+        n = model.vertex_count
+        tris = np.asarray(model.triangles, dtype=np.int64).reshape(-1, 3)
+        structural = np.asarray(model.springs[model.kinds == SpringKind.STRUCTURAL], dtype=np.int64)
+        tri_edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+        key = np.minimum(tri_edges[:, 0], tri_edges[:, 1]) * n + np.maximum(tri_edges[:, 0], tri_edges[:, 1])
+        lo = np.minimum(structural[:, 0], structural[:, 1])
+        hi = np.maximum(structural[:, 0], structural[:, 1])
+        loose = structural[~np.isin(lo * n + hi, key)]
+        used = np.zeros(n, dtype=bool)
+        used[tris.ravel()] = True
+        used[loose.ravel()] = True
+        idx = np.arange(n, dtype=np.int64)
+        points = np.stack([idx, idx, idx], axis=1)
+        edges = loose[:, [0, 1, 1]]
+        return cls(
+            points=points,
+            surface=np.ascontiguousarray(np.concatenate([points[~used], edges, tris])),
+            every=np.ascontiguousarray(np.concatenate([points, edges, tris])),
+        )
+
 
 class Collider(Constraint, Remappable):
-    """A shape as a Constraint: keeps vertices `thickness` outside it, with Coulomb friction.
+    """A shape as a Constraint: keeps the cloth's surface `thickness` outside it, with Coulomb friction.
 
-    friction: 0 (ice) .. 1 and above (sticky); thickness: metres kept between surface and vertices;
-    keys: optional animation (rigid motion plus uniform scale, pivot in the keys).
+    friction: 0 (ice) .. 1 and above (sticky); thickness: metres kept between the shape and every
+    point of the cloth; keys: optional animation (rigid motion plus uniform scale, pivot in the keys).
     """
 
     def __init__(
@@ -250,6 +373,19 @@ class Collider(Constraint, Remappable):
         self.thickness = float(thickness)
         self.keys = keys
         self._side: np.ndarray | None = None
+        self._stats = ContactStats()
+        self._model: SpringModel | None = None
+        self._prims: _ClothPrimitives | None = None
+
+    @property
+    def stats(self) -> ContactStats:
+        """Contacts and continuous-collision work so far (`ContactStats`, summed over substeps)."""
+        return self._stats
+
+    @property
+    def swept_hits(self) -> int:
+        """Contacts found by the swept test along clear paths so far (`ContactStats.swept`)."""
+        return self._stats.swept
 
     # -- frames ---------------------------------------------------------------------------------
     def _to_local(self, points: np.ndarray, time: float) -> np.ndarray:
@@ -276,114 +412,82 @@ class Collider(Constraint, Remappable):
             self._side = self._side[index_map]
 
     # -- the constraint -------------------------------------------------------------------------
-    def _candidates(self, x: np.ndarray, prev: np.ndarray, time: float, dt: float) -> np.ndarray:
-        """Vertices whose path this substep comes near the shape's bounds (cheap culling)."""
-        b = self.shape.bounds()
-        if b is None:
-            return np.arange(x.shape[0])
-        margin = self.thickness / self._scale(time) + 1e-9
-        lo, hi = b[0] - margin, b[1] + margin
-        lx, lp = self._to_local(x, time), self._to_local(prev, time - dt)
-        near = np.all((np.maximum(lx, lp) >= lo) & (np.minimum(lx, lp) <= hi), axis=1)
-        return np.flatnonzero(near)
+    def _primitives(self, model: SpringModel) -> np.ndarray:
+        """This shape's primitive rows for the model (cached per model: a tear makes a new one)."""
+        if self._model is not model or self._prims is None:
+            self._prims = _ClothPrimitives.of(model)
+            self._model = model
+        kind = self.shape.arrays().kind
+        if kind == ck.PLANE:
+            return self._prims.points
+        if kind == ck.MESH:
+            return self._prims.every
+        return self._prims.surface
+
+    def _hints(self, prims: np.ndarray, n: int, sheet: bool) -> np.ndarray:
+        """(P,) side each primitive keeps of an open sheet (+1, -1; 0 unknown); zeros otherwise.
+        Vertex rows come first in the mesh set, so row i < n is vertex i."""
+        hint = np.zeros(prims.shape[0])
+        if not sheet:
+            return hint
+        if self._side is None or self._side.shape[0] != n:
+            self._side = np.zeros(n)
+        hint[:n] = self._side
+        hint[n:] = np.sign(self._side[prims[n:]].sum(axis=1))
+        return hint
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
-        movable = model.inv_mass > 0
-        if isinstance(self.shape, TriangleMesh) and not self.shape.solid:
-            self._project_sheet(state, np.flatnonzero(movable), time, dt)
-            return
-        idx = self._candidates(state.positions, state.previous, time, dt)
-        idx = idx[movable[idx]]
-        if idx.size == 0:
-            return
-        x = state.positions[idx]
-        prev = state.previous[idx]
-        dist, normal = self.signed_distance(x, time)
-        contact = dist < self.thickness
-        # swept test: fast vertices that passed into or through the shape within this substep
-        travel = np.sqrt(np.einsum("ij,ij->i", x - prev, x - prev))
-        fast = np.flatnonzero(~contact & (travel > max(self.thickness, 1e-6)))
-        if fast.size:
-            samples = int(min(16, np.ceil(travel[fast].max() / max(self.thickness, 1e-3))))
-            for s in range(1, samples):
-                f = s / samples
-                probe = prev[fast] + f * (x[fast] - prev[fast])
-                d_probe, n_probe = self.signed_distance(probe, time - dt + f * dt)
-                entered = (d_probe < self.thickness) & ~contact[fast]
-                if entered.any():
-                    rows = fast[entered]
-                    contact[rows] = True
-                    # signed distance of the end point from the tangent plane where it entered
-                    dist[rows] = np.einsum("ij,ij->i", x[rows] - probe[entered], n_probe[entered]) + d_probe[entered]
-                    normal[rows] = n_probe[entered]
-        rows = np.flatnonzero(contact)
-        if rows.size:
-            push = self.thickness - dist[rows]
-            self._respond(state, idx[rows], x[rows] + push[:, None] * normal[rows], normal[rows], push, time, dt)
-
-    def _project_sheet(self, state: State, idx: np.ndarray, time: float, dt: float) -> None:
-        """Open triangle mesh: two-sided, each vertex kept on the side it was last seen clear of."""
-        shape = self.shape
-        assert isinstance(shape, TriangleMesh)
-        n_all = state.positions.shape[0]
-        if idx.size == 0:
-            return
-        x = state.positions[idx]
-        prev = state.previous[idx]
+        """Keep the cloth's surface `thickness` out of the shape after a substep (module
+        docstring): state.previous and state.positions are the substep's start and end (time
+        - dt, time); corrected positions, velocities and previous positions are written back
+        for the vertices that changed only, so the others keep their bytes."""
+        shape = self.shape.arrays()
+        prims = self._primitives(model)
+        n = state.positions.shape[0]
         scale = self._scale(time)
-        c_local, tri, d_local = shape.nearest(self._to_local(x, time))
-        closest = self._to_world(c_local, time)
-        fn = shape.face_normals[tri]
+        sheet = shape.kind == ck.MESH and not shape.closed
+        h = self.thickness / scale
+        if sheet:
+            h = max(h, MIN_SHEET_GAP / scale)
+        gap = 0.5 * h if h > 0 else MIN_SHEET_GAP / scale
+        floor = h - FAIL_FRACTION * h if h > 0 else -gap
+        x0 = np.ascontiguousarray(self._to_local(state.previous, time - dt), dtype=np.float64)
+        x1 = np.array(self._to_local(state.positions, time), dtype=np.float64, order="C")
+        bounds = self.shape.bounds() if shape.kind != ck.MESH else (shape.bounds[0, :3], shape.bounds[0, 3:])
+        lo, hi = (np.zeros(3), np.zeros(3)) if bounds is None else bounds
+        inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
+        hint = self._hints(prims, n, sheet)
+        ids, plane, end, d_end, push, moved, reverted, counts = ck.contact_kernel(shape.kind)(
+            *shape, x0, x1, prims, inv_mass > 0, inv_mass, hint, lo, hi, h, gap, floor,
+            MAX_ADVANCE_STEPS, PLANE_SWEEPS, JOINT_SWEEPS, EXTRA_ROUNDS,
+        )  # fmt: skip
+        if sheet:  # each vertex's side as the sweep found it (none crosses)
+            self._side = hint[:n].copy()
+        swept, crossed, rounds, back = (int(c) for c in counts)
+        stats = ContactStats(substeps=1, swept=swept, crossed=crossed, rounds=rounds, reverted=back)
+        # velocities: at the final contact where it touches, else where a time-of-impact plane pushed
+        touching = d_end <= h * (1.0 + TOUCH_FRACTION) + 1e-12
+        active = touching | (push > 0)
+        contact = np.where(touching[:, None], end, plane)[active]
+        ids, push = ids[active], push[active]
+        w, q, nrm = contact[:, 0:3], contact[:, 3:6], contact[:, 6:9]
+        if moved.any():
+            state.positions[moved] = self._to_world(x1[moved], time)
         if self.keys is not None:
-            fn = fn @ self.keys.rotation(time).T
-        dist = d_local * scale
-        offset = x - closest
-        along = np.einsum("ij,ij->i", offset, fn)
-        here = np.where(along < 0, -1.0, 1.0)
-        if self._side is None or self._side.shape[0] != n_all:
-            self._side = np.zeros(n_all)
-        unknown = np.flatnonzero(self._side[idx] == 0)
-        if unknown.size:  # first sight: the side the previous position was on
-            pc_local, ptri, _ = shape.nearest(self._to_local(prev[unknown], time - dt))
-            pfn = shape.face_normals[ptri]
-            if self.keys is not None:
-                pfn = pfn @ self.keys.rotation(time - dt).T
-            offset_prev = prev[unknown] - self._to_world(pc_local, time - dt)
-            self._side[idx[unknown]] = np.where(np.einsum("ij,ij->i", offset_prev, pfn) < 0, -1.0, 1.0)
-        side = self._side[idx]
-        interior = (np.abs(along) >= 0.999 * dist) | (dist < 1e-9)
-        travel = np.sqrt(np.einsum("ij,ij->i", x - prev, x - prev))
-        crossed = (here != side) & interior & (dist < self.thickness + travel)
-        contact = (dist < self.thickness) | crossed
-        self._side[idx] = np.where(contact, side, here)
-        rows = np.flatnonzero(contact)
-        if rows.size == 0:
-            return
-        away = offset[rows] / np.where(dist[rows] > 1e-12, dist[rows], np.inf)[:, None]
-        use_face = interior[rows] | (dist[rows] <= 1e-12)
-        normal = np.where(use_face[:, None], fn[rows] * side[rows, None], away)
-        new_x = closest[rows] + self.thickness * normal
-        push = np.einsum("ij,ij->i", new_x - x[rows], normal)
-        self._respond(state, idx[rows], new_x, normal, push, time, dt)
-
-    def _respond(
-        self, state: State, vi: np.ndarray, new_x: np.ndarray, n: np.ndarray, push: np.ndarray, time: float, dt: float
-    ) -> None:
-        """Move contacts to new_x; remove approaching normal velocity, apply Coulomb friction."""
-        if self.keys is not None and dt > 0:
-            anchor = self._to_local(new_x, time)
-            surface_v = (self._to_world(anchor, time) - self._to_world(anchor, time - dt)) / dt
+            nrm = nrm @ self.keys.rotation(time).T
+            surface_v = (self._to_world(q, time) - self._to_world(q, time - dt)) / dt if dt > 0 else np.zeros_like(q)
         else:
-            surface_v = np.zeros_like(new_x)
-        v_rel = state.velocities[vi] - surface_v
-        vn = np.einsum("ij,ij->i", v_rel, n)
-        vn_out = np.maximum(vn, 0.0)
-        vt = v_rel - vn[:, None] * n
-        vt_len = np.sqrt(np.einsum("ij,ij->i", vt, vt))
-        # normal velocity change this contact stands for: the approach stopped or the push applied
-        impulse = np.maximum(-np.minimum(vn, 0.0), np.maximum(push, 0.0) / dt if dt > 0 else 0.0)
-        keep = np.clip(1.0 - self.friction * impulse / np.where(vt_len > 1e-12, vt_len, np.inf), 0.0, 1.0)
-        v_new = surface_v + vt * keep[:, None] + vn_out[:, None] * n
-        state.positions[vi] = new_x
-        state.velocities[vi] = v_new
-        state.previous[vi] = new_x - v_new * dt
+            surface_v = np.zeros_like(q)
+        touched = moved.copy()
+        ck.respond(
+            state.velocities, inv_mass, prims, ids, np.ascontiguousarray(w), np.ascontiguousarray(nrm),
+            np.ascontiguousarray(surface_v), push * scale, self.friction, dt, touched,
+        )  # fmt: skip
+        if reverted.any():  # they move with the collider
+            back_x = x0[reverted]
+            if self.keys is not None and dt > 0:
+                state.velocities[reverted] = (self._to_world(back_x, time) - self._to_world(back_x, time - dt)) / dt
+            else:
+                state.velocities[reverted] = 0.0
+        state.previous[touched] = state.positions[touched] - state.velocities[touched] * dt
+        self._stats = self._stats + stats + ContactStats(contacts=int(np.count_nonzero(touching)))

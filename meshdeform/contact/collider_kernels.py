@@ -1,0 +1,987 @@
+"""Compiled contact of a cloth's vertices, edges and triangles with one collider shape (Numba).
+
+The cloth is a list of primitives, rows (i0, i1, i2) of vertex indices: a triangle, an edge
+(a, b, b) or a vertex (a, a, a). Every query works in the collider's rest frame ("local"):
+positions (V, 3) at the start (x0) and at the end (x1) of the substep, the path between them
+linear. A shape is a `ShapeArrays`: a plane, a sphere, a capsule or a triangle mesh (`Surface`,
+with its BVH); boxes are 12-triangle closed meshes.
+
+`closest_simple` (planes, spheres, capsules) and `closest_mesh` give, for one primitive in one
+configuration, the signed clearance d (negative: inside a solid, or on the far side of an open
+sheet from the side it keeps), the contact point on the cloth as weights (w0, w1, w2) on its
+vertices, the surface point q and the outward unit normal n, with d = n . (p - q) for the
+cloth point p = sum w_k x_k. The contact asks for d >= h (h: the collider's thickness in local
+units).
+
+`contact` runs one substep for one shape (compiled once per query: `contact_kernel(kind)`):
+- `_advance` is conservative advancement (Mirtich 1996; Zhang et al., "Continuous collision
+  detection for articulated models using Taylor models and temporal culling", 2007): along the
+  path a point of the primitive moves at most L = max_k |x1_k - x0_k| (its vertices move
+  linearly), so after the clearance d at path parameter s it cannot come nearer than h - gap
+  before s + (d - h + gap) / L. Stepping by that never passes through anything, whatever the
+  speed and however thin the shape; the first configuration found within h is the time of
+  impact, and its (w, n, q) a plane the end position must stay in front of;
+- `_solve` enforces those planes and the closest-point contacts at the end positions by
+  Gauss-Seidel position corrections weighted by the contact weights and inverse masses
+  (position-based dynamics: lambda = depth / sum_k w_k^2 m_k^-1, dx_k = lambda w_k m_k^-1 n);
+- a fail-safe puts back at their start the vertices of any primitive the corrections could
+  not free (the start was clear, so the end is).
+`respond` then removes the approaching normal velocity of every contact point (relative to the
+surface) and applies Coulomb friction, spread over the vertices the same way. Everything runs
+serially in the primitives' order: the same input gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import types
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from meshdeform.contact.bvh import closest_to_point, closest_to_triangle, new_stack
+from meshdeform.contact.primitives import point_triangle_weights
+from meshdeform.contact.surface import FEATURE_EPS, Surface, pseudo_normal
+from meshdeform.contact.triangle_distance import segment_triangle_closest
+
+_JIT = {"cache": True, "error_model": "numpy"}
+
+PLANE = 0
+SPHERE = 1
+CAPSULE = 2
+MESH = 3
+
+#: a Gauss-Seidel sweep that moves no contact by more than this fraction of h ends the solve
+SETTLED = 1e-4
+#: distances below this count as touching: the direction from surface to cloth is not used
+TOUCH = 1e-12
+
+
+class ShapeArrays(NamedTuple):
+    """A shape as the kernels read it, in its rest frame, as the leading arguments of every
+    kernel here (`contact(*shape, ...)`; one by one, since Numba passes a tuple of arrays to a
+    compiled call at a cost far above a sphere's query).
+
+    kind: PLANE, SPHERE, CAPSULE or MESH. params (5, 3): the plane's point and unit normal (or
+    the sphere's centre), the capsule's fallback normal (row 1: a unit vector across the axis,
+    for a cloth point on the axis), the capsule's ends (rows 2, 3), the radius (row 4, column 0).
+    closed .. tri_bounds: a mesh (`Surface` and its `TriangleBVH`; a one-triangle placeholder
+    for the other kinds): closed, vertices, triangles, normals, then the BVH's bounds, nodes,
+    order and tri_bounds.
+    """
+
+    kind: int
+    params: np.ndarray
+    closed: bool
+    vertices: np.ndarray
+    triangles: np.ndarray
+    normals: np.ndarray
+    bounds: np.ndarray
+    nodes: np.ndarray
+    order: np.ndarray
+    tri_bounds: np.ndarray
+
+
+def shape_arrays(kind: int, params: np.ndarray, surface: Surface) -> ShapeArrays:
+    """The kernels' view of a shape: its kind, params (5, 3) and surface (meshes)."""
+    bvh = surface.bvh
+    return ShapeArrays(
+        kind, np.ascontiguousarray(params, dtype=np.float64), bool(surface.closed), surface.vertices,
+        surface.triangles, surface.normals, bvh.bounds, bvh.nodes, bvh.order, bvh.tri_bounds,
+    )  # fmt: skip
+
+
+@numba.njit(**_JIT)
+def _merge(i0: int, i1: int, i2: int, w0: float, w1: float, w2: float) -> tuple[float, float, float]:
+    """Weights of repeated vertices (an edge (a, b, b), a vertex (a, a, a)) summed on the first
+    row that holds the vertex, so each vertex appears once in the corrections."""
+    if i1 == i0:
+        w0 += w1
+        w1 = 0.0
+    if i2 == i0:
+        w0 += w2
+        w2 = 0.0
+    elif i2 == i1:
+        w1 += w2
+        w2 = 0.0
+    return w0, w1, w2
+
+
+@numba.njit(**_JIT)
+def _triangle_normal(tri: np.ndarray) -> tuple[float, float, float, bool]:
+    ux, uy, uz = tri[1, 0] - tri[0, 0], tri[1, 1] - tri[0, 1], tri[1, 2] - tri[0, 2]
+    vx, vy, vz = tri[2, 0] - tri[0, 0], tri[2, 1] - tri[0, 1], tri[2, 2] - tri[0, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if length > 0.0:
+        return nx / length, ny / length, nz / length, True
+    return 0.0, 1.0, 0.0, False
+
+
+@numba.njit(**_JIT)
+def closest_simple(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    tri: np.ndarray,
+    i0: int,
+    i1: int,
+    i2: int,
+    hint: float,
+    limit: float,
+    stack: np.ndarray,
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
+    """(d, w0, w1, w2, qx, qy, qz, nx, ny, nz, side) of the primitive whose current corners are
+    the rows of tri (3, 3) (vertex indices i0, i1, i2 tell edges and vertices apart), for a
+    plane, a sphere or a capsule (`closest_mesh`: meshes; both take the same arguments, the
+    leading ones a `ShapeArrays`).
+
+    limit: clearance beyond which the caller needs no exact answer; a mesh then returns
+    d = limit and a zero normal. hint: for an open sheet, the side (+1 / -1 along the face
+    normals) the primitive keeps, 0 when unknown; side: the side used (0 for other shapes).
+    stack: a BVH traversal stack (`bvh.new_stack()`)."""
+    if kind == PLANE:  # a half-space: the distance is linear over the primitive, least at a corner
+        nx, ny, nz = params[1, 0], params[1, 1], params[1, 2]
+        best = np.inf
+        corner = 0
+        for k in range(3):
+            dk = (tri[k, 0] - params[0, 0]) * nx + (tri[k, 1] - params[0, 1]) * ny + (tri[k, 2] - params[0, 2]) * nz
+            if dk < best:
+                best, corner = dk, k
+        w0 = 1.0 if corner == 0 else 0.0
+        w1 = 1.0 if corner == 1 else 0.0
+        w2 = 1.0 if corner == 2 else 0.0
+        w0, w1, w2 = _merge(i0, i1, i2, w0, w1, w2)
+        qx = tri[corner, 0] - best * nx
+        qy = tri[corner, 1] - best * ny
+        qz = tri[corner, 2] - best * nz
+        return best, w0, w1, w2, qx, qy, qz, nx, ny, nz, 0.0
+    if kind in (SPHERE, CAPSULE):
+        if kind == SPHERE:
+            ax, ay, az = params[0, 0], params[0, 1], params[0, 2]
+            w0, w1, w2 = point_triangle_weights(ax, ay, az, tri, 0, 1, 2)
+        else:
+            _, u, w0, w1, w2 = segment_triangle_closest(params, 2, 3, tri, 0, 1, 2)
+            ax = params[2, 0] + u * (params[3, 0] - params[2, 0])
+            ay = params[2, 1] + u * (params[3, 1] - params[2, 1])
+            az = params[2, 2] + u * (params[3, 2] - params[2, 2])
+        px = w0 * tri[0, 0] + w1 * tri[1, 0] + w2 * tri[2, 0]
+        py = w0 * tri[0, 1] + w1 * tri[1, 1] + w2 * tri[2, 1]
+        pz = w0 * tri[0, 2] + w1 * tri[1, 2] + w2 * tri[2, 2]
+        vx, vy, vz = px - ax, py - ay, pz - az
+        length = np.sqrt(vx * vx + vy * vy + vz * vz)
+        if length > TOUCH:
+            nx, ny, nz = vx / length, vy / length, vz / length
+        else:  # the centre (axis) lies on the primitive: out along its normal, else the fallback
+            nx, ny, nz, ok = _triangle_normal(tri)
+            if not ok:
+                if kind == SPHERE:
+                    nx, ny, nz = 0.0, 1.0, 0.0
+                else:
+                    nx, ny, nz = params[1, 0], params[1, 1], params[1, 2]
+        r = params[4, 0]
+        w0, w1, w2 = _merge(i0, i1, i2, w0, w1, w2)
+        return length - r, w0, w1, w2, ax + r * nx, ay + r * ny, az + r * nz, nx, ny, nz, 0.0
+    return np.inf, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
+
+
+@numba.njit(**_JIT)
+def closest_mesh(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    tri: np.ndarray,
+    i0: int,
+    i1: int,
+    i2: int,
+    hint: float,
+    limit: float,
+    stack: np.ndarray,
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
+    """`closest_simple` for a triangle mesh: the exact closest points by the BVH, the sign (a
+    closed mesh) or the side kept (an open sheet) by the pseudo-normal there."""
+    vertex = i0 == i1 and i1 == i2
+    verts = vertices
+    tris = triangles
+    face = normals[:, 0]
+    limit2 = limit * limit if limit < np.inf else np.inf
+    if vertex:
+        d2, t, m0, m1, m2 = closest_to_point(
+            bounds, nodes, order, tri_bounds, verts, tris, tri[0, 0], tri[0, 1], tri[0, 2], limit2, stack
+        )
+        w0, w1, w2 = 1.0, 0.0, 0.0
+    else:
+        d2, t, w0, w1, w2, m0, m1, m2 = closest_to_triangle(
+            bounds, nodes, order, tri_bounds, verts, tris, face, tri, 0, 1, 2, limit2, stack
+        )
+    if t < 0:
+        return limit, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, hint
+    px = w0 * tri[0, 0] + w1 * tri[1, 0] + w2 * tri[2, 0]
+    py = w0 * tri[0, 1] + w1 * tri[1, 1] + w2 * tri[2, 1]
+    pz = w0 * tri[0, 2] + w1 * tri[1, 2] + w2 * tri[2, 2]
+    a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+    qx = m0 * verts[a, 0] + m1 * verts[b, 0] + m2 * verts[c, 0]
+    qy = m0 * verts[a, 1] + m1 * verts[b, 1] + m2 * verts[c, 1]
+    qz = m0 * verts[a, 2] + m1 * verts[b, 2] + m2 * verts[c, 2]
+    gx, gy, gz = pseudo_normal(normals, t, m0, m1, m2)
+    glen = np.sqrt(gx * gx + gy * gy + gz * gz)
+    if glen > 0.0:
+        gx, gy, gz = gx / glen, gy / glen, gz / glen
+    else:
+        gx, gy, gz = 0.0, 1.0, 0.0
+    vx, vy, vz = px - qx, py - qy, pz - qz
+    du = np.sqrt(d2)
+    along = vx * gx + vy * gy + vz * gz
+    w0, w1, w2 = _merge(i0, i1, i2, w0, w1, w2)
+    if closed:
+        if du <= TOUCH:
+            return 0.0, w0, w1, w2, qx, qy, qz, gx, gy, gz, 0.0
+        sign = -1.0 if along < 0.0 else 1.0
+        return sign * du, w0, w1, w2, qx, qy, qz, sign * vx / du, sign * vy / du, sign * vz / du, 0.0
+    here = 0.0
+    if du > TOUCH:
+        here = 1.0 if along > 0.0 else (-1.0 if along < 0.0 else 0.0)
+    side = hint if hint != 0.0 else (here if here != 0.0 else 1.0)
+    interior = m0 > FEATURE_EPS and m1 > FEATURE_EPS and m2 > FEATURE_EPS
+    if vertex and here != 0.0 and here != side and interior:  # crossed the sheet: back to its side
+        fx, fy, fz = normals[t, 0, 0], normals[t, 0, 1], normals[t, 0, 2]
+        return -du, w0, w1, w2, qx, qy, qz, side * fx, side * fy, side * fz, side
+    if du > TOUCH:
+        return du, w0, w1, w2, qx, qy, qz, vx / du, vy / du, vz / du, side
+    return 0.0, w0, w1, w2, qx, qy, qz, side * gx, side * gy, side * gz, side
+
+
+#: the query the pipeline below (`_advance`, `_solve`, `_evaluate`, `contact`: plain Python
+#: functions) calls; `_family` compiles the pipeline once with each query in its place
+closest = closest_simple
+
+
+@numba.njit(**_JIT)
+def _fill(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, i0: int, i1: int, i2: int, s: float) -> None:
+    for k in range(3):
+        tri[0, k] = x0[i0, k] + s * (x1[i0, k] - x0[i0, k])
+        tri[1, k] = x0[i1, k] + s * (x1[i1, k] - x0[i1, k])
+        tri[2, k] = x0[i2, k] + s * (x1[i2, k] - x0[i2, k])
+
+
+@numba.njit(**_JIT)
+def candidates(
+    x0: np.ndarray,
+    x1: np.ndarray,
+    prims: np.ndarray,
+    movable: np.ndarray,
+    kind: int,
+    params: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    margin: float,
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Ids of the primitives with a movable vertex whose swept box comes within `margin` of
+    the shape: of its bounds lo, hi (3,), and for a sphere of the sphere itself; for a plane
+    whose start or end vertices come within `margin` of the plane."""
+    keep = np.zeros(prims.shape[0], dtype=np.bool_)
+    for p in range(prims.shape[0]):
+        i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+        if not (movable[i0] or movable[i1] or movable[i2]):
+            continue
+        if kind == PLANE:
+            near = False
+            for i in (i0, i1, i2):
+                for x in (x0, x1):
+                    d = (
+                        (x[i, 0] - params[0, 0]) * params[1, 0]
+                        + (x[i, 1] - params[0, 1]) * params[1, 1]
+                        + (x[i, 2] - params[0, 2]) * params[1, 2]
+                    )
+                    if d < margin:
+                        near = True
+            keep[p] = near
+            continue
+        inside = True
+        gap2 = 0.0  # a sphere: squared distance from its centre to the swept box
+        for k in range(3):
+            pmin = min(x0[i0, k], x0[i1, k], x0[i2, k], x1[i0, k], x1[i1, k], x1[i2, k])
+            pmax = max(x0[i0, k], x0[i1, k], x0[i2, k], x1[i0, k], x1[i1, k], x1[i2, k])
+            if pmax < lo[k] - margin or pmin > hi[k] + margin:
+                inside = False
+            g = max(pmin - params[0, k], 0.0, params[0, k] - pmax)
+            gap2 += g * g
+        if inside and kind == SPHERE:
+            reach = params[4, 0] + margin
+            inside = gap2 <= reach * reach
+        keep[p] = inside
+    return np.flatnonzero(keep)
+
+
+def _advance(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    x0: np.ndarray,
+    x1: np.ndarray,
+    i0: int,
+    i1: int,
+    i2: int,
+    hint: float,
+    h: float,
+    gap: float,
+    max_steps: int,
+    tri: np.ndarray,
+    stack: np.ndarray,
+) -> tuple[bool, float, float, float, float, float, float, float, float, float, float, float, float]:
+    """Conservative advancement of one primitive from x0 to x1: (hit, s, d0, w0, w1, w2, qx, qy,
+    qz, nx, ny, nz, side0) with s the path parameter of the first configuration within h, d0
+    the clearance at the start and side0 the open sheet's side the primitive keeps: the one its
+    start lies on, or where the start touches the sheet the one it kept before (hint). A path still advancing after
+    max_steps steps (grazing the shell) counts as hit where it stands: its plane only binds
+    if the end position is behind it."""
+    vertex = i0 == i1 and i1 == i2
+    exact_start = vertex and kind == MESH and closed
+    travel = 0.0
+    for r in range(3):
+        i = i0 if r == 0 else (i1 if r == 1 else i2)
+        dx, dy, dz = x1[i, 0] - x0[i, 0], x1[i, 1] - x0[i, 1], x1[i, 2] - x0[i, 2]
+        travel = max(travel, dx * dx + dy * dy + dz * dz)
+    travel = np.sqrt(travel)
+    s = 0.0
+    steps = 0
+    _fill(tri, x0, x1, i0, i1, i2, 0.0)
+    # a vertex deep inside a solid mesh is farther from the surface than any limit
+    limit = np.inf if exact_start else h + gap + travel
+    # an open sheet's side: where the start lies, unless it touches the sheet (then the one kept)
+    d, w0, w1, w2, qx, qy, qz, nx, ny, nz, side = closest(
+        kind,
+        params,
+        closed,
+        vertices,
+        triangles,
+        normals,
+        bounds,
+        nodes,
+        order,
+        tri_bounds,
+        tri,
+        i0,
+        i1,
+        i2,
+        0.0,
+        limit,
+        stack,
+    )
+    d0 = d
+    side0 = side if (d > h or hint == 0.0) else hint
+    if side0 != side:
+        d, w0, w1, w2, qx, qy, qz, nx, ny, nz, side = closest(
+            kind,
+            params,
+            closed,
+            vertices,
+            triangles,
+            normals,
+            bounds,
+            nodes,
+            order,
+            tri_bounds,
+            tri,
+            i0,
+            i1,
+            i2,
+            side0,
+            limit,
+            stack,
+        )
+        d0 = d
+    while True:
+        if d <= h or steps >= max_steps:
+            return True, s, d0, w0, w1, w2, qx, qy, qz, nx, ny, nz, side0
+        if s >= 1.0 or d - (1.0 - s) * travel > h:
+            return False, 1.0, d0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, side0
+        steps += 1
+        s = min(1.0, s + (d - h + gap) / travel)
+        _fill(tri, x0, x1, i0, i1, i2, s)
+        limit = h + gap + (1.0 - s) * travel
+        d, w0, w1, w2, qx, qy, qz, nx, ny, nz, _ = closest(
+            kind, params, closed, vertices, triangles, normals, bounds, nodes, order, tri_bounds,
+            tri, i0, i1, i2, side0, limit, stack,
+        )  # fmt: skip
+
+
+@numba.njit(**_JIT)
+def _correct(
+    x: np.ndarray,
+    inv_mass: np.ndarray,
+    i0: int,
+    i1: int,
+    i2: int,
+    w0: float,
+    w1: float,
+    w2: float,
+    nx: float,
+    ny: float,
+    nz: float,
+    depth: float,
+    moved: np.ndarray,
+) -> float:
+    """Move the contact point sum w_k x_k by depth along n (inverse-mass weighted); returns the
+    distance it moved (0 when its vertices are all pinned)."""
+    denom = w0 * w0 * inv_mass[i0] + w1 * w1 * inv_mass[i1] + w2 * w2 * inv_mass[i2]
+    if not denom > 1e-300:
+        return 0.0
+    lam = depth / denom
+    for i, wk in ((i0, w0), (i1, w1), (i2, w2)):
+        f = lam * wk * inv_mass[i]
+        if f != 0.0:
+            x[i, 0] += f * nx
+            x[i, 1] += f * ny
+            x[i, 2] += f * nz
+            moved[i] = True
+    return depth
+
+
+def _solve(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    x: np.ndarray,
+    inv_mass: np.ndarray,
+    prims: np.ndarray,
+    cand: np.ndarray,
+    slots: np.ndarray,
+    plane: np.ndarray,
+    hint: np.ndarray,
+    h: float,
+    gap: float,
+    plane_sweeps: int,
+    joint_sweeps: int,
+    push: np.ndarray,
+    moved: np.ndarray,
+    end: np.ndarray,
+    d_end: np.ndarray,
+    tri: np.ndarray,
+    stack: np.ndarray,
+) -> bool:
+    """Gauss-Seidel over the contacts `slots` (of cand), in order: `plane_sweeps` sweeps
+    over their time-of-impact planes (plane[k] = w (3), q (3), n (3): n . (sum w x - q) >= h),
+    then up to `joint_sweeps` over the planes and the closest-point contacts at the current
+    positions, stopping after a sweep that moved nothing (by more than `SETTLED` h). x (V, 3)
+    updated in place; push (slots) accumulates how far each contact point moved; end, d_end
+    (slots) take each contact's last closest point (w, q, n) and clearance. Returns True when
+    those are the final positions' (the last sweep moved nothing)."""
+    settled = SETTLED * h + 1e-12
+    for sweep_index in range(plane_sweeps + joint_sweeps):
+        still = True
+        for k in slots:
+            p = cand[k]
+            i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+            along = 0.0
+            for j in range(3):
+                pj = plane[k, 0] * x[i0, j] + plane[k, 1] * x[i1, j] + plane[k, 2] * x[i2, j]
+                along += (pj - plane[k, 3 + j]) * plane[k, 6 + j]
+            if along < h:
+                push[k] += _correct(
+                    x, inv_mass, i0, i1, i2, plane[k, 0], plane[k, 1], plane[k, 2],
+                    plane[k, 6], plane[k, 7], plane[k, 8], h - along, moved,
+                )  # fmt: skip
+                still = still and h - along <= settled
+            if sweep_index >= plane_sweeps:
+                d = _evaluate(
+                    kind, params, closed, vertices, triangles, normals, bounds, nodes, order, tri_bounds,
+                    x, prims, p, hint[p], h + gap, end, k, tri, stack,
+                )  # fmt: skip
+                d_end[k] = d
+                if d < h:
+                    push[k] += _correct(
+                        x, inv_mass, i0, i1, i2, end[k, 0], end[k, 1], end[k, 2], end[k, 6], end[k, 7], end[k, 8],
+                        h - d, moved,
+                    )  # fmt: skip
+                    still = still and h - d <= settled
+        if still and sweep_index >= plane_sweeps:
+            return True
+    return False
+
+
+def _evaluate(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    x: np.ndarray,
+    prims: np.ndarray,
+    p: int,
+    hint: float,
+    limit: float,
+    out: np.ndarray,
+    row: int,
+    tri: np.ndarray,
+    stack: np.ndarray,
+) -> float:  # fmt: skip
+    """Clearance of primitive p at x; its w (3), q (3), n (3) go to out[row]."""
+    i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+    _fill(tri, x, x, i0, i1, i2, 0.0)
+    d, w0, w1, w2, qx, qy, qz, nx, ny, nz, _ = closest(
+        kind,
+        params,
+        closed,
+        vertices,
+        triangles,
+        normals,
+        bounds,
+        nodes,
+        order,
+        tri_bounds,
+        tri,
+        i0,
+        i1,
+        i2,
+        hint,
+        limit,
+        stack,
+    )
+    out[row, 0], out[row, 1], out[row, 2] = w0, w1, w2
+    out[row, 3], out[row, 4], out[row, 5] = qx, qy, qz
+    out[row, 6], out[row, 7], out[row, 8] = nx, ny, nz
+    return d
+
+
+def contact(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    x0: np.ndarray,
+    x1: np.ndarray,
+    prims: np.ndarray,
+    movable: np.ndarray,
+    inv_mass: np.ndarray,
+    hint: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    h: float,
+    gap: float,
+    floor: float,
+    max_steps: int,
+    plane_sweeps: int,
+    joint_sweeps: int,
+    rounds: int,
+):  # pragma: no cover - compiled
+    """One substep of contact with one shape, in its rest frame: x0, x1 (V, 3) the start and
+    end positions (x1 corrected in place), prims (P, 3), movable and inv_mass (V,), hint (P,)
+    the open-sheet sides (updated: see `_advance`; 0 away from the shape), h the thickness, gap the advancement's
+    tolerance, floor the clearance below which the fail-safe puts vertices back.
+
+    1. candidates (swept boxes near the shape), each swept by `_advance`;
+    2. the hits resolved by `_solve`; up to `rounds` times, candidates that the corrections
+       moved are swept again from x0 and new hits added and solved;
+    3. the fail-safe: every contact (and every primitive with a vertex put back) still nearer
+       than floor has its movable vertices put back at x0, until none is (the start was clear);
+    4. the contacts evaluated at their final positions.
+
+    Returns (ids (C,) primitive ids, plane (C, 9) the time-of-impact w, q, n, end (C, 9) the
+    final w, q, n, d_end (C,), push (C,), moved (V,), reverted (V,), counts (4,): swept (hits
+    along a path clear at its start), crossed (of those, ends inside, past or nearest the far
+    side of the shape), extra rounds, vertices put back)."""
+    n = x0.shape[0]
+    tri = np.empty((3, 3))
+    stack = new_stack()
+    cand = candidates(x0, x1, prims, movable, kind, params, lo, hi, h + gap)
+    c_count = cand.shape[0]
+    hit = np.zeros(c_count, dtype=np.bool_)
+    plane = np.zeros((c_count, 9))
+    end = np.zeros((c_count, 9))
+    d_end = np.full(c_count, np.inf)
+    push = np.zeros(c_count)
+    slots = np.empty(c_count, dtype=np.int64)
+    moved = np.zeros(n, dtype=np.bool_)
+    reverted = np.zeros(n, dtype=np.bool_)
+    counts = np.zeros(4, dtype=np.int64)
+    m = 0
+    for k in range(c_count):
+        p = cand[k]
+        i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+        found, s, d0, w0, w1, w2, qx, qy, qz, nx, ny, nz, side = _advance(
+            kind,
+            params,
+            closed,
+            vertices,
+            triangles,
+            normals,
+            bounds,
+            nodes,
+            order,
+            tri_bounds,
+            x0,
+            x1,
+            i0,
+            i1,
+            i2,
+            hint[p],
+            h,
+            gap,
+            max_steps,
+            tri,
+            stack,
+        )
+        hint[p] = side
+        if not found:
+            continue
+        hit[k] = True
+        slots[m] = k
+        m += 1
+        plane[k, 0], plane[k, 1], plane[k, 2] = w0, w1, w2
+        plane[k, 3], plane[k, 4], plane[k, 5] = qx, qy, qz
+        plane[k, 6], plane[k, 7], plane[k, 8] = nx, ny, nz
+        if d0 > h and s < 1.0:
+            counts[0] += 1
+            de = _evaluate(
+                kind,
+                params,
+                closed,
+                vertices,
+                triangles,
+                normals,
+                bounds,
+                nodes,
+                order,
+                tri_bounds,
+                x1,
+                prims,
+                p,
+                side,
+                np.inf,
+                end,
+                k,
+                tri,
+                stack,
+            )
+            behind = end[k, 6] * nx + end[k, 7] * ny + end[k, 8] * nz < 0.0
+            if de < 0.0 or de > h or behind:
+                counts[1] += 1
+    current = _solve(
+        kind,
+        params,
+        closed,
+        vertices,
+        triangles,
+        normals,
+        bounds,
+        nodes,
+        order,
+        tri_bounds,
+        x1,
+        inv_mass,
+        prims,
+        cand,
+        slots[:m],
+        plane,
+        hint,
+        h,
+        gap,
+        plane_sweeps,
+        joint_sweeps,
+        push,
+        moved,
+        end,
+        d_end,
+        tri,
+        stack,
+    )
+    for _ in range(rounds):  # primitives the corrections moved into contact
+        added = m
+        for k in range(c_count):
+            p = cand[k]
+            if hit[k] or not (moved[prims[p, 0]] or moved[prims[p, 1]] or moved[prims[p, 2]]):
+                continue
+            i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+            found, s, d0, w0, w1, w2, qx, qy, qz, nx, ny, nz, side = _advance(
+                kind,
+                params,
+                closed,
+                vertices,
+                triangles,
+                normals,
+                bounds,
+                nodes,
+                order,
+                tri_bounds,
+                x0,
+                x1,
+                i0,
+                i1,
+                i2,
+                hint[p],
+                h,
+                gap,
+                max_steps,
+                tri,
+                stack,
+            )
+            if found:
+                hit[k] = True
+                slots[added] = k
+                added += 1
+                plane[k, 0], plane[k, 1], plane[k, 2] = w0, w1, w2
+                plane[k, 3], plane[k, 4], plane[k, 5] = qx, qy, qz
+                plane[k, 6], plane[k, 7], plane[k, 8] = nx, ny, nz
+        if added == m:
+            break
+        m = added
+        counts[2] += 1
+        current = _solve(
+            kind,
+            params,
+            closed,
+            vertices,
+            triangles,
+            normals,
+            bounds,
+            nodes,
+            order,
+            tri_bounds,
+            x1,
+            inv_mass,
+            prims,
+            cand,
+            slots[:m],
+            plane,
+            hint,
+            h,
+            gap,
+            plane_sweeps,
+            joint_sweeps,
+            push,
+            moved,
+            end,
+            d_end,
+            tri,
+            stack,
+        )
+    contacts = slots[:m]
+    for k in contacts if not current else contacts[:0]:
+        d_end[k] = _evaluate(
+            kind,
+            params,
+            closed,
+            vertices,
+            triangles,
+            normals,
+            bounds,
+            nodes,
+            order,
+            tri_bounds,
+            x1,
+            prims,
+            cand[k],
+            hint[cand[k]],
+            h + gap,
+            end,
+            k,
+            tri,
+            stack,
+        )
+    # the fail-safe; a primitive is looked at again once one of its vertices has been put back
+    changed = True
+    first = True
+    while changed:
+        changed = False
+        for k in range(c_count):
+            p = cand[k]
+            i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+            touched = reverted[i0] or reverted[i1] or reverted[i2]
+            if not (touched or (first and hit[k])):
+                continue
+            free = False
+            for i in (i0, i1, i2):
+                if movable[i] and not reverted[i]:
+                    free = True
+            if not free:
+                continue
+            d = (
+                d_end[k]
+                if (first and not touched)
+                else _evaluate(
+                    kind,
+                    params,
+                    closed,
+                    vertices,
+                    triangles,
+                    normals,
+                    bounds,
+                    nodes,
+                    order,
+                    tri_bounds,
+                    x1,
+                    prims,
+                    p,
+                    hint[p],
+                    h + gap,
+                    end,
+                    k,
+                    tri,
+                    stack,
+                )
+            )
+            if hit[k]:
+                d_end[k] = d
+            if d < floor:
+                for i in (i0, i1, i2):
+                    if movable[i] and not reverted[i]:
+                        x1[i, 0], x1[i, 1], x1[i, 2] = x0[i, 0], x0[i, 1], x0[i, 2]
+                        reverted[i] = True
+                        moved[i] = True
+                        counts[3] += 1
+                changed = True
+        first = False
+    if counts[3] > 0:  # contacts whose vertices went back: their final contact again
+        for k in contacts:
+            p = cand[k]
+            if reverted[prims[p, 0]] or reverted[prims[p, 1]] or reverted[prims[p, 2]]:
+                d_end[k] = _evaluate(
+                    kind,
+                    params,
+                    closed,
+                    vertices,
+                    triangles,
+                    normals,
+                    bounds,
+                    nodes,
+                    order,
+                    tri_bounds,
+                    x1,
+                    prims,
+                    p,
+                    hint[p],
+                    h + gap,
+                    end,
+                    k,
+                    tri,
+                    stack,
+                )
+    near = np.zeros(prims.shape[0], dtype=np.bool_)
+    near[cand] = True
+    for p in range(prims.shape[0]):  # a sheet's side is only kept near it
+        if not near[p]:
+            hint[p] = 0.0
+    return cand[contacts], plane[contacts], end[contacts], d_end[contacts], push[contacts], moved, reverted, counts
+
+
+def _family(suffix: str, query: Callable[..., tuple]) -> Callable[..., tuple]:
+    """The pipeline (`contact` and the helpers it calls) compiled for one closest-point query:
+    copies of the functions whose globals name `closest` the query, each under its own name so
+    Numba's disk cache keeps the builds apart (as `solvers.jit.serial_and_parallel` does). A
+    query chosen inside the kernels by the shape's kind would cost a sphere's contact more than
+    the query itself: a call that passes the mesh's arrays, even in a branch never taken, pays
+    for each of them on every call."""
+    env = dict(globals())
+    env["closest"] = query
+    for name in ("_advance", "_solve", "_evaluate", "contact"):
+        source = globals()[name]
+        copy = types.FunctionType(source.__code__, env, f"{name}_{suffix}", source.__defaults__, source.__closure__)
+        copy.__qualname__ = f"{name}_{suffix}"
+        copy.__doc__ = source.__doc__
+        # the sweep of one primitive inlined (in Numba's IR): a compiled call passing the
+        # shape's dozen arrays costs a few times a sphere's query, and most candidates are only
+        # swept. Inlining the queries too would save a little more but triple the compile time.
+        inline = "always" if name == "_advance" else "never"
+        env[name] = numba.njit(**_JIT, inline=inline)(copy)
+    return env["contact"]
+
+
+#: `contact` for planes, spheres and capsules, and for meshes (boxes included)
+contact_simple = _family("simple", closest_simple)
+contact_mesh = _family("mesh", closest_mesh)
+
+
+def contact_kernel(kind: int) -> Callable[..., tuple]:
+    """The compiled `contact` for a shape kind."""
+    return contact_mesh if kind == MESH else contact_simple
+
+
+@numba.njit(**_JIT)
+def respond(
+    v: np.ndarray,
+    inv_mass: np.ndarray,
+    prims: np.ndarray,
+    ids: np.ndarray,
+    w: np.ndarray,
+    n: np.ndarray,
+    surface_v: np.ndarray,
+    push: np.ndarray,
+    friction: float,
+    dt: float,
+    touched: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Contact velocities, Gauss-Seidel over the contacts `ids` in order (world frame): at each
+    contact point (weights w (C, 3), unit normal n (C, 3), surface velocity surface_v (C, 3))
+    the velocity into the surface is removed and the tangential one reduced by Coulomb friction,
+    friction times the normal velocity change the contact stands for (the approach stopped, or
+    the push (C,) over dt), both spread over the vertices by weight and inverse mass.
+    v (V, 3) is updated in place, touched (V,) marks the vertices changed."""
+    for k in range(ids.shape[0]):
+        p = ids[k]
+        i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+        w0, w1, w2 = w[k, 0], w[k, 1], w[k, 2]
+        denom = w0 * w0 * inv_mass[i0] + w1 * w1 * inv_mass[i1] + w2 * w2 * inv_mass[i2]
+        if not denom > 1e-300:
+            continue
+        nx, ny, nz = n[k, 0], n[k, 1], n[k, 2]
+        rx = w0 * v[i0, 0] + w1 * v[i1, 0] + w2 * v[i2, 0] - surface_v[k, 0]
+        ry = w0 * v[i0, 1] + w1 * v[i1, 1] + w2 * v[i2, 1] - surface_v[k, 1]
+        rz = w0 * v[i0, 2] + w1 * v[i1, 2] + w2 * v[i2, 2] - surface_v[k, 2]
+        vn = rx * nx + ry * ny + rz * nz
+        tx, ty, tz = rx - vn * nx, ry - vn * ny, rz - vn * nz
+        vt = np.sqrt(tx * tx + ty * ty + tz * tz)
+        stop = max(-vn, 0.0)
+        impulse = max(stop, max(push[k], 0.0) / dt) if dt > 0.0 else stop
+        slow = min(vt, friction * impulse)
+        scale = slow / vt if vt > 1e-12 else 0.0
+        dx = stop * nx - scale * tx
+        dy = stop * ny - scale * ty
+        dz = stop * nz - scale * tz
+        for i, wk in ((i0, w0), (i1, w1), (i2, w2)):
+            f = wk * inv_mass[i] / denom
+            if f != 0.0:
+                v[i, 0] += f * dx
+                v[i, 1] += f * dy
+                v[i, 2] += f * dz
+                touched[i] = True

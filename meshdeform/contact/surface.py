@@ -1,0 +1,117 @@
+"""A collider's triangle surface as the contact kernels read it: vertices, triangles, normals, BVH.
+
+Closed surfaces are solids: a point is inside when it lies behind its nearest surface point, as
+told by the angle-weighted pseudo-normal of the feature that point lies on (Baerentzen and
+Aanaes, "Signed distance computation using the angle weighted pseudonormal", 2005): the face
+normal inside a face, the sum of the two face normals on an edge, the angle-weighted sum of the
+face normals around a vertex. That test is exact at edges and vertices, where the normal of
+whichever face the search returned is not. Open surfaces use the same normals for the side a
+point is on (they are two-sided: no inside).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from meshdeform.contact.bvh import STACK, TriangleBVH, build_bvh, closest_to_point
+from meshdeform.topology import is_closed
+
+_JIT = {"cache": True, "error_model": "numpy"}
+
+#: a barycentric weight at most this is taken as 0 when choosing the feature (face, edge, vertex)
+FEATURE_EPS = 1e-9
+
+
+class Surface(NamedTuple):
+    """vertices (M, 3) float64; triangles (K, 3) int64; normals (K, 7, 3) per triangle: its unit
+    face normal (zero for a zero-area triangle), the pseudo-normals of the edges opposite its
+    corners 0, 1, 2 and the angle-weighted pseudo-normals of its corners 0, 1, 2 (copied per
+    triangle, so a kernel reads one array); bvh over the triangles; closed: every edge shared by
+    exactly two triangles (a solid)."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    normals: np.ndarray
+    bvh: TriangleBVH
+    closed: bool
+
+
+def surface_of(vertices: np.ndarray, triangles: np.ndarray) -> Surface:
+    """The surface of triangles (K >= 1, 3) over vertices (M, 3), with its normals and BVH."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    tri = np.ascontiguousarray(triangles, dtype=np.int64)
+    m = v.shape[0]
+    a, b, c = v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]]
+    cross = np.cross(b - a, c - a)
+    length = np.linalg.norm(cross, axis=1)
+    unit = np.where(length[:, None] > 0, cross / np.where(length > 0, length, 1.0)[:, None], 0.0)
+    ends = tri[:, [[1, 2], [2, 0], [0, 1]]]  # the edge opposite each corner (K, 3, 2)
+    keys = (ends.min(axis=2) * m + ends.max(axis=2)).ravel()
+    _, inverse = np.unique(keys, return_inverse=True)
+    per_edge = np.repeat(unit, 3, axis=0)
+    sums = np.stack([np.bincount(inverse, weights=per_edge[:, k]) for k in range(3)], axis=1)
+    edge_normals = sums[inverse].reshape(tri.shape[0], 3, 3)
+    vertex_normals = np.zeros((m, 3))
+    for corner in range(3):  # three passes over all triangles, one per corner
+        e1 = v[tri[:, (corner + 1) % 3]] - v[tri[:, corner]]
+        e2 = v[tri[:, (corner + 2) % 3]] - v[tri[:, corner]]
+        angle = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=1), np.einsum("ij,ij->i", e1, e2))
+        for k in range(3):
+            vertex_normals[:, k] += np.bincount(tri[:, corner], weights=angle * unit[:, k], minlength=m)
+    normals = np.concatenate([unit[:, None], edge_normals, vertex_normals[tri]], axis=1)
+    return Surface(
+        vertices=v,
+        triangles=tri,
+        normals=np.ascontiguousarray(normals),
+        bvh=build_bvh(v, tri),
+        closed=is_closed(tri),
+    )
+
+
+@numba.njit(**_JIT)
+def pseudo_normal(normals: np.ndarray, t: int, w0: float, w1: float, w2: float) -> tuple[float, float, float]:
+    """The (unnormalised) pseudo-normal at the point of triangle t with weights (w0, w1, w2):
+    of the corner, edge or face the point lies on (normals: `Surface.normals`)."""
+    z0 = w0 <= FEATURE_EPS
+    z1 = w1 <= FEATURE_EPS
+    z2 = w2 <= FEATURE_EPS
+    zeros = int(z0) + int(z1) + int(z2)
+    row = 0
+    if zeros >= 2:
+        row = 4 + (0 if not z0 else (1 if not z1 else 2))
+    elif zeros == 1:
+        row = 1 + (0 if z0 else (1 if z1 else 2))
+    return normals[t, row, 0], normals[t, row, 1], normals[t, row, 2]
+
+
+@numba.njit(**_JIT)
+def signed_closest(
+    surface: Surface, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """For points (N, 3): nearest surface points (N, 3), pseudo-normals there (N, 3, unit, zero
+    where they vanish) and unsigned distances (N,)."""
+    n = points.shape[0]
+    closest = np.empty((n, 3))
+    normals = np.zeros((n, 3))
+    dist = np.empty(n)
+    tris = surface.triangles
+    x = surface.vertices
+    bvh = surface.bvh
+    bounds, nodes, order, tri_bounds = bvh.bounds, bvh.nodes, bvh.order, bvh.tri_bounds
+    pseudo = surface.normals
+    stack = np.empty(STACK, dtype=np.int64)
+    for i in range(n):
+        d2, t, wa, wb, wc = closest_to_point(
+            bounds, nodes, order, tri_bounds, x, tris, points[i, 0], points[i, 1], points[i, 2], np.inf, stack
+        )
+        for k in range(3):
+            closest[i, k] = wa * x[tris[t, 0], k] + wb * x[tris[t, 1], k] + wc * x[tris[t, 2], k]
+        nx, ny, nz = pseudo_normal(pseudo, t, wa, wb, wc)
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length > 0.0:
+            normals[i, 0], normals[i, 1], normals[i, 2] = nx / length, ny / length, nz / length
+        dist[i] = np.sqrt(d2)
+    return closest, normals, dist
