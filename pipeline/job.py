@@ -78,6 +78,7 @@ def run_job(
     from meshdeform.io import load
     from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.live import RunPreview
+    from meshdeform.scene.colliders import ContactStats
     from meshdeform.simulate import simulate
     from meshdeform.strain import VertexStrain
     from pipeline.build import build_simulation
@@ -103,6 +104,10 @@ def run_job(
     split_vertices: list[int] = []
     pieces: list[int] = []
     contact: dict[str, list[int]] = {}  # self-collision's ContactWork figures, frame by frame
+    colliders = scene_colliders(built.scene)
+    collider_seen = ContactStats()
+    collider_contact: dict[str, list[int]] = {}  # the colliders' ContactStats summed, frame by frame
+    extra_work: list[int] = []  # frames whose contact needed more than one pass (see docs/contact.md)
     first_tear_frame: int | None = None
     output_vertices = mesh.vertex_count
     strain_model = model
@@ -119,7 +124,7 @@ def run_job(
             frame_count=settings.frames,
         )
         preview = (
-            RunPreview(recipe.output.preview, context, formats, model, scene_colliders(built.scene))
+            RunPreview(recipe.output.preview, context, formats, model, colliders)
             if recipe.output.preview
             else None
         )
@@ -137,9 +142,20 @@ def run_job(
                     if first_tear_frame is None and frame.mesh is not None:
                         first_tear_frame = frame.index
                     output_vertices = int(frame.positions.shape[0])
+                extra = False
                 if frame.contact is not None:  # self-collision: what each frame took
                     for key, value in asdict(frame.contact).items():
                         contact.setdefault(key, []).append(int(value))
+                    extra = frame.contact.zone_rounds > 0
+                if colliders:  # the colliders: what this frame took (their counters are running sums)
+                    total = sum((c.stats for c in colliders), ContactStats())
+                    done, collider_seen = total - collider_seen, total
+                    for key, value in asdict(done).items():
+                        if key != "substeps":
+                            collider_contact.setdefault(key, []).append(int(value))
+                    extra = extra or done.swept > 0 or done.rounds > 0 or done.reverted > 0
+                if extra:
+                    extra_work.append(frame.index)
                 tick = time.perf_counter()
                 frame_model = frame.model if frame.model is not None else model
                 if frame_model is not strain_model:  # the mesh opened: strain over the new springs
@@ -210,6 +226,8 @@ def run_job(
                 if built.scene.self_collision is not None
                 else {}
             ),
+            **({"collider_contact": collider_contact} if colliders else {}),
+            **({"contact_extra_work_frames": extra_work} if colliders or built.scene.self_collision else {}),
             "formats": formats,
             "outputs": [*relative, REPORT_NAME],
             "warnings": list(mesh.warnings),

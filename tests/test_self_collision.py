@@ -182,3 +182,29 @@ def test_the_continuous_check_misses_no_crossing() -> None:
             crossings += 1
             assert hit[0]
     assert crossings >= 3  # the sample did test crossings
+
+
+def test_the_report_says_what_contact_took(tmp_path) -> None:
+    """Through the CLI: a sheet falling under 300 g hits the ground at about 40 m/s in the first
+    frame, which needs the swept test; the report gives per-frame figures and names that frame."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from meshdeform.io import write_obj
+    from pipeline.cli import app
+
+    write_obj(tmp_path / "sheet.obj", grid_sheet(8, plane="xz", size=0.5, triangles=True, offset=(0.0, 0.3, 0.0)))
+    (tmp_path / "r.toml").write_text(
+        "[simulation]\nframes = 4\ngravity = [0, -3000, 0]\n"
+        "[self_collision]\n[[colliders]]\nground = { height = 0.0 }\n"
+    )
+    args = ["simulate", str(tmp_path / "sheet.obj"), "-r", str(tmp_path / "r.toml"), "-o", str(tmp_path / "out"), "-q"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["self_collision"]["thickness"] == 0.005  # the [material] default
+    assert all(len(v) == 4 for k, v in report["self_collision"].items() if k != "thickness")
+    assert all(len(v) == 4 for v in report["collider_contact"].values())
+    assert report["collider_contact"]["swept"][0] > 0
+    assert 1 in report["contact_extra_work_frames"]
