@@ -208,3 +208,17 @@ def test_the_report_says_what_contact_took(tmp_path) -> None:
     assert all(len(v) == 4 for v in report["collider_contact"].values())
     assert report["collider_contact"]["swept"][0] > 0
     assert 1 in report["contact_extra_work_frames"]
+
+
+def test_check_names_self_collision_and_refuses_a_typo(tmp_path) -> None:
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    good, bad = tmp_path / "good.toml", tmp_path / "bad.toml"
+    good.write_text("[self_collision]\nthickness = 0.004\n")
+    bad.write_text("[self_collision]\nthicknes = 0.004\n")
+    result = CliRunner().invoke(app, ["check", str(good)])
+    assert result.exit_code == 0 and "self-collision (thickness 4 mm)" in result.output
+    result = CliRunner().invoke(app, ["check", str(bad)])
+    assert result.exit_code == 2 and "self_collision.thicknes (line 2)" in result.output

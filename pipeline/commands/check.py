@@ -29,6 +29,10 @@ def _summary(recipe: Recipe) -> str:
     parts += [f"{n} {word}{'s' if n != 1 else ''}" for n, word in counted if n]
     if recipe.wind is not None:
         parts.append("wind")
+    contact = recipe.self_collision
+    if contact is not None and contact.enabled:
+        thickness = contact.thickness if contact.thickness is not None else recipe.material.thickness
+        parts.append(f"self-collision (thickness {thickness * 1000:g} mm)")
     parts.append("outputs " + ", ".join(recipe.output.formats))
     return "; ".join(parts)
 
