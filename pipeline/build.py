@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshdeform.contact.self_collision import SelfCollision, SelfCollisionSettings
+from meshdeform.contact.self_collision import SelfCollision, SelfCollisionSettings, contact_thickness, median_edge
 from meshdeform.errors import MeshdeformError
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh
@@ -188,12 +188,22 @@ def _collider(spec: ColliderSpec, i: int, recipe: Recipe, res: _Resolver) -> col
     return col.Collider(shape, spec.friction, thickness, _keyframes(spec.animate, pivot, spec.loop))
 
 
-def _self_collision(recipe: Recipe, colliders: list[col.Collider]) -> SelfCollision | None:
-    """The [self_collision] table as the scene's SelfCollision (None when absent or disabled)."""
+def _self_collision(
+    recipe: Recipe, colliders: list[col.Collider], model: SpringModel, warnings: list[str]
+) -> SelfCollision | None:
+    """The [self_collision] table as the scene's SelfCollision (None when absent or disabled); a
+    warning when the mesh is too fine for the thickness asked (`contact_thickness`)."""
     spec = recipe.self_collision
     if spec is None or not spec.enabled:
         return None
     thickness = spec.thickness if spec.thickness is not None else recipe.material.thickness
+    edge = median_edge(model)
+    kept = contact_thickness(thickness, edge)
+    if kept < thickness:
+        warnings.append(
+            f"self_collision: the thickness {thickness * 1000:g} mm is more than half the mesh's median edge "
+            f"({edge * 1000:.3g} mm): its parts keep {kept * 1000:.3g} mm apart instead"
+        )
     settings = SelfCollisionSettings(thickness=thickness, friction=spec.friction, sweeps=spec.sweeps)
     return SelfCollision(settings, colliders)
 
@@ -406,7 +416,7 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
 
     gravity = sim.gravity if sim.gravity is not None else gravity_vector(sim.up)
     scene = Scene(gravity=gravity, forces=forces, constraints=constraints, pin_motion=pin_motion)
-    scene.self_collision = _self_collision(recipe, colliders)
+    scene.self_collision = _self_collision(recipe, colliders, model, warnings)
     scene.tearing = _tearing(recipe, res, mesh, model, settings, warnings)
     return BuiltSimulation(
         model=model,

@@ -222,7 +222,7 @@ def run_job(
                 else {}
             ),
             **(
-                {"self_collision": {"thickness": built.scene.self_collision.settings.thickness, **contact}}
+                {"self_collision": {"thickness": built.scene.self_collision.thickness, **contact}}
                 if built.scene.self_collision is not None
                 else {}
             ),
@@ -230,7 +230,7 @@ def run_job(
             **({"contact_extra_work_frames": extra_work} if colliders or built.scene.self_collision else {}),
             "formats": formats,
             "outputs": [*relative, REPORT_NAME],
-            "warnings": list(mesh.warnings),
+            "warnings": [*mesh.warnings, *built.warnings],
             "seconds": round(sim_seconds, 4),
             "frames_per_second": round(len(max_stretch) / sim_seconds, 3) if sim_seconds > 0 else None,
             "setup_seconds": round(setup_seconds, 4),

@@ -160,6 +160,8 @@ class SelfCollision(Constraint, Remappable):
         self._held: _Pairs | None = None
         self._margin = 0.0
         self._capacity = (0, 0)
+        #: the thickness kept on the model last prepared (`contact_thickness`), metres
+        self.thickness = self.settings.thickness
         self.work = ContactWork()
 
     def take_work(self) -> ContactWork:
@@ -186,7 +188,9 @@ class SelfCollision(Constraint, Remappable):
         self._model = model
         self._topology = _Topology.of(model)
         self._held = None
-        self._margin = _margin(model, self._topology, self.settings.thickness)
+        edge = median_edge(model)
+        self.thickness = contact_thickness(self.settings.thickness, edge)
+        self._margin = MARGIN_FRACTION * edge if edge > 0 else self.thickness
         return self._topology
 
     def _pairs(self, model: SpringModel, topology: _Topology, x0: np.ndarray, x1: np.ndarray) -> _Pairs:
@@ -196,7 +200,7 @@ class SelfCollision(Constraint, Remappable):
         if held is not None and held.hold(x0, x1):
             return held
         self.work.pair_builds += 1
-        reach = self.settings.thickness + self._margin
+        reach = self.thickness + self._margin
         vertices = np.arange(x0.shape[0], dtype=np.int64)[:, None]
         lo, hi = swept_boxes(x0, x1, vertices, 0.0)
         tlo, thi = swept_boxes(x0, x1, topology.triangles, 0.0)
@@ -207,13 +211,22 @@ class SelfCollision(Constraint, Remappable):
         ring_start, ring = self._rings
         vf, vf_near = self_kernels.filter_vf(vf, topology.triangles, self._origin, ring_start, ring)
         ee, ee_near = self_kernels.filter_ee(ee, topology.edges, self._origin, ring_start, ring)
+        # keep only the pairs that can come within the thickness while the list holds: a vertex then
+        # stays within its swept box's diagonal plus the slack's of where it is now, so a pair's
+        # distance falls at most by the two sides' largest such reach
+        slack = 0.5 * self._margin
+        wander = np.linalg.norm(hi - lo, axis=1) + np.sqrt(3.0) * slack
+        gap_vf, gap_ee = self_kernels.pair_gaps(x1, topology.triangles, topology.edges, vf, ee)
+        triangle_wander = wander[topology.triangles].max(axis=1, initial=0.0)
+        edge_wander = wander[topology.edges].max(axis=1, initial=0.0)
+        can_vf = gap_vf <= self.thickness + wander[vf[:, 0]] + triangle_wander[vf[:, 1]]
+        can_ee = gap_ee <= self.thickness + edge_wander[ee[:, 0]] + edge_wander[ee[:, 1]]
+        vf, vf_near, ee, ee_near = vf[can_vf], vf_near[can_vf], ee[can_ee], ee_near[can_ee]
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
         vf_rest, ee_rest = self_kernels.pair_gaps(rest, topology.triangles, topology.edges, vf, ee)
         vf_lower, ee_lower = np.zeros(vf.shape[0]), np.zeros(ee.shape[0])  # unknown: computed when checked
         centre = x1.mean(axis=0)
-        self._held = _Pairs(
-            vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, lo, hi, centre, 0.5 * self._margin
-        )
+        self._held = _Pairs(vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, lo, hi, centre, slack)
         return self._held
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
@@ -232,8 +245,8 @@ class SelfCollision(Constraint, Remappable):
         pairs = self._pairs(model, topology, x0, x1)
         work.projections = self_kernels.project_proximity(
             x, x0, inv_mass, topology.triangles, topology.edges,
-            pairs.vf, pairs.vf_near, np.minimum(settings.thickness, pairs.vf_rest),
-            pairs.ee, pairs.ee_near, np.minimum(settings.thickness, pairs.ee_rest),
+            pairs.vf, pairs.vf_near, np.minimum(self.thickness, pairs.vf_rest),
+            pairs.ee, pairs.ee_near, np.minimum(self.thickness, pairs.ee_rest),
             pairs.vf_lower, pairs.ee_lower, settings.sweeps, settings.friction,
         )
 
@@ -250,7 +263,7 @@ class SelfCollision(Constraint, Remappable):
             pairs = self._pairs(model, topology, x0, x)
             vf, ee = pairs.vf, pairs.ee
             hit_vf, hit_ee = self_kernels.colliding_pairs(
-                x0, x, topology.triangles, topology.edges, vf, ee, self._origin, SEAM_FRACTION * settings.thickness,
+                x0, x, topology.triangles, topology.edges, vf, ee, self._origin, SEAM_FRACTION * self.thickness,
                 pairs.vf_lower, pairs.ee_lower,
             )
             flagged = int(hit_vf.sum() + hit_ee.sum())
@@ -274,19 +287,31 @@ class SelfCollision(Constraint, Remappable):
 #: the two sides of a tear are not judged by the continuous check while closer than this fraction
 #: of the thickness (the seam the tear opened, see `self_kernels`)
 SEAM_FRACTION = 0.2
-#: the candidate pairs' margin: this fraction of the median rest edge length (at least the thickness)
+#: the candidate pairs' margin: this fraction of the median rest edge length (see `_Pairs`: pairs
+#: hold until some vertex moves half of it, so a larger margin means fewer searches but more pairs)
 MARGIN_FRACTION = 0.25
 
 
-def _margin(model: SpringModel, topology: _Topology, thickness: float) -> float:
-    """Metres beyond the thickness within which candidate pairs are gathered (see `_Pairs`): they
-    hold until some vertex moves half of it, so a larger margin means fewer searches but more
-    pairs to check; a quarter of the typical edge keeps both small."""
-    if topology.edges.shape[0] == 0:
-        return thickness
+#: the thickness self-collision keeps is at most this fraction of the median rest edge length
+THICKNESS_EDGE_FRACTION = 0.5
+
+
+def median_edge(model: SpringModel) -> float:
+    """The median length (m) of the rest mesh's triangle edges (0 without triangles)."""
+    triangles = np.asarray(model.triangles)
+    if triangles.shape[0] == 0:
+        return 0.0
     rest = model.rest_positions
-    lengths = np.linalg.norm(rest[topology.edges[:, 1]] - rest[topology.edges[:, 0]], axis=1)
-    return max(thickness, MARGIN_FRACTION * float(np.median(lengths)))
+    pairs = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    return float(np.median(np.linalg.norm(rest[pairs[:, 1]] - rest[pairs[:, 0]], axis=1)))
+
+
+def contact_thickness(thickness: float, edge: float) -> float:
+    """The thickness (m) self-collision keeps on a mesh whose median edge is `edge` (m): the one
+    asked, at most `THICKNESS_EDGE_FRACTION` of the edge. A thickness of several edges would make
+    every vertex a contact of dozens of rest neighbours (a fine scan at the default 5 mm gathers
+    millions of pairs) and cannot be kept anyway where the cloth folds within a few edges."""
+    return min(thickness, THICKNESS_EDGE_FRACTION * edge) if edge > 0 else thickness
 
 
 def _settle(state: State, before: np.ndarray, dt: float) -> None:
