@@ -18,50 +18,6 @@ from pipeline.recipe import parse_recipe
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
-def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Closest point on triangle (a, b, c) to p, row by row (Ericson, Real-Time Collision Detection 5.1.5)."""
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1 = np.einsum("ij,ij->i", ab, ap)
-    d2 = np.einsum("ij,ij->i", ac, ap)
-    bp = p - b
-    d3 = np.einsum("ij,ij->i", ab, bp)
-    d4 = np.einsum("ij,ij->i", ac, bp)
-    cp = p - c
-    d5 = np.einsum("ij,ij->i", ab, cp)
-    d6 = np.einsum("ij,ij->i", ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = 1.0 / (va + vb + vc)
-        v = vb * denom
-        w = vc * denom
-        result = a + ab * v[:, None] + ac * w[:, None]  # inside the face
-        # edge bc
-        w_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        m = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
-        result[m] = b[m] + w_bc[m, None] * (c[m] - b[m])
-        # edge ac
-        w_ac = d2 / (d2 - d6)
-        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-        result[m] = a[m] + w_ac[m, None] * ac[m]
-        # edge ab
-        v_ab = d1 / (d1 - d3)
-        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-        result[m] = a[m] + v_ab[m, None] * ab[m]
-    # vertex regions last, they take precedence
-    m = (d6 >= 0) & (d5 <= d6)
-    result[m] = c[m]
-    m = (d3 >= 0) & (d4 <= d3)
-    result[m] = b[m]
-    m = (d1 <= 0) & (d2 <= 0)
-    result[m] = a[m]
-    return result
-
-
-
 def test_primitive_signed_distances_and_normals() -> None:
     p = np.array([[0.0, 2.0, 0.0], [0.0, 0.5, 0.0], [3.0, 0.0, 0.0]])
     d, n = Sphere((0, 0, 0), 1.0).query(p)
@@ -74,14 +30,6 @@ def test_primitive_signed_distances_and_normals() -> None:
     np.testing.assert_allclose(d, [0.5, 0.5, -0.3])
     d, n = Plane((0, 1, 0), (0, 2, 0)).query(np.array([[5.0, 0.5, 1.0]]))
     np.testing.assert_allclose(d, [-0.5])
-
-
-def test_closest_point_on_triangle_regions() -> None:
-    a, b, c = np.array([0.0, 0, 0]), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])
-    points = np.array([[0.2, 0.2, 1.0], [-1.0, -1.0, 0.0], [2.0, -0.5, 0.0], [1.0, 1.0, 0.0], [0.5, -1.0, 0.0]])
-    n = points.shape[0]
-    got = closest_points_on_triangles(points, np.tile(a, (n, 1)), np.tile(b, (n, 1)), np.tile(c, (n, 1)))
-    np.testing.assert_allclose(got, [[0.2, 0.2, 0], [0, 0, 0], [1, 0, 0], [0.5, 0.5, 0], [0.5, 0, 0]], atol=1e-12)
 
 
 def test_triangle_mesh_collider_matches_the_sphere_it_approximates() -> None:

@@ -180,13 +180,12 @@ class SelfCollision(Constraint, Remappable):
         if self._model is model and self._topology is not None:
             return self._topology
         n = model.vertex_count
-        if self._origin is None or self._origin.shape[0] != n:  # a first (untorn) model
-            topology = _Topology.of(model)
-            self._origin = np.arange(n, dtype=np.int64)
-            self._rings = _rings(topology.edges, n)
-            self._start = None
         self._model = model
         self._topology = _Topology.of(model)
+        if self._origin is None or self._origin.shape[0] != n:  # a first (untorn) model
+            self._origin = np.arange(n, dtype=np.int64)
+            self._rings = _rings(self._topology.edges, n)
+            self._start = None
         self._held = None
         edge = median_edge(model)
         self.thickness = contact_thickness(self.settings.thickness, edge)

@@ -376,11 +376,14 @@ def _advance(
     if bound <= 0.0:  # moving as one
         return False, after
     if start < seam:
-        torn = (
-            origin[ids[0]] == origin[ids[2]] or origin[ids[0]] == origin[ids[3]]
-            or origin[ids[1]] == origin[ids[2]] or origin[ids[1]] == origin[ids[3]]
-            or (is_vf and origin[ids[0]] == origin[ids[1]])
-        )
+        if is_vf:  # the vertex's origin is a corner's
+            vertex = origin[ids[0]]
+            torn = vertex == origin[ids[1]] or vertex == origin[ids[2]] or vertex == origin[ids[3]]
+        else:  # an end's origin is an end's of the other edge
+            torn = (
+                origin[ids[0]] == origin[ids[2]] or origin[ids[0]] == origin[ids[3]]
+                or origin[ids[1]] == origin[ids[2]] or origin[ids[1]] == origin[ids[3]]
+            )
         if torn or start <= 0.0:
             return False, 0.0
     floor = SEPARATION * start

@@ -30,7 +30,7 @@ test found what the end positions alone would have missed.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import astuple, dataclass
 
 import numpy as np
 
@@ -314,10 +314,10 @@ class ContactStats:
     reverted: int = 0
 
     def __add__(self, other: ContactStats) -> ContactStats:
-        return ContactStats(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+        return ContactStats(*(a + b for a, b in zip(astuple(self), astuple(other), strict=True)))
 
     def __sub__(self, other: ContactStats) -> ContactStats:
-        return ContactStats(*(getattr(self, f.name) - getattr(other, f.name) for f in fields(self)))
+        return ContactStats(*(a - b for a, b in zip(astuple(self), astuple(other), strict=True)))
 
 
 @dataclass(frozen=True)
