@@ -8,11 +8,24 @@ is a Numba kernel.
 Definitions (DESIGN.md section 2):
 - structural: every unique edge of the polygons (and of polylines);
 - shear: every diagonal of polygons with 4 to 8 corners (of larger polygons the diagonals of
-  their fan triangulation, so the count stays linear), and for two triangles sharing an
-  interior manifold edge the pair of vertices opposite that edge;
-- bending: for a vertex v whose structural neighbours a and b continue each other most
-  straightly (each is the other's best continuation through v, angle >= 150 degrees at rest),
-  the spring a-b, unless a-b already is a structural or shear spring.
+  their fan triangulation, so the count stays linear). Triangles get none: their edges already
+  hold them rigid in their plane;
+- bending, two rules whose springs are merged (each pair once):
+  - across triangles: for every interior manifold edge (used by exactly two polygons, both
+    triangles) the pair of vertices opposite it, i.e. the pairs trimesh's
+    `face_adjacency_unshared` gives; the spring's length changes with the fold angle at that
+    edge, so it resists folding on any triangle mesh, regular or not;
+  - straight lines: for a vertex v whose neighbours a and b continue each other most straightly
+    (each is the other's best continuation through v, angle >= 150 degrees at rest), the spring
+    a-b. Only edges of polygons with 4 or more corners and polyline segments count as
+    neighbours here, so a pure triangle mesh is bent by the first rule alone, not twice, and a
+    quad mesh keeps exactly the springs it always had;
+  either way not where a-b already is a structural or shear spring (a tetrahedron gets no
+  bending spring: every pair of its vertices is an edge).
+  On a mixed mesh each region is bent by its own rule: triangles by the pairs across their
+  shared edges, quads and larger polygons by straight lines over their own edges (a line
+  through a quad region ends where it meets triangles). An edge between a triangle and a
+  larger polygon gets no bending spring from either rule.
 """
 
 from __future__ import annotations
@@ -212,30 +225,53 @@ def _polygon_diagonals(mesh: Mesh, vertex_map: np.ndarray) -> tuple[np.ndarray, 
     return np.concatenate(out_a), np.concatenate(out_b)
 
 
-def _triangle_opposites(mesh: Mesh, vertex_map: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """For triangles sharing a manifold edge (exactly two triangles), their opposite vertices."""
-    tri_polys = np.flatnonzero(mesh.face_sizes == 3)
-    if tri_polys.shape[0] < 2:
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, empty
-    base = mesh.face_offsets[tri_polys]
-    t = vertex_map[mesh.face_indices[base[:, None] + np.arange(3)[None, :]]]  # (T, 3)
-    # edge (t[k], t[k+1]) is opposite t[k+2]
-    ea = np.concatenate([t[:, 0], t[:, 1], t[:, 2]])
-    eb = np.concatenate([t[:, 1], t[:, 2], t[:, 0]])
-    opp = np.concatenate([t[:, 2], t[:, 0], t[:, 1]])
-    keys = np.minimum(ea, eb) * n + np.maximum(ea, eb)
+def dihedral_pairs(mesh: Mesh, vertex_map: np.ndarray, n: int) -> np.ndarray:
+    """The two vertices opposite each interior manifold edge between triangles, (K, 2) int64.
+
+    An edge qualifies when exactly two polygon corners give it (either direction), both of
+    triangles; edges also used by a larger polygon or by three or more polygons do not. Those
+    are the pairs of trimesh's `face_adjacency_unshared` on a triangle mesh. Returned as
+    unique sorted pairs (lo, hi) in lexicographic order (self pairs of degenerate triangles
+    dropped), structural ones included: the caller drops those.
+    """
+    if not np.any(mesh.face_sizes == 3):
+        return np.zeros((0, 2), dtype=np.int64)
+    s, e = polygon_edges(mesh, vertex_map)
+    corner_nxt = mesh.corner_next
+    triangle = np.repeat(mesh.face_sizes == 3, mesh.face_sizes)
+    # corner c's edge c -> next(c) of a triangle is opposite the third corner, next(next(c))
+    opposite = vertex_map[mesh.face_indices[corner_nxt[corner_nxt]]]
+    real = np.flatnonzero(s != e)
+    keys = np.minimum(s[real], e[real]).astype(np.int64) * n + np.maximum(s[real], e[real])
     order = argsort_int(keys)
-    start, counts = run_lengths(keys[order])
-    twice = start[counts == 2]
-    return opp[order[twice]], opp[order[twice + 1]]
+    starts, counts = run_lengths(keys[order])
+    twice = starts[counts == 2]
+    first = real[order[twice]]
+    second = real[order[twice + 1]]
+    both = triangle[first] & triangle[second]
+    return _unique_pairs(opposite[first[both]], opposite[second[both]], n)
 
 
 def shear_pairs(mesh: Mesh, vertex_map: np.ndarray, n: int, structural: np.ndarray) -> np.ndarray:
+    """Polygon diagonals (`_polygon_diagonals`) that are not structural, (K, 2) sorted pairs."""
     da, db = _polygon_diagonals(mesh, vertex_map)
-    ta, tb = _triangle_opposites(mesh, vertex_map, n)
-    pairs = _unique_pairs(np.concatenate([da, ta]), np.concatenate([db, tb]), n)
+    pairs = _unique_pairs(da, db, n)
     return pairs[~isin_int(_pair_keys(pairs, n), _pair_keys(structural, n))]
+
+
+def line_graph_pairs(mesh: Mesh, vertex_map: np.ndarray, n: int, structural: np.ndarray) -> np.ndarray:
+    """The structural edges the straight-line bending rule walks along, (K, 2) sorted pairs:
+    edges of polygons with 4 or more corners and polyline segments (not triangle edges).
+
+    structural: (S, 2) `structural_pairs` of the same mesh, returned as it is when the mesh
+    has no triangle (a quad mesh walks along all its edges).
+    """
+    if not np.any(mesh.face_sizes == 3):
+        return structural
+    s, e = polygon_edges(mesh, vertex_map)
+    larger = np.repeat(mesh.face_sizes >= 4, mesh.face_sizes)
+    ls, le = line_edges(mesh, vertex_map)
+    return _unique_pairs(np.concatenate([s[larger], ls]), np.concatenate([e[larger], le]), n)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -308,11 +344,19 @@ def adjacency(pairs: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     return indptr, dst[order]
 
 
-def bending_pairs(positions: np.ndarray, structural: np.ndarray, existing: np.ndarray, n: int) -> np.ndarray:
-    indptr, neighbours = adjacency(structural, n)
+def bending_pairs(
+    positions: np.ndarray, line_graph: np.ndarray, dihedral: np.ndarray, existing: np.ndarray, n: int
+) -> np.ndarray:
+    """Bending springs, (K, 2) sorted pairs in lexicographic order: the straightest
+    continuations through every vertex over `line_graph` ((E, 2) pairs, `line_graph_pairs`)
+    merged with the `dihedral` pairs ((D, 2), `dihedral_pairs`), less the `existing` springs.
+
+    positions: (n, 3) rest positions (m), for the straightness test.
+    """
+    indptr, neighbours = adjacency(line_graph, n)
     points = np.ascontiguousarray(positions, dtype=np.float64)
     _, a, b = _straightest_continuations(points, indptr, neighbours, STRAIGHT_COS)
-    pairs = _unique_pairs(a, b, n)
+    pairs = _unique_pairs(np.concatenate([a, dihedral[:, 0]]), np.concatenate([b, dihedral[:, 1]]), n)
     return pairs[~isin_int(_pair_keys(pairs, n), _pair_keys(existing, n))]
 
 
@@ -325,7 +369,9 @@ def derive_springs(mesh: Mesh, vertex_map: np.ndarray, positions: np.ndarray) ->
     n = max(int(positions.shape[0]), 1)
     structural = structural_pairs(mesh, vertex_map, n)
     shear = shear_pairs(mesh, vertex_map, n, structural)
-    bending = bending_pairs(positions, structural, np.concatenate([structural, shear]), n)
+    existing = np.concatenate([structural, shear])
+    dihedral = dihedral_pairs(mesh, vertex_map, n)
+    bending = bending_pairs(positions, line_graph_pairs(mesh, vertex_map, n, structural), dihedral, existing, n)
     pairs = np.concatenate([structural, shear, bending]).astype(np.int32)
     kinds = np.concatenate(
         [

@@ -94,17 +94,23 @@ def test_weld_keeps_first_seen_order_and_treats_negative_zero_as_zero() -> None:
     np.testing.assert_array_equal(welding.representative, [0, 1, 4])
 
 
-def test_triangulated_grid_shear_pairs_cross_every_interior_edge() -> None:
+def test_triangulated_grid_bends_across_every_interior_edge() -> None:
+    """Each quad split along its (i, j)-(i+1, j+1) diagonal: no shear (triangles are rigid in their
+    plane), one bending spring per interior edge and no straight skip-one line. Unit spacing: the
+    pair across a diagonal is the quad's other diagonal (sqrt 2); across a row or column edge it is
+    a knight's move (sqrt 5)."""
     n, m = 8, 5
-    mesh = grid_sheet(n, m, triangles=True, uvs=False)
-    _, springs = build_springs(mesh)
-    edges = n * (m - 1) + m * (n - 1) + (n - 1) * (m - 1)
+    mesh = grid_sheet(n, m, size=(n - 1.0, m - 1.0), triangles=True, uvs=False)
+    welding, springs = build_springs(mesh)
+    diagonals = (n - 1) * (m - 1)
+    edges = n * (m - 1) + m * (n - 1) + diagonals
     boundary = 2 * (n - 1) + 2 * (m - 1)
-    counts = springs.counts()
-    assert counts["structural"] == edges
-    assert counts["shear"] == edges - boundary
-    # straight rows and columns survive triangulation, and the diagonals are straight lines too
-    assert counts["bending"] == expected_grid_counts(n, m)["bending"] + (n - 2) * (m - 2)
+    assert springs.counts() == {"structural": edges, "shear": 0, "bending": edges - boundary}
+    p = mesh.positions[welding.representative]
+    bend = springs.pairs[springs.kinds == SpringKind.BENDING]
+    length = np.linalg.norm(p[bend[:, 1]] - p[bend[:, 0]], axis=1)
+    assert np.count_nonzero(np.isclose(length, np.sqrt(2.0))) == diagonals
+    assert np.count_nonzero(np.isclose(length, np.sqrt(5.0))) == edges - boundary - diagonals
 
 
 def test_polyline_rope_gets_structural_and_bending_springs() -> None:
