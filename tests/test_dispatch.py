@@ -53,9 +53,7 @@ def test_tether_chunks_hold_the_tethers_of_their_vertex_chunk(parts: int) -> Non
 #: seconds per substep: the serial build; the parallel one on idle cores and with one core busy
 SERIAL, PARALLEL_IDLE, PARALLEL_BUSY = 1e-3, 0.5e-3, 2e-3
 #: the picker's schedule scaled to the fake kernels (10 substeps a window)
-FAST = PickerSettings(
-    window=0.01, call=0.004, first_trial=0.05, first_trial_cold=0.5, interval=0.1, max_interval=0.8
-)
+FAST = PickerSettings(window=0.01, call=0.004, first_trial=0.05, first_trial_cold=0.5, interval=0.1, max_interval=0.8)
 
 
 class FakeMachine:

@@ -271,8 +271,11 @@ class SubstepPicker:
             self._idle_cores = (idle - idle_then) / (now - then)
         slow = self._reference is not None and self._window.per_substep > self._reference * (1 + self.settings.slowdown)
         if self.build == "parallel" and slow:
-            log.debug("parallel substeps %.3g ms, chosen at %.3g ms: trial now", 1e3 * self._window.per_substep,
-                      1e3 * (self._reference or 0.0))
+            log.debug(
+                "parallel substeps %.3g ms, chosen at %.3g ms: trial now",
+                1e3 * self._window.per_substep,
+                1e3 * (self._reference or 0.0),
+            )
             self._next_trial = self._elapsed
         self._window = Tally()
         self._window_start = (now, idle)
