@@ -1,11 +1,13 @@
 """Substep speed of the position-based solvers, with the code on PYTHONPATH (to compare two trees).
 
     PYTHONPATH=<tree> python benchmarks/substeps.py [--solver xpbd] [--n 64] [--frames 100]
-        [--scene hang|tear] [--partitions P] [--fresh-layouts]
+        [--scene hang|tear] [--partitions P] [--fresh-layouts] [--busy]
 
 Prints one line: the solver, the scene, frames/s over the frames after the first (the first
 compiles the kernels or loads them from Numba's cache and prepares the model) and the first
-frame's seconds, then the load average at the start and at the end (put it beside any figure).
+frame's seconds, the substep build the run ended with, its switches and the share of substeps
+each build ran (`dispatch.SubstepPicker`, where the tree has it), then the load average at the
+start and at the end (put it beside any figure).
 
 Scenes:
 - hang: an N x N cloth, 1 m square, vertical (XY, Y up), pinned at its two top corners, gravity,
@@ -17,8 +19,11 @@ Scenes:
 Knobs, each an alternative the solvers' defaults were measured against (docs/performance.md,
 "Serial or parallel substeps"):
 - NUMBA_NUM_THREADS=1 in the environment: one Numba thread (the serial build whatever else).
-- MESHDEFORM_PARALLEL_SUBSTEPS=1 in the environment: the parallel build of the substep where the
-  layout has more than one slab and Numba more than one thread (see `meshdeform.solvers.dispatch`).
+- MESHDEFORM_PARALLEL_SUBSTEPS=0 / 1 in the environment: the serial / the parallel build of the
+  substep throughout (the parallel one where the layout has more than one slab and Numba more
+  than one thread); unset, the picker chooses while the run goes on (`meshdeform.solvers.dispatch`).
+- --busy: one core held by another process (`python -c 'while True: pass'`) from before the
+  first frame to the end, then killed.
 - --partitions P: P slabs instead of the automatic count (P changes the results; the per-solver
   options API is needed, so not with the code before issue #14).
 - --fresh-layouts: after a tear, sort the torn model's springs afresh instead of inheriting the
@@ -32,8 +37,12 @@ so the same file times the code before and after a change. Nothing is written to
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import subprocess
+import sys
 import time
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -105,6 +114,46 @@ def load() -> str:
     return " ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
+@contextlib.contextmanager
+def busy_core(busy: bool) -> Iterator[None]:
+    """With `busy`, a process spinning on one core for the duration of the block."""
+    if not busy:
+        yield
+        return
+    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.5)  # let it get its core
+        yield
+    finally:
+        spinner.kill()
+        spinner.wait()
+
+
+def solvers_made() -> list:
+    """The solvers `simulate` makes from now on (to read their substep picker after the run)."""
+    import meshdeform.simulate as simulate_module
+
+    made: list = []
+    make = simulate_module.make_solver
+
+    def making(*args, **kwargs):
+        made.append(make(*args, **kwargs))
+        return made[-1]
+
+    simulate_module.make_solver = making
+    return made
+
+
+def picker_summary(solvers: list) -> str:
+    """The build the run ended with, its switches and the share of substeps of each build."""
+    picker = getattr(solvers[0], "substep", None) if solvers else None
+    if not hasattr(picker, "switches"):
+        return "build: no picker"
+    total = max(1, sum(picker.substeps.values()))
+    shares = ", ".join(f"{build} {100 * n / total:.0f} %" for build, n in picker.substeps.items())
+    return f"ended {picker.build}, {picker.switches} switches ({shares})"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--solver", default="xpbd", choices=("xpbd", "verlet"))
@@ -113,6 +162,7 @@ def main() -> None:
     parser.add_argument("--scene", default="hang", choices=("hang", "tear"))
     parser.add_argument("--partitions", type=int, default=None)
     parser.add_argument("--fresh-layouts", action="store_true")
+    parser.add_argument("--busy", action="store_true", help="one core held by another process")
     args = parser.parse_args()
     before = load()
     if args.fresh_layouts:
@@ -127,16 +177,18 @@ def main() -> None:
     else:
         model, scene, settings = tearing(args.n, args.frames + 1)
         name = settings.solver
-    frames = simulate(model, scene, settings)
-    start = time.perf_counter()
-    next(frames)
-    first = time.perf_counter() - start
-    start = time.perf_counter()
-    count = sum(1 for _ in frames)
-    seconds = time.perf_counter() - start
+    solvers = solvers_made()
+    with busy_core(args.busy):
+        frames = simulate(model, scene, settings)
+        start = time.perf_counter()
+        next(frames)
+        first = time.perf_counter() - start
+        start = time.perf_counter()
+        count = sum(1 for _ in frames)
+        seconds = time.perf_counter() - start
     print(
         f"{name} {args.scene} {args.n}x{args.n}: {count / seconds:.2f} frames/s over {count} frames "
-        f"(first frame {first:.2f} s); load average {before} -> {load()}",
+        f"(first frame {first:.2f} s); {picker_summary(solvers)}; load average {before} -> {load()}",
         flush=True,
     )
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+import tempfile
 import traceback
 from typing import Any
 
@@ -92,6 +93,33 @@ app = typer.Typer(
 )
 
 
+def kernel_cache_dir() -> str | None:
+    """The folder for Numba's compiled kernels: NUMBA_CACHE_DIR when set (the user's choice, as it
+    is), else ~/.cache/meshdeform/numba, else (a home that cannot be written, as in a read-only
+    container) meshdeform-numba-<uid> in the temporary folder; None when neither can be written
+    (Numba then tries the package's __pycache__ and its own user folder).
+
+    One folder for every command, so a kernel compiled by one run is loaded by the next and by the
+    batch's worker processes (they inherit the variable). Without a writable place Numba refuses
+    to import a kernel that asks to be cached.
+    """
+    chosen = os.environ.get("NUMBA_CACHE_DIR")
+    if chosen:
+        return chosen
+    candidates = (
+        os.path.join(os.path.expanduser("~"), ".cache", "meshdeform", "numba"),
+        os.path.join(tempfile.gettempdir(), f"meshdeform-numba-{os.getuid() if hasattr(os, 'getuid') else 0}"),
+    )
+    for folder in candidates:
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(folder, os.W_OK | os.X_OK):
+            return folder
+    return None
+
+
 def _version(value: bool) -> None:
     if value:
         typer.echo(f"meshdeform {__version__}")
@@ -109,8 +137,10 @@ def main(
 ) -> None:
     """Bake mass-spring cloth and soft-body deformation of OBJ/PLY meshes without a DCC tool."""
     # (`verbose` is read by MeshdeformGroup.invoke, which sets up logging around the command.)
-    # Keep Numba's compiled-kernel cache beside the package unless the user chose a place.
-    os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "meshdeform", "numba"))
+    # Before the engine (and Numba) is imported: where compiled kernels are kept, for this process and its workers.
+    cache = kernel_cache_dir()
+    if cache is not None:
+        os.environ["NUMBA_CACHE_DIR"] = cache
     tune_malloc()  # freed large arrays go back to the OS (lower peak memory), see pipeline.memory
 
 

@@ -207,3 +207,24 @@ def test_diverging_run_names_the_frame_and_leaves_nothing(tmp_path: Path) -> Non
     assert result.exit_code == 1, result.output
     assert re.search(r"frame \d+", result.stderr) and len(result.stderr.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_kernel_cache_folder_falls_back_when_home_cannot_be_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The user's NUMBA_CACHE_DIR as it is; else ~/.cache/meshdeform/numba; else a folder in the
+    temporary folder (a home that cannot be written: here a file where the home should be)."""
+    from pipeline.cli import kernel_cache_dir
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
+    assert kernel_cache_dir() == str(tmp_path / "mine")
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert kernel_cache_dir() == str(tmp_path / "home" / ".cache" / "meshdeform" / "numba")
+    (tmp_path / "blocked").write_text("not a folder")
+    monkeypatch.setenv("HOME", str(tmp_path / "blocked"))
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr("tempfile.tempdir", None)  # read TMPDIR again
+    folder = Path(kernel_cache_dir() or "")
+    assert folder.parent == tmp_path / "tmp" and folder.name.startswith("meshdeform-numba-") and folder.is_dir()

@@ -9,7 +9,7 @@ import numpy as np
 
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control
-from meshdeform.solvers.dispatch import substep_build
+from meshdeform.solvers.dispatch import SubstepPicker, substep_picker
 from meshdeform.solvers.layout import SpringLayout, inherited_layout, kernel_chunks, spring_layout
 from meshdeform.solvers.options import SweepOptions
 from meshdeform.solvers.sweep_kernels import VERTEX
@@ -148,6 +148,8 @@ class SweepSolver(LayoutCache):
 
     tether_kinds: ClassVar[tuple[int, ...] | None] = None
     tether_slack: ClassVar[float] = 1.0
+    #: runs the substep kernel, the build `dispatch.SubstepPicker` finds faster (kept from one model to the next)
+    substep: SubstepPicker | None = None
 
     def __init__(self, options: SweepOptions) -> None:
         super().__init__(options)
@@ -157,8 +159,8 @@ class SweepSolver(LayoutCache):
     def _prepare_sweeps(
         self, model: SpringModel, serial: Callable[..., None], parallel: Callable[..., None]
     ) -> SpringLayout:
-        """The layout, inverse masses, tethers, scratch, slab offsets, chunks and substep build for
-        `model`; returns the layout. Per-spring records are the subclass's."""
+        """The layout, inverse masses, tethers, scratch, slab offsets, chunks and substep picker
+        for `model`; returns the layout. Per-spring records are the subclass's."""
         lay = self.layout = self._layout_for(model, self.options.partitions)
         self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         self.tethers = kernel_tethers(
@@ -167,7 +169,7 @@ class SweepSolver(LayoutCache):
         self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
-        self.substep = substep_build(serial, parallel, lay.parts)
+        self.substep = substep_picker(serial, parallel, lay.parts, lay.a.shape[0] + model.vertex_count, self.substep)
         self._dt = -1.0
         return lay
 

@@ -4,7 +4,7 @@ Vertices are split into P slabs of equal count along the rest shape's longest ax
 whose two ends lie in the same slab belongs to that slab; the few that cross slabs form a
 separator. Slabs share no vertex, so Gauss-Seidel sweeps over them give the same result one
 after another (the serial build, the default) or one thread each without locks (the parallel
-build, when asked for: `dispatch`); the separator is swept after them. P decides the result, and
+build, where it is faster: `dispatch`); the separator is swept after them. P decides the result, and
 depends only on the option and the model (never on the thread count or the build), so results
 are byte-identical on any machine and in any worker.
 

@@ -52,7 +52,7 @@ class SweepOptions(SolverOptions):
 
     partitions: slabs of springs that share no vertex (Gauss-Seidel inside each, the springs
         between slabs after them), swept one after another, or one thread each where the parallel
-        build is asked for (`meshdeform.solvers.dispatch`); results depend on this number, not on
+        build runs (`meshdeform.solvers.dispatch`); results depend on this number, not on
         the thread count or the build, so runs are reproducible on any machine. 0 (default, auto)
         uses 2 slabs from 4096 springs up (about a 27 x 27 grid) and 1 below.
     tethers: long range attachments (Kim, Tang, Mueller 2012): after the sweeps, every vertex

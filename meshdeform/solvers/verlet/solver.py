@@ -19,7 +19,7 @@ distances run along structural springs only (tighter, octile tethers as in `xpbd
 fully stiff relaxation here and raise the stretch).
 
 A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
-bytes either way: serial unless `dispatch.substep_build` finds the parallel one asked for), and
+bytes either way: `dispatch.SubstepPicker` runs the faster on the machine now), and
 so is a whole frame when nothing happens between its substeps (`advance`: the vertices stay in
 the scratch, `sweep_kernels.VERTEX` records as xpbd's, the same bytes as substep by substep).
 Per spring the factors k w_a / w and k w_b / w (tension and compression) are precomputed into

@@ -28,8 +28,8 @@ the line between the pins fight; the slack removes both. They cap stretch along 
 pins (set them off to see the compliance alone).
 
 A whole substep (prediction, tethers, sweeps, velocities) is one compiled call
-(`kernels.xpbd_substep`, or its parallel build, bit for bit the same result: serial unless
-`dispatch.substep_build` finds the parallel one asked for), and so is a whole frame when nothing
+(`kernels.xpbd_substep`, or its parallel build, bit for bit the same result:
+`dispatch.SubstepPicker` runs the faster on the machine now), and so is a whole frame when nothing
 happens between its substeps (`advance`: the vertices stay in the scratch from one substep to
 the next, the State is read once and written once per frame, the same bytes as substep by
 substep). The scratch holds one cache line per vertex (`sweep_kernels.VERTEX`: position, inverse
