@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from factories import TOP_CORNERS, Pin, grid_cloth
@@ -14,9 +16,12 @@ CORNERS = ("bottom-left", "bottom-right", *TOP_CORNERS)
 
 
 def dense_matrix(solver: ImplicitSolver, dt: float) -> np.ndarray:
-    """M / b^2 + sum_s w_s (e_a - e_b)(e_a - e_b)^T over the free vertices, built entry by entry."""
+    """q M / b^2 + sum_s w_s (e_a - e_b)(e_a - e_b)^T over the free vertices, built entry by entry
+    (b = 2 dt / 3; q = 1 + b c takes the air damping's drag c = -ln(1 - damping) into the step)."""
     nf = solver.free_vertices.shape[0]
-    matrix = np.diag(solver.free_mass / (2.0 * dt / 3.0) ** 2)
+    beta = 2.0 * dt / 3.0
+    q = 1.0 - beta * math.log(1.0 - solver.options.damping)
+    matrix = np.diag(q * solver.free_mass / beta**2)
     fa, fb = solver.free[solver.a], solver.free[solver.b]
     for i, j, w in zip(fa, fb, solver.weight, strict=True):
         if i >= 0:

@@ -49,7 +49,7 @@ def test_unknown_solver_lists_the_known_ones() -> None:
 
 
 def test_settings_resolve_solver_defaults() -> None:
-    assert Settings(solver="implicit").substeps == 1
+    assert Settings(solver="implicit").substeps == solver_class("implicit").default_substeps
     assert Settings(solver="xpbd").substeps == solver_class("xpbd").default_substeps
     assert Settings(solver="xpbd", substeps=3).substeps == 3
     assert Settings(solver="xpbd").iterations == solver_class("xpbd").default_iterations
