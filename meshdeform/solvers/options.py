@@ -115,10 +115,12 @@ class AnchorOptions(SpringsOptions):
         mass, so the body still falls freely. 0 switches it off.
     uniform_scale: the object's uniform scale; displacements are multiplied by it before the
         anchor spring acts, as in the original deformer.
-    anchor_frame: "world" anchors each vertex to its rest position; "centroid" anchors it to its
-        rest position moved with the centre of mass (the body keeps its momentum and can fall
-        freely, its shape springs back); "auto" (default) is "world" when any vertex is pinned and
-        "centroid" otherwise.
+    anchor_frame: "world" (default) anchors each vertex to its rest position, as the original
+        deformer: a struck stress ball springs back to its rest shape and place. "centroid"
+        anchors it to its rest position moved with the centre of mass: the body keeps the
+        momentum an impact gives it and can fall freely under gravity while its shape springs
+        back (a falling soft body; a struck ball drifts away). "auto" is "world" when any vertex
+        is pinned and "centroid" otherwise (the former default).
     neighbour_springs: also apply the mesh's springs (as the `springs` solver does) so that pinned
         vertices hold the rest of the mesh.
     """
@@ -126,5 +128,5 @@ class AnchorOptions(SpringsOptions):
     anchor_stiffness: Annotated[float, Ge(0)] = 20.0
     anchor_damping: Annotated[float, Ge(0)] = 5.0
     uniform_scale: Annotated[float, Gt(0)] = 1.0
-    anchor_frame: AnchorFrame = "auto"
+    anchor_frame: AnchorFrame = "world"
     neighbour_springs: bool = False

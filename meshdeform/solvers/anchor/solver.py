@@ -9,11 +9,13 @@ rests within about 3 s), air damping `options.damping` and semi-implicit Euler (
 x += v dt). Impacts come from outside as
 accelerations (or a velocity kick dv as dv / dt over one substep) in `Control`.
 
-Anchors (`options.anchor_frame`): "world" uses the rest positions, as the original;
-"centroid" moves them with the centre of mass, so anchors hold the shape and not the place:
-the body keeps its momentum (falls freely under gravity) while its shape springs back;
-"auto" (default) is "world" when any vertex is pinned (pins hold the place) and "centroid"
-otherwise. With `options.neighbour_springs` the mesh's springs act as well (exactly as in the
+Anchors (`options.anchor_frame`): "world" (default) uses the rest positions, as the original,
+so a struck ball springs back to its rest shape and place; "centroid" moves them with the
+centre of mass, so anchors hold the shape and not the place: the body keeps its momentum (falls
+freely under gravity, drifts after an impact) while its shape springs back; "auto" is "world"
+when any vertex is pinned (pins hold the place) and "centroid" otherwise. Under gravity in the
+world frame a free body hangs below its rest place by g / (anchor_stiffness * uniform_scale).
+With `options.neighbour_springs` the mesh's springs act as well (exactly as in the
 `springs` solver, with its stability splitting and optional strain limit), so that pinned
 vertices hold the rest of the mesh too.
 """
