@@ -919,11 +919,10 @@ def _family(suffix: str, query: Callable[..., tuple]) -> Callable[..., tuple]:
         copy = types.FunctionType(source.__code__, env, f"{name}_{suffix}", source.__defaults__, source.__closure__)
         copy.__qualname__ = f"{name}_{suffix}"
         copy.__doc__ = source.__doc__
-        # the sweep of one primitive inlined (in Numba's IR): a compiled call passing the
-        # shape's dozen arrays costs a few times a sphere's query, and most candidates are only
-        # swept. Inlining the queries too would save a little more but triple the compile time.
-        inline = "always" if name == "_advance" else "never"
-        env[name] = numba.njit(**_JIT, inline=inline)(copy)
+        # no Numba IR inlining (`inline="always"`) of the sweep `_advance`: it saved a few per
+        # cent of a sphere's contact time, about the noise of benchmarks/colliders.py, and cost
+        # 4 s of compile time in every fresh process (CI runners, containers, Dask workers)
+        env[name] = numba.njit(**_JIT)(copy)
     return env["contact"]
 
 

@@ -12,8 +12,10 @@ vertices are written back: pinned positions stay bit-identical.
 
 All take spring data in a `SpringLayout` order: slabs 0..P-1 (swept one after the other, or in
 parallel by a solver's parallel build: they share no vertex), the separator after them.
-Positions and velocities are the State's (W, 3) float64 arrays, updated in place. Everything
-here is inlined into the solvers' substep kernels.
+Positions and velocities are the State's (W, 3) float64 arrays, updated in place. These are
+plain compiled functions that LLVM inlines into the solvers' substep kernels: Numba's own IR
+inlining (`inline="always"`) gives the same machine code speed but types every call site anew,
+which doubled the substep kernels' compile time (the figures: docs/performance.md).
 """
 
 from __future__ import annotations
@@ -37,13 +39,13 @@ VERTEX = np.dtype(
 TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
 
 
-@nb.njit(inline="always", **JIT)
+@nb.njit(**JIT)
 def _verlet(x0, p0, a0, retention, dt2):  # pragma: no cover - compiled
     """One coordinate's Verlet prediction x + (x - prev) retention + a dt^2 (every substep kernel's)."""
     return x0 + (x0 - p0) * retention + a0 * dt2
 
 
-@nb.njit(inline="always", **JIT)
+@nb.njit(**JIT)
 def load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  # pragma: no cover - compiled
     """Scratch copy with the Verlet prediction x' = x + (x - prev) retention + a dt^2 of free vertices.
 
@@ -74,7 +76,7 @@ def load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, lo, hi):  #
             r.pz = x2
 
 
-@nb.njit(inline="always", **JIT)
+@nb.njit(**JIT)
 def predict_vertices(X, accel, order, retention, dt2, lo, hi):  # pragma: no cover - compiled
     """The next substep's prediction inside `VERTEX` records, kernel vertices lo..hi-1 (a call
     running several substeps): x' = x + (x - px) retention + a dt^2, px = x, as in `load_vertices`.
@@ -94,7 +96,7 @@ def predict_vertices(X, accel, order, retention, dt2, lo, hi):  # pragma: no cov
             r.pz = x2
 
 
-@nb.njit(inline="always", **JIT)
+@nb.njit(**JIT)
 def store_vertices(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - compiled
     """Model vertices lo..hi-1 back from `VERTEX` records: x = the record, prev = its position
     before the last substep (px), v = (x - prev) / dt; pinned ones keep x and prev bit for bit."""
@@ -122,7 +124,7 @@ def store_vertices(X, x, prev, v, rank, inv_dt, lo, hi):  # pragma: no cover - c
             v[i, 2] = (x[i, 2] - prev[i, 2]) * inv_dt
 
 
-@nb.njit(inline="always", **SWEEP)
+@nb.njit(**SWEEP)
 def apply_tethers(X, tethers, lo, hi):  # pragma: no cover - compiled
     """Pull vertices of tethers lo..hi-1 back to within their limit of their pin (pins do not move)."""
     for t in range(lo, hi):
@@ -143,7 +145,7 @@ def apply_tethers(X, tethers, lo, hi):  # pragma: no cover - compiled
             vi.z = pin.z + dz * s
 
 
-@nb.njit(inline="always", **SWEEP)
+@nb.njit(**SWEEP)
 def span(va, vb):  # pragma: no cover - compiled
     """d = x_b - x_a, |d| and 1 / |d|^2 (the division runs beside the square root, not after it:
     a shorter dependency chain per spring)."""
@@ -155,7 +157,7 @@ def span(va, vb):  # pragma: no cover - compiled
     return dx, dy, dz, np.sqrt(d2), inv_d2
 
 
-@nb.njit(inline="always", **SWEEP)
+@nb.njit(**SWEEP)
 def pull(va, vb, dx, dy, dz, fa, fb):  # pragma: no cover - compiled
     """x_a += d fa, x_b -= d fb."""
     va.x += dx * fa

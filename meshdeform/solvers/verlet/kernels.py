@@ -21,7 +21,7 @@ RELAX_SPRING = np.dtype(
 )
 
 
-@nb.njit(inline="always", **SWEEP)
+@nb.njit(**SWEEP)
 def _relax_spring(X, P, s):  # pragma: no cover - compiled
     """One Jakobsen relaxation (P[s]: see RELAX_SPRING)."""
     c = P[s]
@@ -40,7 +40,7 @@ def _relax_spring(X, P, s):  # pragma: no cover - compiled
     pull(va, vb, dx, dy, dz, f * ka, f * kb)
 
 
-@nb.njit(inline="always", **SWEEP)
+@nb.njit(**SWEEP)
 def _relax_range(X, P, lo, hi, backward):  # pragma: no cover - compiled
     one = np.uint64(1)
     if backward:

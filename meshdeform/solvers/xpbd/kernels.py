@@ -24,7 +24,7 @@ XPBD_SPRING = np.dtype(
 )
 
 
-@nb.njit(inline="always", **SWEEP)
+@nb.njit(**SWEEP)
 def _xpbd_spring(X, P, lam, s, damped, first):  # pragma: no cover - compiled
     """One XPBD distance constraint (P[s]: see XPBD_SPRING).
 
@@ -58,7 +58,7 @@ def _xpbd_spring(X, P, lam, s, damped, first):  # pragma: no cover - compiled
     pull(va, vb, dx, dy, dz, q * va.w, q * vb.w)
 
 
-@nb.njit(inline="always", **SWEEP)
+@nb.njit(**SWEEP)
 def _xpbd_range(X, P, lam, lo, hi, backward, damped, first):  # pragma: no cover - compiled
     """Springs lo..hi-1 (unsigned offsets: no wraparound code), forward or backward.
 
