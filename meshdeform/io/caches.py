@@ -85,7 +85,7 @@ _FLOAT32_EPS = float(np.finfo(np.float32).eps)
 _INDEX_SNAP = 1e-9
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PointCache:
     """A vertex animation read from a file.
 
@@ -94,6 +94,8 @@ class PointCache:
     start_frame: scene frame of cache frame 0, None when the file does not say.
     frame_step: scene frames between consecutive cache frames (PC2's sample rate; 1.0 for most).
     source: the file read (for a sequence, the first frame's file).
+
+    Compared and hashed by identity (the positions are an array).
     """
 
     positions: np.ndarray
