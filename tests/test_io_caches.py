@@ -97,6 +97,19 @@ def test_mdd_reads_fps_and_start_from_its_times(tmp_path: Path, mesh: Mesh) -> N
     assert cache.fps == ntsc and cache.start_frame == 0.0
 
 
+def test_read_a_frame_at_a_time(tmp_path: Path, mesh: Mesh, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Big caches are converted to float64 a few frames at a time: the same values as in one go."""
+    import meshdeform.io.caches as caches
+
+    positions = animation(mesh)
+    write(tmp_path / "a.pc2", pc2_bytes(positions))
+    write(tmp_path / "a.mdd", mdd_bytes(positions, np.arange(FRAMES) / 24.0))
+    for chunk in (1, 40, 100):  # one frame, two frames (36 values each 18), several
+        monkeypatch.setattr(caches, "_CHUNK_VALUES", chunk)
+        for name in ("a.pc2", "a.mdd"):
+            np.testing.assert_array_equal(read_point_cache(name, tmp_path, mesh.vertex_count).positions, positions)
+
+
 def test_mdd_without_timing(tmp_path: Path, mesh: Mesh) -> None:
     positions = animation(mesh)
     write(tmp_path / "zeros.mdd", mdd_bytes(positions, np.zeros(FRAMES)))
@@ -160,6 +173,11 @@ def test_usd_without_fps_or_samples(tmp_path: Path, mesh: Mesh) -> None:
     usd_stage(tmp_path / "uneven.usda", {"body": positions}, [1.0, 2.0, 3.0, 5.0, 6.0])
     message = load_error("uneven.usda", tmp_path, mesh.vertex_count)
     assert "uneven.usda" in message and "time sample 3 at time code 5 after 3" in message and "evenly" in message
+    bad = positions.copy()
+    bad[2, 5, 0] = np.nan
+    usd_stage(tmp_path / "nan.usdc", {"body": bad}, [1.0, 2.0, 3.0, 4.0, 5.0])
+    message = load_error("nan.usdc", tmp_path, mesh.vertex_count)
+    assert "nan.usdc" in message and "time sample 2 (time code 3), point 5: a non-finite position" in message
     message = load_error("uneven.usda", tmp_path, 7)
     assert "uneven.usda" in message and "7 points" in message and "/Root/body 6" in message
 

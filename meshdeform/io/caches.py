@@ -83,6 +83,8 @@ _GLOB_CHARACTERS = frozenset("*?[")
 _FLOAT32_EPS = float(np.finfo(np.float32).eps)
 # a fractional cache index this close to an integer is that integer (time = k * dt rounding)
 _INDEX_SNAP = 1e-9
+# float32 values read at a time (16 MB) when a cache's floats are converted to float64
+_CHUNK_VALUES = 1 << 22
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,21 +256,40 @@ def _check_regular_file(path: Path) -> None:
         raise MeshLoadError(f"{path}: no such file")
 
 
-def _finished(path: Path, data: np.ndarray, place: str, offset: int, frame_bytes: int) -> np.ndarray:
-    """(F, V, 3) float64 from float32 values, refusing non-finite or huge ones; `place` names a frame
-    ("sample", "frame") and `offset` / `frame_bytes` locate it in the file."""
-    positions = data.astype(np.float64)
+def _first_bad(positions: np.ndarray) -> tuple[int, int] | None:
+    """(frame, vertex) of the first non-finite value or value beyond MAX_COORDINATE in (F, V, 3), or None."""
+    if not positions.size or (positions.max() <= MAX_COORDINATE and positions.min() >= -MAX_COORDINATE):
+        return None  # NaN fails both comparisons: only then is the array searched
     bad = ~np.isfinite(positions) | (np.abs(positions) > MAX_COORDINATE)
-    if bad.any():
-        frame, vertex, _ = np.unravel_index(int(np.argmax(bad)), bad.shape)
-        value = positions[frame, vertex]
-        what = (
-            "a non-finite position"
-            if not np.isfinite(value).all()
-            else f"position {value.tolist()} beyond the limit of {MAX_COORDINATE:g} for a coordinate"
-        )
+    frame, vertex, _ = np.unravel_index(int(np.argmax(bad)), bad.shape)
+    return int(frame), int(vertex)
+
+
+def _bad_value(value: np.ndarray) -> str:
+    if not np.isfinite(value).all():
+        return "a non-finite position"
+    return f"position {value.tolist()} beyond the limit of {MAX_COORDINATE:g} for a coordinate"
+
+
+def _read_frames(path: Path, dtype: str, offset: int, frames: int, points: int, place: str) -> np.ndarray:
+    """(frames, points, 3) float64 (read-only) from the float32 x y z at byte `offset`, read a few frames
+    at a time (no second copy of the whole cache); non-finite or huge values are refused, `place`
+    ("sample", "frame") naming the frame."""
+    positions = np.empty((frames, points, 3), dtype=np.float64)
+    chunk = max(1, _CHUNK_VALUES // max(1, 3 * points))
+    with open(path, "rb") as handle:
+        handle.seek(offset)
+        for first in range(0, frames, chunk):
+            count = min(chunk, frames - first)
+            values = np.fromfile(handle, dtype=dtype, count=count * points * 3)
+            if values.size != count * points * 3:  # the file changed since its size was checked
+                raise MeshLoadError(f"{path}: byte {offset}: the file ends early (truncated while read?)")
+            positions[first : first + count] = values.reshape(count, points, 3)
+    if (bad := _first_bad(positions)) is not None:
+        frame, vertex = bad
         raise MeshLoadError(
-            f"{path}: byte {offset + frame * frame_bytes + 12 * vertex}: {place} {frame}, vertex {vertex}: {what}"
+            f"{path}: byte {offset + (frame * points + vertex) * 12}: {place} {frame}, vertex {vertex}: "
+            f"{_bad_value(positions[frame, vertex])}"
         )
     positions.flags.writeable = False
     return positions
@@ -301,8 +322,7 @@ def _read_pc2(path: Path, vertex_count: int) -> PointCache:
     expected = pc2_bytes(samples, points)
     if size != expected:
         raise _size_message(path, size, expected, f"the header's {samples} samples of {points} points")
-    data = np.fromfile(path, dtype=PC2_FLOAT, count=samples * points * 3, offset=PC2_HEADER.size)
-    positions = _finished(path, data.reshape(samples, points, 3), "sample", PC2_HEADER.size, 12 * points)
+    positions = _read_frames(path, PC2_FLOAT, PC2_HEADER.size, samples, points, "sample")
     return PointCache(positions, fps=None, start_frame=float(start), source=path, frame_step=float(rate))
 
 
@@ -325,8 +345,7 @@ def _read_mdd(path: Path, vertex_count: int) -> PointCache:
         bad = int(np.argmin(np.isfinite(times)))
         raise MeshLoadError(f"{path}: byte {MDD_HEADER.size + 4 * bad}: frame {bad}: time {times[bad]}, not finite")
     fps, start = _mdd_timing(path, times)
-    data = np.fromfile(path, dtype=MDD_FLOAT, count=frames * points * 3, offset=offset)
-    positions = _finished(path, data.reshape(frames, points, 3), "frame", offset, 12 * points)
+    positions = _read_frames(path, MDD_FLOAT, offset, frames, points, "frame")
     return PointCache(positions, fps=fps, start_frame=start, source=path)
 
 
@@ -423,12 +442,11 @@ def _read_usd(path: Path, vertex_count: int) -> PointCache:
                 f"the rest mesh has {vertex_count} vertices"
             )
         positions[i] = values
-    bad = ~np.isfinite(positions) | (np.abs(positions) > MAX_COORDINATE)
-    if bad.any():
-        frame, vertex, _ = np.unravel_index(int(np.argmax(bad)), bad.shape)
+    if (bad := _first_bad(positions)) is not None:
+        frame, vertex = bad
         raise MeshLoadError(
             f"{path}: {prim}.points: time sample {frame} (time code {codes[frame]:g}), point {vertex}: "
-            f"{positions[frame, vertex].tolist()} is not finite or beyond {MAX_COORDINATE:g}"
+            f"{_bad_value(positions[frame, vertex])}"
         )
     positions.flags.writeable = False
     layer = stage.GetRootLayer()
