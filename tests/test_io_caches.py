@@ -95,6 +95,12 @@ def test_mdd_reads_fps_and_start_from_its_times(tmp_path: Path, mesh: Mesh) -> N
     write(tmp_path / "b.mdd", mdd_bytes(positions, np.arange(FRAMES) / ntsc))
     cache = read_point_cache("b.mdd", tmp_path, mesh.vertex_count)
     assert cache.fps == ntsc and cache.start_frame == 0.0
+    # a long shot: the float32 times' rounding grows with them, the rates are still told apart
+    for rate in (24.0, ntsc, 25.0, 30000 / 1001, 30.0, 60.0):
+        long = np.repeat(positions[:1], 250, axis=0)
+        write(tmp_path / "c.mdd", mdd_bytes(long, (1001 + np.arange(250)) / rate))
+        cache = read_point_cache("c.mdd", tmp_path, mesh.vertex_count)
+        assert (cache.fps, cache.start_frame) == (rate, 1001.0)
 
 
 def test_read_a_frame_at_a_time(tmp_path: Path, mesh: Mesh, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -104,7 +110,7 @@ def test_read_a_frame_at_a_time(tmp_path: Path, mesh: Mesh, monkeypatch: pytest.
     positions = animation(mesh)
     write(tmp_path / "a.pc2", pc2_bytes(positions))
     write(tmp_path / "a.mdd", mdd_bytes(positions, np.arange(FRAMES) / 24.0))
-    for chunk in (1, 40, 100):  # one frame, two frames (36 values each 18), several
+    for chunk in (1, 40, 100):  # 18 values a frame: one frame a read, two, five
         monkeypatch.setattr(caches, "_CHUNK_VALUES", chunk)
         for name in ("a.pc2", "a.mdd"):
             np.testing.assert_array_equal(read_point_cache(name, tmp_path, mesh.vertex_count).positions, positions)

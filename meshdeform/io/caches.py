@@ -350,8 +350,9 @@ def _read_mdd(path: Path, vertex_count: int) -> PointCache:
 
 
 def _snap(value: float, candidates: tuple[float, ...], tolerance: float) -> float:
-    """The first candidate within `tolerance` of `value`, else `value`."""
-    return next((c for c in candidates if abs(c - value) <= tolerance), value)
+    """The candidate nearest `value` when it is within `tolerance`, else `value`."""
+    nearest = min(candidates, key=lambda c: abs(c - value))
+    return nearest if abs(nearest - value) <= tolerance else value
 
 
 def _mdd_timing(path: Path, times: np.ndarray) -> tuple[float | None, float | None]:
