@@ -184,6 +184,15 @@ def test_usd_without_fps_or_samples(tmp_path: Path, mesh: Mesh) -> None:
     usd_stage(tmp_path / "nan.usdc", {"body": bad}, [1.0, 2.0, 3.0, 4.0, 5.0])
     message = load_error("nan.usdc", tmp_path, mesh.vertex_count)
     assert "nan.usdc" in message and "time sample 2 (time code 3), point 5: a non-finite position" in message
+    from pxr import Vt
+
+    stage = Usd.Stage.CreateNew(str(tmp_path / "grows.usda"))
+    points = UsdGeom.Mesh.Define(stage, "/Root/body").GetPointsAttr()
+    points.Set(Vt.Vec3fArray.FromNumpy(positions[0].astype(np.float32)), 1.0)
+    points.Set(Vt.Vec3fArray.FromNumpy(np.zeros((7, 3), np.float32)), 2.0)
+    stage.GetRootLayer().Save()
+    message = load_error("grows.usda", tmp_path, mesh.vertex_count)
+    assert "grows.usda" in message and "time sample 1 (time code 2): 7 points, the rest mesh has 6" in message
     message = load_error("uneven.usda", tmp_path, 7)
     assert "uneven.usda" in message and "7 points" in message and "/Root/body 6" in message
 
