@@ -29,10 +29,10 @@ What each format says:
 - PC2 (layout in `meshdeform.export.pc2`): no fps; `start_frame` from the header; the header's
   sample rate is the frame step between samples (1.0: one sample a frame).
 - MDD (layout in `meshdeform.export.mdd`): times in seconds; when there are two or more and they are
-  evenly spaced, `fps = 1 / (t1 - t0)` (snapped to an integer or an NTSC rate k * 1000/1001 within the
-  float32 precision of the times) and `start_frame = t0 * fps` (snapped to an integer likewise). All
-  equal times (some writers write zeros) or a single frame say nothing; uneven or decreasing times are
-  refused.
+  evenly spaced, `fps = (F - 1) / (t_last - t0)`, i.e. 1 / (t1 - t0) (snapped to an integer or an NTSC
+  rate k * 1000/1001 within the float32 precision of the times) and `start_frame = t0 * fps` (snapped to
+  an integer likewise). All equal times (some writers write zeros) or a single frame say nothing; uneven
+  or decreasing times are refused.
 - USD: the first `UsdGeom.Mesh` (in stage traversal order) with time-sampled `points` of
   `vertex_count` points; `fps` is the stage's timeCodesPerSecond (None when the layer authors neither it
   nor framesPerSecond), `start_frame` the first time code, `frame_step` the spacing of the time codes
