@@ -14,6 +14,7 @@ Point caches need a fixed vertex count: a frame with a changed topology (tearing
 from __future__ import annotations
 
 import shutil
+import struct
 import tempfile
 from pathlib import Path
 from typing import ClassVar
@@ -32,6 +33,13 @@ from meshdeform.export.results import (
 from meshdeform.mesh import Mesh
 
 FILE_NAME = "cache.mdd"
+MDD_HEADER = struct.Struct(">ii")  # num_frames, num_points: 8 bytes, big-endian
+MDD_FLOAT = ">f4"  # the times (seconds) and the x y z of every point: big-endian float32
+
+
+def mdd_bytes(frames: int, points: int) -> int:
+    """The size of an MDD file: the header, a float32 time per frame, float32 x y z per point per frame."""
+    return MDD_HEADER.size + 4 * frames + 12 * points * frames
 
 
 def mdd_time(ctx: ExportContext, index: int) -> float:
@@ -50,7 +58,7 @@ class MddExporter(BaseExporter):
     @classmethod
     def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
         """Exact: frame count, point count, a float32 time per frame, float32 x y z per vertex per frame."""
-        return int(8 + 4 * frames + 12 * mesh.vertex_count * frames)
+        return int(mdd_bytes(frames, mesh.vertex_count))
 
     @classmethod
     def reading(cls) -> ResultReading | None:
@@ -61,15 +69,15 @@ class MddExporter(BaseExporter):
         self._times: list[float] = []
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
-        data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=">f4")
+        data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=MDD_FLOAT)
         self._spool.write(data.tobytes())
         self._times.append(mdd_time(ctx, frame.index))
 
     def _close(self, ctx: ExportContext) -> list[Path]:
         target = ctx.out_dir / FILE_NAME
         with atomic_open(target, "wb") as out:
-            out.write(np.array([len(self._times), ctx.mesh.vertex_count], dtype=">i4").tobytes())
-            out.write(np.asarray(self._times, dtype=">f4").tobytes())
+            out.write(MDD_HEADER.pack(len(self._times), ctx.mesh.vertex_count))
+            out.write(np.asarray(self._times, dtype=MDD_FLOAT).tobytes())
             self._spool.seek(0)
             shutil.copyfileobj(self._spool, out, 1 << 20)
         self._spool.close()
@@ -88,14 +96,14 @@ def read_mdd(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
     path = Path(path)
     with open(path, "rb") as handle:
-        head = handle.read(8)
-        if len(head) != 8:
+        head = handle.read(MDD_HEADER.size)
+        if len(head) != MDD_HEADER.size:
             raise MeshLoadError(f"{path}: too short for an MDD header")
-        frames, points = (int(v) for v in np.frombuffer(head, dtype=">i4"))
+        frames, points = MDD_HEADER.unpack(head)
         if frames < 0 or points < 0:
             raise MeshLoadError(f"{path}: not an MDD point cache")
-        times = np.fromfile(handle, dtype=">f4", count=frames)
-        data = np.fromfile(handle, dtype=">f4")
+        times = np.fromfile(handle, dtype=MDD_FLOAT, count=frames)
+        data = np.fromfile(handle, dtype=MDD_FLOAT)
     if times.size != frames or data.size != frames * points * 3:
         raise MeshLoadError(f"{path}: size does not match the header ({frames} frames of {points} points)")
     return data.reshape(frames, points, 3).astype(np.float32), times.astype(np.float64)
@@ -131,4 +139,4 @@ class MddReadBack(PointCacheReadBack):
     def add(self, frame: FrameData, mesh: Mesh) -> None:
         if len(self._times) < 2:
             self._times.append(mdd_time(self.ctx, frame.index))
-            self.fps = mdd_fps(np.asarray(self._times, dtype=">f4").astype(np.float64))
+            self.fps = mdd_fps(np.asarray(self._times, dtype=MDD_FLOAT).astype(np.float64))

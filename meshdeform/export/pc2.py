@@ -34,7 +34,13 @@ from meshdeform.mesh import Mesh
 
 PC2_MAGIC = b"POINTCACHE2\0"
 PC2_HEADER = struct.Struct("<12siiffi")  # 32 bytes
+PC2_FLOAT = "<f4"  # the x y z of every point: little-endian float32
 FILE_NAME = "cache.pc2"
+
+
+def pc2_bytes(samples: int, points: int) -> int:
+    """The size of a PC2 file: the 32-byte header, then float32 x y z per point per sample."""
+    return PC2_HEADER.size + 12 * points * samples
 
 
 def pc2_header(num_points: int, start_frame: float, num_samples: int, sample_rate: float = 1.0) -> bytes:
@@ -53,7 +59,7 @@ class Pc2Exporter(BaseExporter):
     @classmethod
     def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
         """Exact: the 32-byte header, float32 x y z per vertex per frame."""
-        return int(PC2_HEADER.size + 12 * mesh.vertex_count * frames)
+        return int(pc2_bytes(frames, mesh.vertex_count))
 
     @classmethod
     def reading(cls) -> ResultReading | None:
@@ -68,7 +74,7 @@ class Pc2Exporter(BaseExporter):
             raise ExportError(
                 f"pc2: frames must be consecutive (one sample per frame): frame {frame.index} after {self._last_index}"
             )
-        data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype="<f4")
+        data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=PC2_FLOAT)
         self._file.handle.write(data.tobytes())
 
     def _close(self, ctx: ExportContext) -> list[Path]:
@@ -96,7 +102,7 @@ def read_pc2(path: str | Path) -> tuple[np.ndarray, float, float]:
         magic, _version, points, start, rate, samples = PC2_HEADER.unpack(head)
         if magic != PC2_MAGIC or points < 0 or samples < 0:
             raise MeshLoadError(f"{path}: not a PC2 point cache")
-        data = np.fromfile(handle, dtype="<f4")
+        data = np.fromfile(handle, dtype=PC2_FLOAT)
     if data.size != points * samples * 3:
         raise MeshLoadError(f"{path}: {data.size} floats, the header promises {points * samples * 3}")
     return data.reshape(samples, points, 3), float(start), float(rate)

@@ -3,6 +3,8 @@
 OBJ and PLY are read into a `Mesh` with polygons and vertex order kept; broken files raise
 `MeshLoadError` with one line naming the file (and the line or element row) and what is wrong.
 For writing many frames of one mesh, use `ObjWriter` / `PlyWriter` (static parts built once).
+Point caches of deforming colliders are read by `meshdeform.io.caches` (not imported here: it takes
+the PC2 and MDD layouts from `meshdeform.export`, which imports this package).
 """
 
 from __future__ import annotations
