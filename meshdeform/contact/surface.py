@@ -167,3 +167,22 @@ def surface_motion(
         for k in range(3):
             out[i, k] = wa * (end[a, k] - start[a, k]) + wb * (end[b, k] - start[b, k]) + wc * (end[c, k] - start[c, k])
     return out
+
+
+@numba.njit(**_JIT)
+def closest_triangles(surface: Surface, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+    """For points (N, 3): the triangle (N,) int64 holding the nearest surface point and that
+    point's barycentric weights (N, 3) on it."""
+    n = points.shape[0]
+    tri = np.empty(n, dtype=np.int64)
+    weights = np.empty((n, 3))
+    bvh = surface.bvh
+    stack = np.empty(STACK, dtype=np.int64)
+    for i in range(n):
+        _, t, wa, wb, wc = closest_to_point(
+            bvh.bounds, bvh.nodes, bvh.order, bvh.tri_bounds, surface.vertices, surface.triangles,
+            points[i, 0], points[i, 1], points[i, 2], np.inf, stack,
+        )  # fmt: skip
+        tri[i] = t
+        weights[i, 0], weights[i, 1], weights[i, 2] = wa, wb, wc
+    return tri, weights

@@ -26,7 +26,7 @@ from collections.abc import Callable
 import numpy as np
 
 from meshdeform.contact import collider_kernels as ck
-from meshdeform.contact.surface import Surface, edge_index, moved_surface, surface_motion
+from meshdeform.contact.surface import Surface, closest_triangles, edge_index, moved_surface, surface_motion
 from meshdeform.model import State
 from meshdeform.scene.colliders import Collider, TriangleMesh, surface_query
 
@@ -112,3 +112,56 @@ class DeformingCollider(Collider):
         start = self.shape.surface_at(time - dt)
         finish = self.shape.surface_at(time)
         return surface_motion(finish, start.vertices, finish.vertices, points, np.inf) / dt
+
+
+class SurfaceAttachment:
+    """Pin targets carried by a deforming body (`pins.Motion`): each rest point is bound once to
+    the body's surface at time 0, to its nearest point there (triangle, barycentric weights) and
+    its offset from that point in the triangle's frame (edge direction, in-plane normal to it,
+    face normal), and at time t sits at the same weights and offset on the moved triangle. A
+    point bound exactly on the surface stays on it; one a thickness away stays that far out
+    along the turning normal."""
+
+    def __init__(self, shape: DeformingMesh) -> None:
+        self.shape = shape
+        self._bindings: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def _binding(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(triangles (P,), weights (P, 3), offsets (P, 3) in the triangle frames) of rest points."""
+        key = points.tobytes()
+        found = self._bindings.get(key)
+        if found is None:
+            surface = self.shape.surface_at(0.0)
+            tri, weights = closest_triangles(surface, points)
+            corners = surface.vertices[surface.triangles[tri]]
+            anchor = np.einsum("pk,pkd->pd", weights, corners)
+            frames = _triangle_frames(corners)
+            offsets = np.einsum("pkd,pd->pk", frames, points - anchor)
+            found = (tri, weights, offsets)
+            self._bindings[key] = found
+        return found
+
+    def apply(self, points: np.ndarray, time: float) -> np.ndarray:
+        """Positions (P, 3) at `time` of the rest points (P, 3)."""
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        tri, weights, offsets = self._binding(points)
+        corners = self.shape.surface_at(time).vertices[self.shape.triangles[tri]]
+        anchor = np.einsum("pk,pkd->pd", weights, corners)
+        return anchor + np.einsum("pk,pkd->pd", offsets, _triangle_frames(corners))
+
+
+def _triangle_frames(corners: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) orthonormal rows (edge 0-1 direction, in-plane perpendicular, unit normal) of
+    triangles given by their corners (P, 3, 3); a degenerate triangle gets the world axes."""
+    e1 = corners[:, 1] - corners[:, 0]
+    normal = np.cross(e1, corners[:, 2] - corners[:, 0])
+    e1_len = np.linalg.norm(e1, axis=1)
+    n_len = np.linalg.norm(normal, axis=1)
+    ok = (e1_len > 0) & (n_len > 0)
+    frames = np.broadcast_to(np.eye(3), (corners.shape[0], 3, 3)).copy()
+    u = e1[ok] / e1_len[ok, None]
+    n = normal[ok] / n_len[ok, None]
+    frames[ok, 0] = u
+    frames[ok, 1] = np.cross(n, u)
+    frames[ok, 2] = n
+    return frames
