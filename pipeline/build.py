@@ -8,19 +8,22 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from meshdeform.contact.self_collision import SelfCollision, SelfCollisionSettings, contact_thickness, median_edge
 from meshdeform.errors import MeshdeformError
+from meshdeform.io.caches import cache_timing, check_cache_covers, read_point_cache, sample
 from meshdeform.material import Material
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, lumped_mass
 from meshdeform.scene import Constraint, Force, Scene, gravity_vector, up_vector
 from meshdeform.scene import colliders as col
+from meshdeform.scene.deforming import DeformingCollider, DeformingMesh, SurfaceAttachment
 from meshdeform.scene.effects import NearestPinTethers, Plasticity, Pressure
 from meshdeform.scene.forces import Impact, Wind, ray_hit
-from meshdeform.scene.pins import HardPinMotion, Keyframes, SoftPins, pivot_of
+from meshdeform.scene.pins import HardPinMotion, Keyframes, Motion, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
 from meshdeform.simulate import Settings
 from meshdeform.solvers.options import SweepOptions
@@ -182,10 +185,42 @@ def _collider(spec: ColliderSpec, i: int, recipe: Recipe, res: _Resolver) -> col
             raise recipe.error(path, f"cannot load collider mesh: {exc}") from None
         if other.triangles.shape[0] == 0:
             raise recipe.error(path, f"collider mesh {file} has no faces")
+        if spec.mesh.cache is not None:
+            return _deforming_collider(spec, i, recipe, other.positions, other.triangles)
         shape = col.TriangleMesh(other.positions, other.triangles)
     pivot = res.point(spec.pivot, rel) if spec.pivot is not None else shape.center
     thickness = spec.thickness if spec.thickness is not None else recipe.material.thickness
     return col.Collider(shape, spec.friction, thickness, _keyframes(spec.animate, pivot, spec.loop))
+
+
+def _attachment(collider: col.Collider) -> Motion | None:
+    """How pins attached to `collider` move: with a deforming body's surface, with a rigid
+    collider's keyframes, not at all with a collider that stays still."""
+    if isinstance(collider, DeformingCollider):
+        return SurfaceAttachment(collider.shape)
+    return collider.keys
+
+
+def _deforming_collider(
+    spec: ColliderSpec, i: int, recipe: Recipe, rest: np.ndarray, triangles: np.ndarray
+) -> DeformingCollider:
+    """A mesh collider driven by its cache (`meshdeform.io.caches`), read and checked against the
+    rest mesh and the run's length here, before anything runs."""
+    assert spec.mesh is not None and spec.mesh.cache is not None
+    sim = recipe.simulation
+    base = recipe.source.parent if recipe.source is not None else Path.cwd()
+    try:
+        cache = read_point_cache(spec.mesh.cache, base, rest.shape[0])
+        timing = cache_timing(cache, sim.fps, sim.start_frame, spec.fps, spec.start_frame)
+        check_cache_covers(cache, timing, sim.frames)
+    except (MeshdeformError, ValueError) as exc:
+        raise recipe.error(("colliders", i, "mesh", "cache"), str(exc)) from None
+
+    def track(time: float) -> np.ndarray:
+        return sample(cache, timing, time)
+
+    thickness = spec.thickness if spec.thickness is not None else recipe.material.thickness
+    return DeformingCollider(DeformingMesh(rest, triangles, track), spec.friction, thickness)
 
 
 def _self_collision(
@@ -289,6 +324,10 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     n_welded = welding.count
     warnings: list[str] = []
 
+    # -- colliders first: pins attach to them (they run last, see below) ---------------------------
+    colliders = [_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders)]
+    named = {spec.name: collider for spec, collider in zip(recipe.colliders, colliders, strict=True) if spec.name}
+
     # -- pins (input layout first: the hard ones go into the model) -------------------------------
     pin_sets = []
     hard_input = np.zeros(mesh.vertex_count, dtype=bool)
@@ -303,7 +342,7 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
         if not (hard.any() or soft.any()):
             raise recipe.error(("pins", i, "weight"), "every selected vertex has weight 0: nothing is pinned")
         pivot = res.point(pin.pivot, pin.relative) if pin.pivot is not None else pivot_of(mesh.positions[mask])
-        keys = _keyframes(pin.animate, pivot, pin.loop)
+        keys = _keyframes(pin.animate, pivot, pin.loop) if pin.attach is None else _attachment(named[pin.attach])
         pin_sets.append((hard, soft, strength, keys, pin.damping))
         hard_input |= hard
 
@@ -411,7 +450,6 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
         constraints.append(NearestPinTethers(model, anchor_idx, spec.tethers.max_stretch))
 
     # -- colliders last, so nothing is left inside one after a substep --------------------------------
-    colliders = [_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders)]
     constraints.extend(colliders)
 
     gravity = sim.gravity if sim.gravity is not None else gravity_vector(sim.up)

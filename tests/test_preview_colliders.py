@@ -23,6 +23,7 @@ from meshdeform.preview import FrameRenderer, PreviewOptions, frame_camera, rend
 from meshdeform.preview.camera import CameraSetup  # noqa: E402
 from meshdeform.preview.colliders import ColliderSurfaces, Surface  # noqa: E402
 from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Sphere, TriangleMesh  # noqa: E402
+from meshdeform.scene.deforming import DeformingCollider, DeformingMesh  # noqa: E402
 from meshdeform.scene.pins import Keyframe, Keyframes  # noqa: E402
 
 SIZE = (320, 240)
@@ -228,6 +229,19 @@ def test_mesh_collider_surface_is_the_mesh_moved_by_its_keys() -> None:
     assert np.array_equal(s.triangles, triangles)
     assert np.allclose(s.points, vertices + [0.0, 1.0, 0.0])
     assert as_polydata(s).n_open_edges == 0
+
+
+def test_a_deforming_body_is_drawn_at_its_cache_positions_at_each_time() -> None:
+    sphere = pv.Icosphere(radius=0.3, nsub=2)
+    vertices = np.asarray(sphere.points, dtype=np.float64)
+    triangles = sphere.faces.reshape(-1, 4)[:, 1:]
+    body = DeformingMesh(vertices, triangles, lambda t: vertices * (1.0 + t))  # swells
+    collider = DeformingCollider(body)
+    assert ColliderSurfaces([collider], np.array([[-1.0] * 3, [1.0] * 3])).animated
+    for time in (0.0, 0.5, 1.0):
+        s = surface_of(collider, time=time)
+        assert np.array_equal(s.triangles, triangles)
+        assert np.allclose(np.linalg.norm(s.points, axis=1), 0.3 * (1.0 + time))
 
 
 def test_a_scaled_keyframed_sphere_grows_about_its_pivot() -> None:

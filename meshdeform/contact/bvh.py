@@ -2,7 +2,9 @@
 
 Built once per mesh (`build_bvh`): top-down, each node's triangles split at the median of their
 centroids along the longest axis of the centroid bounds (a stable sort, so the tree depends on
-the input only), leaves of at most `LEAF_SIZE` triangles. The tree is a `TriangleBVH` of flat
+the input only), leaves of at most `LEAF_SIZE` triangles. A mesh that deforms (a cache-driven collider) keeps its
+tree and has its boxes refitted to the new vertex positions (`refit_bvh`): the queries stay exact,
+only slower where the motion has stretched the boxes. The tree is a `TriangleBVH` of flat
 arrays: node bounds, children (-1 at a leaf), each leaf's run of `order` (triangle ids).
 
 Queries (compiled; kernels call them per point or per cloth triangle): depth-first, the nearer
@@ -122,6 +124,38 @@ def build_bvh(vertices: np.ndarray, triangles: np.ndarray, leaf_size: int = LEAF
         tri_bounds=np.ascontiguousarray(np.concatenate([tlo, thi], axis=1)),
         depth=int(depth),
     )
+
+
+@numba.njit(**_JIT)
+def _refit(bounds: np.ndarray, nodes: np.ndarray, order: np.ndarray, tri_bounds: np.ndarray) -> None:
+    """Node boxes (N, 6) from the triangle boxes (T, 6), children before parents: `_build`
+    numbers every child after its parent, so a walk from the last node to the first sees both
+    children of a node before the node."""
+    for node in range(nodes.shape[0] - 1, -1, -1):
+        for k in range(3):
+            bounds[node, k] = np.inf
+            bounds[node, 3 + k] = -np.inf
+        if nodes[node, 0] < 0:
+            for i in range(nodes[node, 2], nodes[node, 2] + nodes[node, 3]):
+                t = order[i]
+                for k in range(3):
+                    bounds[node, k] = min(bounds[node, k], tri_bounds[t, k])
+                    bounds[node, 3 + k] = max(bounds[node, 3 + k], tri_bounds[t, 3 + k])
+        else:
+            for child in (nodes[node, 0], nodes[node, 1]):
+                for k in range(3):
+                    bounds[node, k] = min(bounds[node, k], bounds[child, k])
+                    bounds[node, 3 + k] = max(bounds[node, 3 + k], bounds[child, 3 + k])
+
+
+def refit_bvh(bvh: TriangleBVH, vertices: np.ndarray, triangles: np.ndarray) -> TriangleBVH:
+    """The same tree over the triangles (T, 3) at new vertex positions (V, 3) float64: new
+    boxes, the same nodes and triangle order (the arrays of `bvh` are not changed)."""
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
+    tri_bounds = np.ascontiguousarray(np.concatenate([corners.min(axis=1), corners.max(axis=1)], axis=1))
+    bounds = np.empty_like(bvh.bounds)
+    _refit(bounds, bvh.nodes, bvh.order, tri_bounds)
+    return bvh._replace(bounds=bounds, tri_bounds=tri_bounds)
 
 
 @numba.njit(**_JIT)

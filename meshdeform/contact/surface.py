@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from meshdeform.contact.bvh import STACK, TriangleBVH, build_bvh, closest_to_point
+from meshdeform.contact.bvh import STACK, TriangleBVH, build_bvh, closest_to_point, refit_bvh
 from meshdeform.topology import is_closed
 
 _JIT = {"cache": True, "error_model": "numpy"}
@@ -39,18 +39,26 @@ class Surface(NamedTuple):
     closed: bool
 
 
-def surface_of(vertices: np.ndarray, triangles: np.ndarray) -> Surface:
-    """The surface of triangles (K >= 1, 3) over vertices (M, 3), with its normals and BVH."""
-    v = np.ascontiguousarray(vertices, dtype=np.float64)
-    tri = np.ascontiguousarray(triangles, dtype=np.int64)
+def edge_index(triangles: np.ndarray, vertex_count: int) -> np.ndarray:
+    """(K, 3) int64: for each triangle the index of the undirected edge opposite each of its
+    corners, edges numbered 0..E-1 in the order of their sorted (low, high) vertex pair."""
+    tri = np.asarray(triangles, dtype=np.int64)
+    ends = tri[:, [[1, 2], [2, 0], [0, 1]]]  # the edge opposite each corner (K, 3, 2)
+    keys = (ends.min(axis=2) * vertex_count + ends.max(axis=2)).ravel()
+    _, inverse = np.unique(keys, return_inverse=True)
+    return inverse.reshape(tri.shape)
+
+
+def surface_normals(vertices: np.ndarray, triangles: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """`Surface.normals` (K, 7, 3) of triangles (K, 3) over vertices (M, 3) float64, with their
+    `edge_index` edges (K, 3)."""
+    v, tri = vertices, triangles
     m = v.shape[0]
     a, b, c = v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]]
     cross = np.cross(b - a, c - a)
     length = np.linalg.norm(cross, axis=1)
     unit = np.where(length[:, None] > 0, cross / np.where(length > 0, length, 1.0)[:, None], 0.0)
-    ends = tri[:, [[1, 2], [2, 0], [0, 1]]]  # the edge opposite each corner (K, 3, 2)
-    keys = (ends.min(axis=2) * m + ends.max(axis=2)).ravel()
-    _, inverse = np.unique(keys, return_inverse=True)
+    inverse = edges.ravel()
     per_edge = np.repeat(unit, 3, axis=0)
     sums = np.stack([np.bincount(inverse, weights=per_edge[:, k]) for k in range(3)], axis=1)
     edge_normals = sums[inverse].reshape(tri.shape[0], 3, 3)
@@ -61,13 +69,30 @@ def surface_of(vertices: np.ndarray, triangles: np.ndarray) -> Surface:
         angle = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=1), np.einsum("ij,ij->i", e1, e2))
         for k in range(3):
             vertex_normals[:, k] += np.bincount(tri[:, corner], weights=angle * unit[:, k], minlength=m)
-    normals = np.concatenate([unit[:, None], edge_normals, vertex_normals[tri]], axis=1)
+    return np.ascontiguousarray(np.concatenate([unit[:, None], edge_normals, vertex_normals[tri]], axis=1))
+
+
+def surface_of(vertices: np.ndarray, triangles: np.ndarray) -> Surface:
+    """The surface of triangles (K >= 1, 3) over vertices (M, 3), with its normals and BVH."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    tri = np.ascontiguousarray(triangles, dtype=np.int64)
     return Surface(
         vertices=v,
         triangles=tri,
-        normals=np.ascontiguousarray(normals),
+        normals=surface_normals(v, tri, edge_index(tri, v.shape[0])),
         bvh=build_bvh(v, tri),
         closed=is_closed(tri),
+    )
+
+
+def moved_surface(surface: Surface, vertices: np.ndarray, edges: np.ndarray) -> Surface:
+    """`surface` with its vertices moved to `vertices` (M, 3) (same triangles; `edges`: their
+    `edge_index`): normals computed anew, the BVH refitted (`bvh.refit_bvh`), not rebuilt."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    return surface._replace(
+        vertices=v,
+        normals=surface_normals(v, surface.triangles, edges),
+        bvh=refit_bvh(surface.bvh, v, surface.triangles),
     )
 
 
@@ -115,3 +140,49 @@ def signed_closest(
             normals[i, 0], normals[i, 1], normals[i, 2] = nx / length, ny / length, nz / length
         dist[i] = np.sqrt(d2)
     return closest, normals, dist
+
+
+@numba.njit(**_JIT)
+def surface_motion(
+    surface: Surface, start: np.ndarray, end: np.ndarray, points: np.ndarray, limit: float
+) -> np.ndarray:  # pragma: no cover
+    """(N, 3) how far the surface point nearest to each of points (N, 3) moves when the surface's
+    vertices go from start (M, 3) to end (M, 3): sum_k w_k (end - start)[corner k] at the nearest
+    point's weights w on `surface` (which holds one of the two configurations); zero for points
+    farther than `limit` from it. A deforming collider carries the cloth near it by this."""
+    n = points.shape[0]
+    out = np.zeros((n, 3))
+    tris = surface.triangles
+    bvh = surface.bvh
+    stack = np.empty(STACK, dtype=np.int64)
+    limit2 = limit * limit
+    for i in range(n):
+        _, t, wa, wb, wc = closest_to_point(
+            bvh.bounds, bvh.nodes, bvh.order, bvh.tri_bounds, surface.vertices, tris,
+            points[i, 0], points[i, 1], points[i, 2], limit2, stack,
+        )  # fmt: skip
+        if t < 0:
+            continue
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        for k in range(3):
+            out[i, k] = wa * (end[a, k] - start[a, k]) + wb * (end[b, k] - start[b, k]) + wc * (end[c, k] - start[c, k])
+    return out
+
+
+@numba.njit(**_JIT)
+def closest_triangles(surface: Surface, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+    """For points (N, 3): the triangle (N,) int64 holding the nearest surface point and that
+    point's barycentric weights (N, 3) on it."""
+    n = points.shape[0]
+    tri = np.empty(n, dtype=np.int64)
+    weights = np.empty((n, 3))
+    bvh = surface.bvh
+    stack = np.empty(STACK, dtype=np.int64)
+    for i in range(n):
+        _, t, wa, wb, wc = closest_to_point(
+            bvh.bounds, bvh.nodes, bvh.order, bvh.tri_bounds, surface.vertices, surface.triangles,
+            points[i, 0], points[i, 1], points[i, 2], np.inf, stack,
+        )  # fmt: skip
+        tri[i] = t
+        weights[i, 0], weights[i, 1], weights[i, 2] = wa, wb, wc
+    return tri, weights

@@ -6,9 +6,11 @@ tessellated as surfaces of revolution (`SEGMENTS` around, `RINGS` from pole to p
 square of half-side `FLOOR_SCALE` times the cloth's bounds diagonal, centred on the foot of the
 perpendicular from the cloth's bounds centre (the floor under the cloth). Every closed surface is
 oriented outward. Animated colliders follow their keyframes (`Collider.keys.apply`: rigid motion and
-uniform scale about the pivot): the rest-frame tessellation is made once and moved per frame.
+uniform scale about the pivot): the rest-frame tessellation is made once and moved per frame; a
+deforming body (`scene.deforming.DeformingMesh`) is drawn at its cache's positions at t.
 
-Only the colliders' public attributes are read (the shape classes and their fields, `Collider.keys`),
+Only the colliders' public attributes are read (the shape classes and their fields, `Collider.keys`,
+`DeformingMesh.positions_at`),
 not their contact code. Units: the cloth's (metres); arrays float64, triangles int64.
 """
 
@@ -22,6 +24,7 @@ import numpy as np
 from meshdeform.geometry import triangle_vertex_normals
 from meshdeform.scene.base import Scene
 from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Shape, Sphere, TriangleMesh
+from meshdeform.scene.deforming import DeformingMesh
 
 #: vertices around a sphere or capsule (longitude steps)
 SEGMENTS = 48
@@ -187,7 +190,7 @@ class ColliderSurfaces:
     @property
     def animated(self) -> bool:
         """Does any surface move over time?"""
-        return any(c.keys is not None for c in self.colliders)
+        return any(c.keys is not None or isinstance(c.shape, DeformingMesh) for c in self.colliders)
 
     def at(self, time: float) -> list[Surface]:
         """Every collider's surface at `time` seconds, in collider order."""
@@ -197,7 +200,9 @@ class ColliderSurfaces:
         keys = collider.keys
         if rest is not None:
             points, triangles, smooth = rest
-            if keys is not None:
+            if isinstance(collider.shape, DeformingMesh):  # a body following its cache
+                points = collider.shape.positions_at(time)
+            elif keys is not None:
                 points = keys.apply(points, time)
             return Surface(points, triangles, smooth, floor=False)
         plane = collider.shape

@@ -255,6 +255,18 @@ def _outward(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return triangles[:, ::-1].copy() if volume < 0 else triangles
 
 
+def surface_query(surface: Surface, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`Shape.query` of a triangle surface: signed distance (N,) (negative behind the nearest
+    point's pseudo-normal) and outward unit normal (N, 3) of points (N, 3)."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    closest, pseudo, dist = signed_closest(surface, points)
+    offset = points - closest
+    side = np.where(np.einsum("ij,ij->i", offset, pseudo) < 0, -1.0, 1.0)
+    direction = offset / np.where(dist > 1e-12, dist, np.inf)[:, None]
+    normal = np.where((dist > 1e-9)[:, None], direction * side[:, None], pseudo)
+    return side * dist, normal
+
+
 class TriangleMesh(Shape):
     """A static triangle mesh. Closed meshes are solids (behind the nearest surface point, by its
     angle-weighted pseudo-normal, is inside; an inside-out winding is turned outward); open ones
@@ -279,13 +291,7 @@ class TriangleMesh(Shape):
         self.solid = surface.closed
 
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        points = np.ascontiguousarray(points, dtype=np.float64)
-        closest, pseudo, dist = signed_closest(self.surface, points)
-        offset = points - closest
-        side = np.where(np.einsum("ij,ij->i", offset, pseudo) < 0, -1.0, 1.0)
-        direction = offset / np.where(dist > 1e-12, dist, np.inf)[:, None]
-        normal = np.where((dist > 1e-9)[:, None], direction * side[:, None], pseudo)
-        return side * dist, normal
+        return surface_query(self.surface, points)
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
@@ -411,6 +417,25 @@ class Collider(Constraint, Remappable):
         if self._side is not None and self._side.shape[0] > int(index_map.max(initial=-1)):
             self._side = self._side[index_map]
 
+    # -- what a deforming collider changes (`meshdeform.scene.deforming`) ------------------------
+    def _shape_at(self, time: float) -> ck.ShapeArrays:
+        """The shape as the kernels read it at a time (in its rest frame: it does not change)."""
+        return self.shape.arrays()
+
+    def _start_positions(self, state: State, end: np.ndarray, h: float, time: float, dt: float) -> np.ndarray:
+        """The cloth's positions (W, 3) at the substep's start, in the frame the contact runs in
+        (the collider's rest frame at time - dt). end: the local end positions; h: the local
+        thickness."""
+        return self._to_local(state.previous, time - dt)
+
+    def _surface_velocity(self, points: np.ndarray, time: float, dt: float) -> np.ndarray:
+        """World velocity (N, 3) over the substep of the collider's material points at local
+        points (N, 3) at its end: what contact friction is relative to and what a vertex put
+        back at its start moves with."""
+        if self.keys is None or dt <= 0:
+            return np.zeros_like(points)
+        return (self._to_world(points, time) - self._to_world(points, time - dt)) / dt
+
     # -- the constraint -------------------------------------------------------------------------
     def _primitives(self, model: SpringModel) -> np.ndarray:
         """This shape's primitive rows for the model (cached per model: a tear makes a new one)."""
@@ -441,7 +466,7 @@ class Collider(Constraint, Remappable):
         docstring): state.previous and state.positions are the substep's start and end (time
         - dt, time); corrected positions, velocities and previous positions are written back
         for the vertices that changed only, so the others keep their bytes."""
-        shape = self.shape.arrays()
+        shape = self._shape_at(time)
         prims = self._primitives(model)
         n = state.positions.shape[0]
         scale = self._scale(time)
@@ -451,8 +476,8 @@ class Collider(Constraint, Remappable):
             h = max(h, MIN_SHEET_GAP / scale)
         gap = 0.5 * h if h > 0 else MIN_SHEET_GAP / scale
         floor = h - FAIL_FRACTION * h if h > 0 else -gap
-        x0 = np.ascontiguousarray(self._to_local(state.previous, time - dt), dtype=np.float64)
         x1 = np.array(self._to_local(state.positions, time), dtype=np.float64, order="C")
+        x0 = np.ascontiguousarray(self._start_positions(state, x1, h, time, dt), dtype=np.float64)
         bounds = self.shape.bounds() if shape.kind != ck.MESH else (shape.bounds[0, :3], shape.bounds[0, 3:])
         lo, hi = (np.zeros(3), np.zeros(3)) if bounds is None else bounds
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
@@ -475,19 +500,13 @@ class Collider(Constraint, Remappable):
             state.positions[moved] = self._to_world(x1[moved], time)
         if self.keys is not None:
             nrm = nrm @ self.keys.rotation(time).T
-            surface_v = (self._to_world(q, time) - self._to_world(q, time - dt)) / dt if dt > 0 else np.zeros_like(q)
-        else:
-            surface_v = np.zeros_like(q)
+        surface_v = self._surface_velocity(np.ascontiguousarray(q), time, dt)
         touched = moved.copy()
         ck.respond(
             state.velocities, inv_mass, prims, ids, np.ascontiguousarray(w), np.ascontiguousarray(nrm),
             np.ascontiguousarray(surface_v), push * scale, self.friction, dt, touched,
         )  # fmt: skip
         if reverted.any():  # they move with the collider
-            back_x = x0[reverted]
-            if self.keys is not None and dt > 0:
-                state.velocities[reverted] = (self._to_world(back_x, time) - self._to_world(back_x, time - dt)) / dt
-            else:
-                state.velocities[reverted] = 0.0
+            state.velocities[reverted] = self._surface_velocity(np.ascontiguousarray(x0[reverted]), time, dt)
         state.previous[touched] = state.positions[touched] - state.velocities[touched] * dt
         self._stats = self._stats + stats + ContactStats(contacts=int(np.count_nonzero(touching)))

@@ -6,6 +6,10 @@ pins are a Constraint: after each solver substep a pinned vertex moves a fractio
 its target, chosen so that the pull behaves like a zero-length spring of `k` (1/s^2)
 independent of the substep size (equilibrium sag under gravity g/k, as in XPBD).
 
+Targets move by a `Motion`: `Keyframes`, or a pin attached to a collider (its keyframes, or for a
+deforming body `deforming.SurfaceAttachment`, which carries each point with the body surface it
+was bound to at rest).
+
 Keyframes (`Keyframes`) hold translate / rotate (Euler XYZ degrees) / scale channels, linearly
 interpolated, applied about a pivot: target = pivot + T + R S (rest - pivot). A key that omits
 a channel keeps that channel's previous value (identity before the first key that sets it).
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -24,6 +29,13 @@ from meshdeform.scene.base import Constraint, Remappable
 #: soft-pin spring constant per unit stiffness-odds: k = SOFT_PIN_RATE * s / (1 - s) in 1/s^2,
 #: so stiffness 0.5 sags 1 cm under 9.81 m/s^2 and 0.9 about 1 mm
 SOFT_PIN_RATE = 1000.0
+
+
+class Motion(Protocol):
+    """How pin targets move: rest points (P, 3) -> their positions (P, 3) at `time` seconds (the
+    same rest points give the same result: implementations may bind them once)."""
+
+    def apply(self, points: np.ndarray, time: float) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -122,11 +134,11 @@ class Keyframes:
 class HardPinMotion:
     """`Scene.pin_motion` for hard pins: targets of `np.flatnonzero(model.pinned)` at a time.
 
-    groups: (welded vertex indices, keyframes or None) per pin entry; a vertex in several
+    groups: (welded vertex indices, `Motion` or None) per pin entry; a vertex in several
     entries follows the last one. Pinned vertices in no animated group stay at rest.
     """
 
-    def __init__(self, model: SpringModel, groups: Sequence[tuple[np.ndarray, Keyframes | None]]) -> None:
+    def __init__(self, model: SpringModel, groups: Sequence[tuple[np.ndarray, Motion | None]]) -> None:
         self.pinned_idx = np.flatnonzero(model.pinned)
         self.rest = np.array(model.rest_positions[self.pinned_idx], dtype=np.float64)
         owner = np.full(self.pinned_idx.shape[0], -1, dtype=np.int64)
@@ -134,7 +146,7 @@ class HardPinMotion:
             idx = np.asarray(idx, dtype=np.int64)
             idx = idx[model.pinned[idx]]
             owner[np.searchsorted(self.pinned_idx, idx)] = g
-        self.animated: list[tuple[np.ndarray, Keyframes]] = []
+        self.animated: list[tuple[np.ndarray, Motion]] = []
         for g, (_, keys) in enumerate(groups):
             slots = np.flatnonzero(owner == g)
             if keys is not None and slots.size:
@@ -161,8 +173,8 @@ class SoftPins(Constraint, Remappable):
     """Constraint pulling vertices toward (animated) targets like zero-length springs.
 
     indices: welded vertices; stiffness: (P,) in [0, 1) (see `soft_pin_rate`); keys: optional
-    animation of the targets (rest positions transformed); damping: fraction of the velocity
-    relative to the target removed per second (0..1).
+    motion of the targets (`Motion`: keyframes or an attachment, of the rest positions);
+    damping: fraction of the velocity relative to the target removed per second (0..1).
     """
 
     def __init__(
@@ -170,7 +182,7 @@ class SoftPins(Constraint, Remappable):
         indices: np.ndarray,
         rest: np.ndarray,
         stiffness: np.ndarray | float,
-        keys: Keyframes | None = None,
+        keys: Motion | None = None,
         damping: float = 0.0,
     ) -> None:
         self.indices = np.asarray(indices, dtype=np.int64)

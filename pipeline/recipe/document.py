@@ -11,7 +11,7 @@ import copy
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, PrivateAttr
+from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from meshdeform.errors import RecipeError
 from meshdeform.export import EXPORTERS
@@ -57,6 +57,24 @@ class Recipe(Table):
     #: key paths of the deprecated solver options written directly under [simulation]
     _flat: tuple[KeyPath, ...] = PrivateAttr(default=())
     _deprecation: str | None = PrivateAttr(default=None)
+
+    @field_validator("colliders")
+    @classmethod
+    def _unique_names(cls, value: tuple[ColliderSpec, ...]) -> tuple[ColliderSpec, ...]:
+        names = [c.name for c in value if c.name is not None]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"collider name {twice[0]!r} is given to more than one collider")
+        return value
+
+    @model_validator(mode="after")
+    def _attached_to_a_collider(self) -> Recipe:
+        names = {c.name for c in self.colliders if c.name is not None}
+        for pin in self.pins:
+            if pin.attach is not None and pin.attach not in names:
+                known = ", ".join(sorted(names)) or "none has a name"
+                raise ValueError(f"pins: attach = {pin.attach!r} names no collider (named colliders: {known})")
+        return self
 
     @property
     def label(self) -> str:

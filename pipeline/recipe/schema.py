@@ -251,11 +251,20 @@ class PinSpec(Table):
     pivot: Vec3 | None = None
     loop: StrictBool = False
     relative: StrictBool = False
+    #: the name of a collider the pinned vertices ride on (they follow its keyframes, or the
+    #: surface points of a deforming body they were bound to at rest)
+    attach: StrictStr | None = Field(None, min_length=1)
 
     @field_validator("animate")
     @classmethod
     def _keys_increase(cls, value: tuple[KeySpec, ...]) -> tuple[KeySpec, ...]:
         return _check_keys(value)
+
+    @model_validator(mode="after")
+    def _one_motion(self) -> PinSpec:
+        if self.attach is not None and self.animate:
+            raise ValueError(f"a pin attached to {self.attach!r} moves with it: animate does not apply")
+        return self
 
     @property
     def is_hard(self) -> bool:
@@ -348,7 +357,12 @@ class ColliderBoxSpec(Table):
 
 
 class MeshColliderSpec(Table):
+    """`mesh = "body.obj"` or `mesh = { path = "body.obj", cache = "body.pc2" }`: a triangle mesh
+    collider, deforming when `cache` names its animation (`meshdeform.io.caches`: a .pc2, .mdd,
+    .usd/.usdc/.usda file or a glob of per-frame .obj/.ply files, relative to the recipe's folder)."""
+
     path: StrictStr
+    cache: StrictStr | None = None
 
 
 def _mesh_path(value: Any) -> Any:
@@ -356,6 +370,8 @@ def _mesh_path(value: Any) -> Any:
 
 
 class ColliderSpec(Table):
+    #: what pins attach to (`attach = "<name>"`); unique among the recipe's colliders
+    name: StrictStr | None = Field(None, min_length=1)
     ground: GroundSpec | None = None
     plane: PlaneSpec | None = None
     sphere: SphereSpec | None = None
@@ -369,11 +385,20 @@ class ColliderSpec(Table):
     animate: tuple[KeySpec, ...] = ()
     pivot: Vec3 | None = None
     loop: StrictBool = False
+    #: a mesh cache's frame rate and first frame, when they differ from what its file says (or,
+    #: when the file says nothing, from the simulation's)
+    fps: Float | None = Field(None, gt=0)
+    start_frame: Float | None = None
 
     @field_validator("animate")
     @classmethod
     def _keys_increase(cls, value: tuple[KeySpec, ...]) -> tuple[KeySpec, ...]:
         return _check_keys(value)
+
+    @property
+    def cache(self) -> str | None:
+        """The mesh collider's animation cache, None for any other collider."""
+        return self.mesh.cache if self.mesh is not None else None
 
     def _shapes(self) -> tuple[tuple[str, object], ...]:
         return (
@@ -398,6 +423,12 @@ class ColliderSpec(Table):
         for i, key in enumerate(self.animate):
             if key.scale is not None and len(set(key.scale)) != 1:
                 raise ValueError(f"animate[{i}].scale: colliders scale uniformly: give one number")
+        if self.cache is None:
+            for key, value in (("fps", self.fps), ("start_frame", self.start_frame)):
+                if value is not None:
+                    raise ValueError(f"{key} is the timing of a mesh cache: give mesh = {{ path = ..., cache = ... }}")
+        elif self.animate:
+            raise ValueError("a mesh with a cache moves by its cache: animate does not apply")
         return self
 
 

@@ -1,0 +1,146 @@
+"""Cloth on an animated body through the command line: a capsule body given as an OBJ rest mesh
+and a PC2 cache (both written here byte by byte, not by meshdeform), a cape whose top is attached
+to it, checked against the body's own motion: the attached vertices follow the rigid motion the
+cache was made from within 1 mm in every frame, and no point of the cape (every triangle sampled
+on a lattice) comes inside the body or nearer than its thickness minus 1 mm (distances by brute
+force over the body's triangles at that frame's pose). Malformed caches fail in one line, exit 2.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from test_collider_contact import lattice, mesh_distance
+from typer.testing import CliRunner
+
+from meshdeform.mesh import grid_mesh
+from pipeline.cli import app
+
+runner = CliRunner()
+FPS = 24
+FRAMES = 20
+THICKNESS = 0.01
+RADIUS = 0.15
+
+
+def body_pose(frame: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) of the body at cache frame `frame` (from 0): it walks
+    along +x at 0.48 m/s and turns about its vertical axis by 3 degrees a frame."""
+    angle = np.radians(3.0 * frame)
+    c, s = np.cos(angle), np.sin(angle)
+    rotation = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    return rotation, np.array([0.02 * frame, 0.0, 0.0])
+
+
+def capsule() -> trimesh.Trimesh:
+    body = trimesh.creation.capsule(height=0.6, radius=RADIUS, count=[24, 24])
+    body.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # axis along y
+    return body
+
+
+def obj_text(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """An OBJ file's text: `v` lines at full precision, then `f` lines (1-based)."""
+    v = [f"v {float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in vertices]
+    f = ["f " + " ".join(str(int(i) + 1) for i in face) for face in faces]
+    return "\n".join(v + f) + "\n"
+
+
+def pc2_bytes(samples: np.ndarray) -> bytes:
+    """A PC2 file of samples (F, V, 3): header (start frame 1, one sample a frame), float32 points."""
+    header = struct.pack("<12siiffi", b"POINTCACHE2\0", 1, samples.shape[1], 1.0, 1.0, samples.shape[0])
+    return header + np.asarray(samples, dtype="<f4").tobytes()
+
+
+def write_body(folder: Path, frames: int) -> np.ndarray:
+    """body.obj (rest = cache frame 0) and body.pc2 with `frames` samples; returns the rest vertices."""
+    body = capsule()
+    rest = np.asarray(body.vertices)
+    (folder / "body.obj").write_text(obj_text(rest, np.asarray(body.faces)))
+    samples = np.array([rest @ r.T + t for r, t in (body_pose(f) for f in range(frames))])
+    (folder / "body.pc2").write_bytes(pc2_bytes(samples))
+    return rest
+
+
+def write_cape(folder: Path) -> np.ndarray:
+    """A 0.4 x 0.6 m cape of 12 x 16 vertices hanging 1.4 cm behind the body's back (z < 0)."""
+    mesh = grid_mesh(12, 16, plane="xy")
+    p = np.asarray(mesh.positions) * np.array([0.4, 0.6, 1.0]) + np.array([-0.2, -0.35, 0.0])
+    p[:, 2] = -(RADIUS + THICKNESS + 0.004)
+    faces = np.asarray(mesh.face_indices).reshape(-1, 4)
+    (folder / "cape.obj").write_text(obj_text(p, faces))
+    return p
+
+
+RECIPE = f"""
+[simulation]
+fps = {FPS}
+frames = {FRAMES}
+
+[material]
+thickness = {THICKNESS}
+
+[[colliders]]
+name = "body"
+mesh = {{ path = "body.obj", cache = "body.pc2" }}
+friction = 0.3
+
+[[pins]]
+select = {{ box = {{ min = [-0.08, 0.24, -1], max = [0.08, 1, 1] }} }}
+attach = "body"
+"""
+
+
+def test_a_cape_attached_to_a_walking_turning_body_follows_it_and_stays_outside(tmp_path: Path) -> None:
+    rest_body = write_body(tmp_path, FRAMES + 2)
+    cape = write_cape(tmp_path)
+    (tmp_path / "cape.toml").write_text(RECIPE)
+    out = tmp_path / "out"
+    done = runner.invoke(app, ["simulate", str(tmp_path / "cape.obj"), "-r", str(tmp_path / "cape.toml"),
+                               "--out", str(out), "--format", "npz", "--quiet"])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    positions = np.load(out / "positions.npz")["positions"].astype(np.float64)
+    assert positions.shape == (FRAMES, cape.shape[0], 3)
+    attached = (np.abs(cape[:, 0]) <= 0.08) & (cape[:, 1] >= 0.24)
+    assert attached.sum() >= 3
+    faces = np.asarray(capsule().faces)
+    quads = np.asarray(grid_mesh(12, 16, plane="xy").face_indices).reshape(-1, 4)
+    cloth_triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    for k in range(FRAMES):  # output frame k + 1 is scene frame k + 1, the cache's sample k
+        rotation, translation = body_pose(k)
+        expected = cape[attached] @ rotation.T + translation
+        assert np.abs(positions[k, attached] - expected).max() < 1e-3, k
+        body = rest_body @ rotation.T + translation
+        samples = lattice(positions[k], cloth_triangles, n=4)
+        d = mesh_distance(samples, body, faces)
+        assert d.min() >= THICKNESS - 1e-3, (k, d.min())
+        axis_distance = np.linalg.norm((samples - translation)[:, [0, 2]], axis=1)
+        inside_cylinder = (np.abs(samples[:, 1]) < 0.3) & (axis_distance < RADIUS)
+        assert not inside_cylinder.any(), k
+    # the body carried the cape along: its free bottom moved with the walk
+    assert positions[-1, :, 0].mean() - cape[:, 0].mean() > 0.2
+
+
+@pytest.mark.parametrize("cache", ["short", "points", "truncated"])
+def test_a_malformed_cache_fails_in_one_line_before_anything_runs(tmp_path: Path, cache: str) -> None:
+    rest = write_body(tmp_path, FRAMES + 2)
+    write_cape(tmp_path)
+    (tmp_path / "cape.toml").write_text(RECIPE)
+    pc2 = tmp_path / "body.pc2"
+    if cache == "short":  # fewer frames than the run needs
+        write_body(tmp_path, FRAMES // 2)
+    elif cache == "points":  # the rest mesh has one vertex more than the cache
+        pc2.write_bytes(pc2_bytes(np.zeros((FRAMES + 2, rest.shape[0] + 1, 3))))
+    else:
+        pc2.write_bytes(pc2.read_bytes()[:-7])
+    out = tmp_path / "out"
+    done = runner.invoke(app, ["simulate", str(tmp_path / "cape.obj"), "-r", str(tmp_path / "cape.toml"),
+                               "--out", str(out), "--format", "npz"])  # fmt: skip
+    assert done.exit_code == 2, done.output
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, lines
+    assert "body.pc2" in lines[0] and "colliders" in lines[0]
+    assert not (out / "positions.npz").exists()
