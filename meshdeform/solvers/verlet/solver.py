@@ -19,8 +19,10 @@ frame's `force_residual` measures it). Velocities are (x - x_prev) / dt. Materia
 damping is not used; air damping is `options.damping`.
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
 the sweeps so that a cloth hanging from a few pins does not stretch far near them; their
-distances run along structural springs only, with xpbd's slack (`xpbd.solver.TETHER_SLACK`: a
-tether acts only past that stretch, so it does not stiffen the material below it).
+paths and slack are xpbd's (`xpbd.solver.TETHER_KINDS`, `TETHER_SLACK`: structural and shear
+springs, 3 %; a tether acts only past that stretch, so it does not stiffen the material below
+it). Structural paths only and no slack, as before verlet read the spring constant, clamp the
+stretch below the pins to zero and make the cloth stiffer than its material.
 
 A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
 bytes either way: `dispatch.SubstepPicker` runs the faster on the machine now), and
@@ -41,7 +43,7 @@ from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import SweepSolver, spring_constants
 from meshdeform.solvers.options import VerletOptions
 from meshdeform.solvers.verlet import kernels
-from meshdeform.solvers.xpbd.solver import TETHER_SLACK
+from meshdeform.solvers.xpbd.solver import TETHER_KINDS, TETHER_SLACK
 
 
 def relaxation(k: np.ndarray, w: np.ndarray, dt: float, iterations: int) -> np.ndarray:
@@ -67,6 +69,7 @@ class VerletSolver(SweepSolver, Solver):
     options_class: ClassVar[type[VerletOptions]] = VerletOptions
     default_substeps: ClassVar[int] = 18
     default_iterations: ClassVar[int] = 2
+    tether_kinds: ClassVar[tuple[int, ...]] = TETHER_KINDS
     tether_slack: ClassVar[float] = TETHER_SLACK
 
     def _prepare(self, model: SpringModel) -> None:
