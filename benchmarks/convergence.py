@@ -1,12 +1,13 @@
 """Issue 16 item 2: does the settled shape depend on the iteration and substep counts?
 
     python benchmarks/convergence.py [--sizes 12 48] [--solvers xpbd implicit ...]
-                                     [--iterations 2 5 10 20 40] [--frames 240] [--warm-start 0]
+                                     [--iterations 2 5 10 20 40] [--substeps N ...] [--frames 240]
+                                     [--warm-start 0]
 
 A vertical 1 m cloth of n x n vertices (the default material) hangs from its two top corners
 and settles under gravity; for every solver of the registry (or those given), at each iteration
 count (solvers without iterations: once) and at the solver's default and twice its default
-substeps, it prints the settled sag, how far that is from the material's equilibrium and the
+substeps (or the --substeps given), it prints the settled sag, how far that is from the material's equilibrium and the
 last frame's force residual (`Frame.force_residual`, the report's figure).
 
 Sag: the mean downward displacement (mm) of the free vertices from the rest sheet at the last
@@ -71,6 +72,7 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[12, 48])
     parser.add_argument("--solvers", nargs="+", default=list(SOLVERS))
     parser.add_argument("--iterations", type=int, nargs="+", default=[2, 5, 10, 20, 40])
+    parser.add_argument("--substeps", type=int, nargs="+", help="substep counts (default: the solver's and twice it)")
     parser.add_argument("--frames", type=int, default=240)
     parser.add_argument("--warm-start", type=float, default=0.0, help="xpbd's warm_start option")
     args = parser.parse_args()
@@ -86,7 +88,7 @@ def main() -> None:
         for name in args.solvers:
             cls = SOLVERS[name]
             counts = args.iterations if cls.default_iterations else [None]
-            for substeps in (cls.default_substeps, 2 * cls.default_substeps):
+            for substeps in args.substeps or (cls.default_substeps, 2 * cls.default_substeps):
                 for iterations in counts:
                     try:
                         sag, residual, rest, seconds = settle(
