@@ -254,3 +254,18 @@ def test_warm_started_xpbd_gives_the_same_bytes_whatever_the_build_and_the_calls
     assert warm_run("serial", 8).tobytes() == serial.tobytes()
     assert warm_run("parallel", 8).tobytes() == serial.tobytes()
     assert np.abs(warm_run("serial", 1, warm_start=0.0) - serial).max() > 1e-6  # the warm start acted
+
+
+def test_simulate_prints_the_not_converged_warning_under_its_summary(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    mesh = write_grid(tmp_path / "cloth.obj", 12)
+    recipe = tmp_path / "r.toml"
+    recipe.write_text("[simulation]\nframes = 80\n[[pins]]\nselect = { indices = [132, 143] }\n", encoding="utf-8")
+    result = CliRunner().invoke(app, ["simulate", str(mesh), "--recipe", str(recipe), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 0
+    lines = result.output.strip().splitlines()
+    assert lines[-1].startswith("  not converged: at rest the cloth is out of force balance by ")
+    assert "raise iterations or substeps" in lines[-1]
