@@ -2,14 +2,16 @@
 
     python benchmarks/vs_blender.py --blender-python /path/to/venv-with-bpy/bin/python \\
         [--n 64] [--frames 100] [--scene flat|hanging] [--repeats 3] \\
-        [--blender-quality 5,10,20] [--configs xpbd xpbd:substeps=44 implicit:iterations=6 ...]
+        [--blender quality=5 quality=10 quality=5:tension_stiffness=75 ...] \\
+        [--configs xpbd xpbd:substeps=44 implicit:iterations=6 ...]
 
 The scene: an N x N vertex grid of 1 x 1 m, two corners pinned, gravity, 24 fps. "flat" (default)
 lies horizontal and falls, pinned at two corners of one edge; "hanging" is vertical, in the plane
 of gravity, pinned at its two top corners. Blender runs headless through the `bpy` module (pip
 install bpy, in a venv of its own; it is never a dependency of meshdeform), one process per run,
-at each cloth quality asked for (`--blender-quality`: steps per frame, Blender's default 5; every
-other cloth setting at Blender's default); meshdeform runs in this process with each setting of
+with each setting of `--blender` (fields of Blender's `ClothSettings`, colon separated: `quality`
+is steps per frame, Blender's default 5; `tension_stiffness=75` etc.; every field not given at
+Blender's default); meshdeform runs in this process with each setting of
 `--configs` (`solver` alone is the solver's defaults; `solver:substeps=44:iterations=3` or any
 field of the solver's options, e.g. `springs:strain_limit=1.05`).
 
@@ -23,8 +25,9 @@ Both sides are measured alike:
 - Stretch: the longest mesh edge (the grid's edges are meshdeform's structural springs) over its
   rest length, read after EVERY simulated frame outside the timed span, worst frame reported.
 - Repeats: every run of the list, one after the other, `--repeats` times; each run's speed is
-  divided by that of Blender at its first quality in the same repeat (the ratios cancel some of a
-  shared machine's drift). Printed: median frames/s, the range of the ratios, the worst stretch.
+  divided by that of Blender's first setting in the same repeat (the ratios cancel some of a
+  shared machine's drift). Printed: median frames/s, the ratios' median (and range), the worst and
+  the last frame's stretch.
 - The quality-adjusted table: for each side (Blender, and each meshdeform solver), the fastest of
   its settings whose worst frame stretches at most 1.10 (then 1.05), or "not reached".
 """
@@ -44,6 +47,16 @@ import numpy as np
 
 #: stretch bounds of the quality-adjusted table: worst-frame longest edge / rest length
 BOUNDS = (1.10, 1.05)
+
+#: Blender's cloth settings run by default: its defaults (quality 5 steps a frame), more steps, stiffer
+#: springs (the default tension and compression stiffness is 15)
+DEFAULT_BLENDER = (
+    "quality=5",
+    "quality=10",
+    "quality=20",
+    "quality=5:tension_stiffness=150:compression_stiffness=150",
+    "quality=5:tension_stiffness=500:compression_stiffness=500",
+)
 
 #: the meshdeform settings run by default: each solver's defaults and a finer one or two
 DEFAULT_CONFIGS = (
@@ -66,7 +79,7 @@ BLENDER_SIDE = textwrap.dedent(
     import bpy
     import numpy as np
 
-    n, frames, scene_kind, quality = int(sys.argv[-4]), int(sys.argv[-3]), sys.argv[-2], int(sys.argv[-1])
+    n, frames, scene_kind, settings = int(sys.argv[-4]), int(sys.argv[-3]), sys.argv[-2], json.loads(sys.argv[-1])
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.mesh.primitive_grid_add(x_subdivisions=n, y_subdivisions=n, size=1.0)
     obj = bpy.context.active_object
@@ -90,7 +103,8 @@ BLENDER_SIDE = textwrap.dedent(
     group.add(corners, 1.0, "REPLACE")
     cloth = obj.modifiers.new("cloth", "CLOTH")
     cloth.settings.vertex_group_mass = "pin"
-    cloth.settings.quality = quality
+    for key, value in settings.items():
+        setattr(cloth.settings, key, value)
     scene = bpy.context.scene
     scene.render.fps = 24
     last = frames + 1  # frame 1 is the cache start (rest pose): frames 2 .. frames + 1 are simulated
@@ -163,10 +177,12 @@ def edge_stretch(positions: np.ndarray, edges: np.ndarray, rest: np.ndarray) -> 
     return float((np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1) / rest).max())
 
 
-def run_blender(python: str, n: int, frames: int, scene: str, quality: int) -> tuple[Run, str]:
-    """Run the Blender side in its own interpreter; the run and Blender's version."""
+def run_blender(python: str, n: int, frames: int, scene: str, spec: str) -> tuple[Run, str]:
+    """Run the Blender side in its own interpreter with the cloth settings `spec` ('key=value:...',
+    see `parse_config`); the run and Blender's version."""
+    _, _, settings = parse_config(":" + spec)
     proc = subprocess.run(
-        [python, "-c", BLENDER_SIDE, str(n), str(frames), scene, str(quality)],
+        [python, "-c", BLENDER_SIDE, str(n), str(frames), scene, json.dumps(settings)],
         capture_output=True,
         text=True,
         timeout=3600,
@@ -176,7 +192,8 @@ def run_blender(python: str, n: int, frames: int, scene: str, quality: int) -> t
     if proc.returncode != 0 or not lines:
         raise SystemExit(f"blender side failed ({proc.returncode}): {proc.stderr.strip()[-2000:]}")
     b = json.loads(lines[-1])
-    run = Run("blender", f"quality {quality}", b["frames"], b["seconds"], b["max_stretch"], b["last_stretch"])
+    setting = ", ".join(f"{k.removesuffix('_stiffness')} {v}" for k, v in settings.items())
+    run = Run("blender", setting, b["frames"], b["seconds"], b["max_stretch"], b["last_stretch"])
     return run, b["version"]
 
 
@@ -260,18 +277,20 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=100, help="simulated frames on each side")
     parser.add_argument("--scene", choices=("flat", "hanging"), default="flat")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--blender-quality", default="5,10,20", help="Blender cloth steps per frame, comma separated")
-    parser.add_argument("--configs", nargs="+", default=list(DEFAULT_CONFIGS), help="meshdeform settings")
+    parser.add_argument(
+        "--blender", nargs="*", default=list(DEFAULT_BLENDER), help="Blender's cloth settings ('key=value:...')"
+    )
+    parser.add_argument("--configs", nargs="*", default=list(DEFAULT_CONFIGS), help="meshdeform settings")
     args = parser.parse_args()
-    qualities = [int(q) for q in args.blender_quality.split(",")] if args.blender_python else []
+    blender = args.blender if args.blender_python else []
     rows: dict[str, Row] = {}
     version = ""
     for repeat in range(args.repeats):
         reference = None
-        for quality in qualities:
-            run, version = run_blender(args.blender_python, args.n, args.frames, args.scene, quality)
+        for spec in blender:
+            run, version = run_blender(args.blender_python, args.n, args.frames, args.scene, spec)
             reference = reference or run
-            rows.setdefault(f"b{quality}", Row(run.side, run.setting)).runs.append(run)
+            rows.setdefault(f"blender {spec}", Row(run.side, run.setting)).runs.append(run)
         for spec in args.configs:
             run = run_meshdeform(spec, args.n, args.frames, args.scene)
             rows.setdefault(spec, Row(run.side, run.setting)).runs.append(run)
@@ -280,16 +299,16 @@ def main() -> None:
                 row.ratios.append(row.runs[-1].fps / reference.fps)
         print(f"repeat {repeat + 1} of {args.repeats} done", file=sys.stderr, flush=True)
     table = list(rows.values())
-    ref_name = f"blender quality {qualities[0]}" if qualities else "-"
     print(
         f"{args.n} x {args.n} grid, {args.scene}, {args.frames} simulated frames at 24 fps, two corners pinned, "
         f"{args.repeats} repeats{', Blender ' + version if version else ''}"
     )
-    head = f"{'side':8s} {'setting (iter x substeps)':28s} {'frames/s':>9s} {'x ' + ref_name:>24s}"
+    head = f"{'side':8s} {'setting (iter x substeps)':42s} {'frames/s':>9s} {'x Blender 1st':>19s}"
     print(f"{head} {'worst stretch':>14s} {'last':>7s}")
     for row in table:
-        ratio = f"{min(row.ratios):.2f}-{max(row.ratios):.2f}" if row.ratios else "-"
-        line = f"{row.side:8s} {row.setting:28s} {row.fps:9.2f} {ratio:>24s}"
+        spread = f"{statistics.median(row.ratios):.2f} ({min(row.ratios):.2f}-{max(row.ratios):.2f})"
+        ratio = spread if row.ratios else "-"
+        line = f"{row.side:8s} {row.setting:42s} {row.fps:9.2f} {ratio:>19s}"
         print(f"{line} {row.max_stretch:14.3f} {row.last_stretch:7.3f}")
     for bound in BOUNDS:
         best = fastest_within(table, bound)
@@ -299,8 +318,11 @@ def main() -> None:
             if row is None:
                 print(f"  {side:8s} not reached")
                 continue
-            versus = f" ({row.fps / blender.fps:.1f} x Blender's)" if blender is not None and side != "blender" else ""
-            print(f"  {side:8s} {row.setting:28s} {row.fps:9.2f} frames/s at {row.max_stretch:.3f}{versus}")
+            versus = ""
+            if blender is not None and side != "blender":  # the same repeat's runs paired
+                paired = statistics.median(r.fps / b.fps for r, b in zip(row.runs, blender.runs, strict=True))
+                versus = f" ({paired:.1f} x Blender's, median of the repeats)"
+            print(f"  {side:8s} {row.setting:42s} {row.fps:9.2f} frames/s at {row.max_stretch:.3f}{versus}")
     sys.stdout.flush()
 
 
