@@ -312,7 +312,7 @@ def main() -> None:
     table = list(rows.values())
     print(
         f"{args.n} x {args.n} grid, {args.scene}, {args.frames} simulated frames at 24 fps, two corners pinned, "
-        f"{args.repeats} repeats{', Blender ' + version if version else ''}"
+        f"{args.repeats} repeat(s){', Blender ' + version if version else ''}"
     )
     head = f"{'side':8s} {'setting (iter x substeps)':42s} {'frames/s':>9s} {'x Blender 1st':>19s}"
     print(f"{head} {'worst stretch':>14s} {'last':>7s}")
@@ -324,15 +324,16 @@ def main() -> None:
         print(f"{line} {row.max_stretch:14.3f} {row.last_stretch:7.3f}")
     for bound in BOUNDS:
         best = fastest_within(table, bound)
-        blender = best.get("blender")
+        blender_best = best.get("blender")
         print(f"\nworst-frame stretch <= {bound:.2f}: the fastest setting of each side")
         for side, row in best.items():
             if row is None:
                 print(f"  {side:8s} not reached")
                 continue
             versus = ""
-            if blender is not None and side != "blender":  # the same repeat's runs paired
-                paired = statistics.median(r.fps / b.fps for r, b in zip(row.runs, blender.runs, strict=True))
+            if blender_best is not None and side != "blender":  # the same repeat's runs paired
+                pairs = zip(row.runs, blender_best.runs, strict=True)
+                paired = statistics.median(r.fps / b.fps for r, b in pairs)
                 versus = f" ({paired:.1f} x Blender's, median of the repeats)"
             print(f"  {side:8s} {row.setting:42s} {row.fps:9.2f} frames/s at {row.max_stretch:.3f}{versus}")
     sys.stdout.flush()
