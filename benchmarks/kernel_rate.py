@@ -122,7 +122,9 @@ class Peer:
         self.a = np.ascontiguousarray(springs[order, 0].astype(np.int32))
         self.b = np.ascontiguousarray(springs[order, 1].astype(np.int32))
         self.rest = np.ascontiguousarray(np.asarray(model.rest_lengths, dtype=np.float64)[order])
-        k = np.maximum(np.asarray(model.stiffness, dtype=np.float64), 0.0)[order] * float(model.material.stretch_modulus)
+        k = np.maximum(np.asarray(model.stiffness, dtype=np.float64), 0.0)[order] * float(
+            model.material.stretch_modulus
+        )
         self.alpha = np.where(k > 0.0, 1.0 / np.where(k > 0.0, k, 1.0) / (dt * dt), 0.0)
         self.lam = np.zeros(springs.shape[0])
         self.starts = np.searchsorted(colour[order], np.arange(self.colours + 1)).astype(np.int64)
@@ -136,8 +138,24 @@ class Peer:
 
     def frame(self, substeps: int) -> None:
         peer_substeps(
-            self.x, self.y, self.z, self.px, self.py, self.pz, self.w, -9.81, self.a, self.b, self.rest,
-            self.alpha, self.lam, self.starts, self.retention, self.dt2, self.sweeps, substeps,
+            self.x,
+            self.y,
+            self.z,
+            self.px,
+            self.py,
+            self.pz,
+            self.w,
+            -9.81,
+            self.a,
+            self.b,
+            self.rest,
+            self.alpha,
+            self.lam,
+            self.starts,
+            self.retention,
+            self.dt2,
+            self.sweeps,
+            substeps,
         )
 
 
@@ -168,7 +186,8 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=3, help="frames per repetition")
     parser.add_argument("--repeats", type=int, default=7)
     args = parser.parse_args()
-    print(f"kernel rate, {args.n} x {args.n} cloth hanging from two corners; Numba threads {nb.get_num_threads()}; {load()}")
+    threads = nb.get_num_threads()
+    print(f"kernel rate, {args.n} x {args.n} cloth hanging from two corners; Numba threads {threads}; {load()}")
     model = scene_model(args.n)
     settings = Settings(solver="xpbd")
     substeps, sweeps = int(settings.substeps), int(settings.iterations)
