@@ -31,11 +31,12 @@ _WORDS = 6
 
 
 @nb.njit(**SWEEP)
-def _xpbd_spring(X, P, T, lam, s, damped, first):  # pragma: no cover - compiled
+def _xpbd_spring(X, P, T, lam, s, damped, first, keep):  # pragma: no cover - compiled
     """One XPBD distance constraint (P[s], its constants T[P[s].k]: see XPBD_SPRING).
 
     dlam = (-C - a~ lam - gamma n . (dx - dx_prev)) / ((1 + gamma) w + a~), written as
     (L - l - gamma (l - d . dp / l) - a~ lam) / den with d = x_b - x_a, dp = prev_b - prev_a.
+    first: lam starts at zero (not read); keep: the new lam is stored (not after the last sweep).
     """
     e = P[s]
     va = X[e.a]
@@ -60,38 +61,75 @@ def _xpbd_spring(X, P, T, lam, s, damped, first):  # pragma: no cover - compiled
         pz = vb.pz - va.pz
         num -= c.g * (length - (dx * px + dy * py + dz * pz) * inv_l)
     dlam = num * inv_den
-    lam[s] = lam_s + dlam
+    if keep:
+        lam[s] = lam_s + dlam
     q = -dlam * inv_l
     pull(va, vb, dx, dy, dz, q * va.w, q * vb.w)
 
 
 @nb.njit(**SWEEP)
-def _xpbd_range(X, P, T, lam, lo, hi, backward, damped, first):  # pragma: no cover - compiled
-    """Springs lo..hi-1 (unsigned offsets: no wraparound code), forward or backward.
-
-    first: the substep's first sweep (forward), whose multipliers start at zero: written, not read.
-    """
-    one = np.uint64(1)
-    if first:
-        if damped:
+def _xpbd_forward(X, P, T, lam, lo, hi, damped, first, keep):  # pragma: no cover - compiled
+    """Springs lo..hi-1 forward; every flag a constant in each loop (see `_xpbd_range`)."""
+    if damped:
+        if first:
+            if keep:
+                for s in range(lo, hi):
+                    _xpbd_spring(X, P, T, lam, s, True, True, True)
+            else:
+                for s in range(lo, hi):
+                    _xpbd_spring(X, P, T, lam, s, True, True, False)
+        elif keep:
             for s in range(lo, hi):
-                _xpbd_spring(X, P, T, lam, s, True, True)
+                _xpbd_spring(X, P, T, lam, s, True, False, True)
         else:
             for s in range(lo, hi):
-                _xpbd_spring(X, P, T, lam, s, False, True)
-    elif damped:
-        if backward:
-            for j in range(hi - lo):
-                _xpbd_spring(X, P, T, lam, hi - one - j, True, False)
+                _xpbd_spring(X, P, T, lam, s, True, False, False)
+    elif first:
+        if keep:
+            for s in range(lo, hi):
+                _xpbd_spring(X, P, T, lam, s, False, True, True)
         else:
             for s in range(lo, hi):
-                _xpbd_spring(X, P, T, lam, s, True, False)
-    elif backward:
-        for j in range(hi - lo):
-            _xpbd_spring(X, P, T, lam, hi - one - j, False, False)
+                _xpbd_spring(X, P, T, lam, s, False, True, False)
+    elif keep:
+        for s in range(lo, hi):
+            _xpbd_spring(X, P, T, lam, s, False, False, True)
     else:
         for s in range(lo, hi):
-            _xpbd_spring(X, P, T, lam, s, False, False)
+            _xpbd_spring(X, P, T, lam, s, False, False, False)
+
+
+@nb.njit(**SWEEP)
+def _xpbd_backward(X, P, T, lam, lo, hi, damped, keep):  # pragma: no cover - compiled
+    """Springs hi-1 down to lo (unsigned offsets: no wraparound code); never a first sweep."""
+    one = np.uint64(1)
+    if damped:
+        if keep:
+            for j in range(hi - lo):
+                _xpbd_spring(X, P, T, lam, hi - one - j, True, False, True)
+        else:
+            for j in range(hi - lo):
+                _xpbd_spring(X, P, T, lam, hi - one - j, True, False, False)
+    elif keep:
+        for j in range(hi - lo):
+            _xpbd_spring(X, P, T, lam, hi - one - j, False, False, True)
+    else:
+        for j in range(hi - lo):
+            _xpbd_spring(X, P, T, lam, hi - one - j, False, False, False)
+
+
+@nb.njit(**SWEEP)
+def _xpbd_range(X, P, T, lam, lo, hi, backward, damped, first, last):  # pragma: no cover - compiled
+    """Springs lo..hi-1, forward or backward.
+
+    first: the substep's first sweep (forward), whose multipliers start at zero: written, not read.
+    last: its last sweep, whose multipliers nothing reads (the next substep starts from zero): read,
+    not written, which spares the sweep the write-back of the multiplier array.
+    """
+    if backward:
+        _xpbd_backward(X, P, T, lam, lo, hi, damped, not last)
+    else:
+        _xpbd_forward(X, P, T, lam, lo, hi, damped, first, not last)
 
 
 def xpbd_substep(
@@ -113,6 +151,7 @@ def xpbd_substep(
     each, and every vertex sees the same operations in the same order in both.
     """
     dt2 = dt * dt
+    last = iterations - 1
     for p in nb.prange(parts):
         load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
     for p in nb.prange(parts):
@@ -121,8 +160,8 @@ def xpbd_substep(
         for it in range(iterations):
             backward = (it % 2) == 1
             for p in nb.prange(parts):
-                _xpbd_range(X, P, T, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
-            _xpbd_range(X, P, T, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
+                _xpbd_range(X, P, T, lam, offsets[p], offsets[p + 1], backward, damped, it == 0, it == last)
+            _xpbd_range(X, P, T, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0, it == last)
         if step + 1 < count:
             for p in nb.prange(parts):
                 apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
