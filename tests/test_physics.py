@@ -129,7 +129,7 @@ def test_xpbd_sag_independent_of_iterations() -> None:
     assert abs(few - many) / many < 0.05
 
 
-# xpbd's per-spring constants (compliances, denominators, damping factor: `kernels.XPBD_SPRING`)
+# xpbd's per-spring constants (compliances, denominators, damping factor: `kernels.XPBD_CONSTANTS`)
 # decide the behaviour below; each check fails when one of them is wrong. Tethers are off so
 # that the springs act alone.
 

@@ -154,6 +154,30 @@ def test_layout_slabs_share_no_vertex(parts: int) -> None:
     assert np.array_equal(lay.rest, model.rest_lengths[lay.order])
 
 
+@pytest.mark.parametrize("jitter", [0.0, 0.2])
+def test_xpbd_springs_share_constants_only_where_they_are_equal(jitter: float) -> None:
+    """Every spring's shared constants record holds its own rest length and compliance; a uniform
+    grid needs few records (one per kind, mass pair and boundary case), a jittered one (every rest
+    length different) one per spring."""
+    mesh = grid_mesh(12, 12, plane="xy")
+    rng = np.random.default_rng(3)
+    mesh.positions[:, :2] += rng.uniform(-jitter, jitter, (mesh.positions.shape[0], 2)) / 11
+    pinned = np.zeros(144, dtype=bool)
+    pinned[[132, 143]] = True
+    model = SpringModel.from_mesh(mesh, pinned_input=pinned)
+    solver = make_solver("xpbd")
+    solver.step(model, State.at_rest(model), 1e-3, Control(np.zeros((144, 3))))
+    order = solver.layout.order
+    records = solver.constants[solver.params["k"]]
+    assert np.array_equal(records["rest"], model.rest_lengths[order])
+    k = model.stiffness[order] * model.material.stretch_modulus
+    assert np.allclose(records["at"], 1.0 / (k * 1e-6), rtol=1e-12)
+    if jitter:
+        assert solver.constant_count == model.spring_count
+    else:
+        assert solver.constant_count < model.spring_count // 5
+
+
 def test_tethers_hold_at_rest_and_reach_each_pin_group() -> None:
     model = cloth(10)
     t = tethers(model, 1.0)

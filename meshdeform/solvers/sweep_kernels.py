@@ -5,7 +5,7 @@ the layout's kernel numbering, one `VERTEX` record per vertex: position, inverse
 previous position in one 64-byte cache line, so the two positions a spring reads arrive
 together (xpbd's damping reads both ends' previous positions; verlet's relaxation does not, and
 the previous position rides along to the next substep's prediction and the write-back). Per
-spring one record of precomputed constants (see each solver's kernels), so a projection does one
+spring precomputed constants (see each solver's kernels), so a projection does one
 square root and one division and no gather of masses. Record fields compile to constant offsets
 and unsigned indices need no negative-index wraparound, which keeps the loops short. Only free
 vertices are written back: pinned positions stay bit-identical.

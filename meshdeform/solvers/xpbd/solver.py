@@ -44,9 +44,11 @@ A whole substep (prediction, tethers, sweeps, velocities) is one compiled call
 happens between its substeps (`advance`: the vertices stay in the scratch from one substep to
 the next, the State is read once and written once per frame, the same bytes as substep by
 substep). The scratch holds one cache line per vertex (`sweep_kernels.VERTEX`: position, inverse
-mass, previous position); per spring the constants (compliances, 1 / denominators, damping) are
-precomputed once per step size into one `kernels.XPBD_SPRING` record beside the spring's ends,
-so a projection streams one array and costs one square root and one division. The first sweep of
+mass, previous position); per spring the constants (rest length, compliances, 1 / denominators,
+damping) are precomputed once per step size into a `kernels.XPBD_CONSTANTS` record, springs with
+the same six values sharing one, and the spring's `kernels.XPBD_SPRING` record holds its ends and
+the index of its constants: a projection streams 12 bytes of spring record (and its multiplier)
+and costs one square root and one division. The first sweep of
 a substep writes the multipliers without reading them (they start at zero).
 """
 
@@ -86,20 +88,21 @@ class XPBDSolver(SweepSolver, Solver):
         self.params = self._buffer("params", lay.a.shape[0], kernels.XPBD_SPRING)
         self.params["a"] = lay.ends["a"]
         self.params["b"] = lay.ends["b"]
+        self.constants = self._buffer("constants", lay.a.shape[0], kernels.XPBD_CONSTANTS)
         self.lam = self._buffer("lam", lay.a.shape[0], np.float64)
         self.lam[:] = 0.0
         self._warm_state = None
 
     def _coefficients(self, dt: float) -> None:
-        """Per-spring records (`kernels.XPBD_SPRING`) for this step size, in one compiled pass
-        (`kernels.xpbd_constants`: no temporaries, N = 256 has 390k springs)."""
+        """Per-spring constants (`kernels.XPBD_CONSTANTS`, indexed by the `kernels.XPBD_SPRING`
+        records) for this step size, in one compiled pass (`kernels.xpbd_constants`)."""
         model = self._model
-        self.damped = bool(
-            kernels.xpbd_constants(
-                self.layout.order, model.springs, model.rest_lengths, model.stiffness, model.compression,
-                model.damping, self.inv_mass, float(model.material.stretch_modulus), dt, self.params,
-            )
+        damped, self.constant_count = kernels.xpbd_constants(
+            self.layout.order, model.springs, model.rest_lengths, model.stiffness, model.compression,
+            model.damping, self.inv_mass, float(model.material.stretch_modulus), dt, self.params,
+            self.constants, self.constants.view(np.uint64),
         )
+        self.damped = bool(damped)
         self.retention = velocity_retention(self.options.damping, dt)
         self._dt = dt
 
@@ -119,8 +122,8 @@ class XPBDSolver(SweepSolver, Solver):
         lay = self.layout
         args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
-            self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.lam,
-            self.offsets, lay.parts, self.iterations, self.damped,
+            self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.constants,
+            self.lam, self.offsets, lay.parts, self.iterations, self.damped,
             self.tethers, self.chunks.vertices, self.chunks.tethers, float(self.options.warm_start),
         )
         self.substep(*args, count)
