@@ -109,7 +109,8 @@ class Settings:
 
 @dataclass(frozen=True)
 class Frame:
-    """One output frame: number (from 1), time, positions in the input layout and figures.
+    """One output frame: number (from 1; `initial_frame` is frame 0, the state before the first
+    step), time, positions in the input layout and figures.
 
     max_stretch: largest structural spring length / rest length. max_speed: m/s.
     at_rest: max_speed below `Settings.rest_speed`. rest_frame: the first frame of the
@@ -137,6 +138,30 @@ class Frame:
     split_vertices: int = 0
     pieces: int | None = None
     contact: ContactWork | None = None
+
+
+def initial_frame(model: SpringModel, state: State | None = None) -> Frame:
+    """Frame 0: the model where `simulate` starts from it (its rest pose unless `state` is given),
+    at time 0, before any step. Outputs write it as the first frame (the rest pose at the start
+    frame, as Blender's own cloth cache does), so frame k is the state k / fps seconds later."""
+    state = state or State.at_rest(model)
+    welded = np.array(state.positions, dtype=np.float64)
+    structural = _Structural.of(model)
+    stretch = (
+        float(guard_kernels.max_ratio(welded, structural.a, structural.b, structural.rest))
+        if structural.a.size
+        else 1.0
+    )
+    speed = float(np.sqrt(np.max(np.einsum("ij,ij->i", state.velocities, state.velocities), initial=0.0)))
+    return Frame(
+        index=0,
+        time=float(state.time),
+        positions=model.to_input_layout(welded),
+        welded_positions=welded,
+        max_stretch=stretch,
+        max_speed=speed,
+        model=model,
+    )
 
 
 def rest_frame(frames: Iterable[Frame]) -> int | None:

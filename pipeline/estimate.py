@@ -103,11 +103,15 @@ def human_bytes(n: float) -> str:
 
 def output_bytes(recipe: Recipe, mesh: Mesh) -> dict[str, int]:
     """Estimated bytes each of the recipe's output formats writes for `mesh`, plus "preview"."""
-    frames = recipe.simulation.frames
+    frames = recipe.simulation.frames + 1  # the rest pose, then every simulated frame
     sizes: dict[str, int] = {}
     for name in dict.fromkeys(recipe.output.formats):
         exporter = EXPORTERS.get(name)
-        size = None if exporter is None else exporter.estimated_bytes(mesh, frames)
+        # point caches also hold copies of the rest pose for scene frames 0 .. start_frame - 1
+        if exporter is None:
+            continue
+        lead = recipe.simulation.start_frame if exporter.pads_to_scene_frame_zero else 0
+        size = exporter.estimated_bytes(mesh, frames + lead)
         if size is not None:
             sizes[name] = int(size)
     preview = _preview_bytes(recipe)

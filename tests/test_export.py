@@ -53,10 +53,12 @@ def point_data(mesh: Mesh, pos: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def frames_of(mesh: Mesh, count: int = FRAMES) -> list[FrameData]:
+    """`count` frames as a run hands them over: frame index i - 1 (0: the first, a run's rest pose,
+    at scene frame start_frame) holds wave(mesh, i), so scene frame start_frame + i - 1 does."""
     out = []
     for i in range(1, count + 1):
         pos = wave(mesh, i)
-        out.append(FrameData(index=i, time=i / FPS, positions=pos, point_data=point_data(mesh, pos)))
+        out.append(FrameData(index=i - 1, time=(i - 1) / FPS, positions=pos, point_data=point_data(mesh, pos)))
     return out
 
 

@@ -1,9 +1,11 @@
 """MDD (LightWave point cache, read by Blender's Mesh Cache modifier) export: one big-endian file.
 
 Layout (DESIGN.md section 5): `int32 num_frames`, `int32 num_points`, `float32 times[num_frames]`
-(seconds), then exactly `num_frames` blocks of `num_points * 3` float32 (no extra rest block).
-The times are scene times, `(start_frame + index - 1) / fps`, so that Blender's Mesh Cache
-modifier in "Time" mode plays frame 1 at scene frame `start_frame` (checked with Blender 5.0.1).
+(seconds), then exactly `num_frames` blocks of `num_points * 3` float32. Block k is scene frame k:
+the first frame written (the rest pose at `start_frame`, frame index 0) is preceded by copies of
+itself for scene frames 0 .. start_frame - 1 (`base.leading_samples`), and the times are scene
+frame / fps, so Blender's Mesh Cache modifier at its defaults ("Frame" time mode, Frame Start 0)
+and in "Time" mode both show at scene frame F the OBJ file of frame F.
 The header's size depends on the frame count, so positions are streamed into an anonymous
 temporary file and the cache is composed (header + times + blocks) at close.
 
@@ -22,7 +24,7 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.atomic import atomic_open
-from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis, leading_samples
 from meshdeform.export.results import (
     PointCacheReadBack,
     ResultFrames,
@@ -43,8 +45,8 @@ def mdd_bytes(frames: int, points: int) -> int:
 
 
 def mdd_time(ctx: ExportContext, index: int) -> float:
-    """The scene time in seconds of frame `index` (from 1) in the MDD times: `(start_frame + index - 1) / fps`."""
-    return (ctx.start_frame + index - 1) / ctx.fps
+    """The scene time in seconds of frame index `index` in the MDD times: scene frame / fps."""
+    return ctx.scene_frame(index) / ctx.fps
 
 
 class MddExporter(BaseExporter):
@@ -53,6 +55,7 @@ class MddExporter(BaseExporter):
     name: ClassVar[str] = "mdd"
     summary: ClassVar[str] = "MDD point cache (LightWave, Blender)"
     supports_topology_change: ClassVar[bool] = False
+    pads_to_scene_frame_zero: ClassVar[bool] = True
     topology_message: ClassVar[str] = "point caches need a fixed vertex count"
 
     @classmethod
@@ -70,6 +73,11 @@ class MddExporter(BaseExporter):
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
         data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=MDD_FLOAT)
+        if not self._times:  # the first frame also fills the samples of scene frames 0 .. it - 1
+            lead = leading_samples(ctx, frame.index)
+            for k in range(lead):
+                self._spool.write(data.tobytes())
+                self._times.append(k / ctx.fps)
         self._spool.write(data.tobytes())
         self._times.append(mdd_time(ctx, frame.index))
 

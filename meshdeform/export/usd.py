@@ -4,9 +4,9 @@
 (faceVertexCounts / faceVertexIndices, quads stay quads, subdivisionScheme "none"), time-sampled
 `points`, `normals` (per vertex) and `extent`, and the UVs as an indexed faceVarying primvar `st`
 when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside it.
-The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame k (from 1) sits at
-time code `start_frame + k - 1`, and `upAxis` is Y (or Z with `up_axis="z"`, the points then
-converted as for Blender's world). When the topology changes (tearing) the face lists and UV
+The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame index k (0: the
+rest pose) sits at time code `start_frame + k`, and `upAxis` is Y (or Z with `up_axis="z"`, the
+points then converted as for Blender's world). When the topology changes (tearing) the face lists and UV
 indices become time-sampled too, from that frame on.
 
 Samples are authored as the frames come; the layer lives in memory until it is saved at close.
@@ -131,7 +131,7 @@ class UsdExporter(BaseExporter):
         self._st: Any = None
 
     def _code(self, ctx: ExportContext, index: int) -> float:
-        return float(ctx.start_frame + index - 1)
+        return float(ctx.scene_frame(index))
 
     def _author_topology(self, mesh: Mesh, code: Any) -> None:
         """Face lists, UV primvar and curve counts, as defaults or (after tearing) time samples."""
