@@ -207,6 +207,7 @@ def run_job(
             outputs += render_job_previews(preview, stage)
             preview_seconds += time.perf_counter() - tick
         relative = sorted({str(Path(p).resolve().relative_to(stage.resolve())) for p in outputs})
+        start = recipe.simulation.start_frame
         report = {
             "tool": "meshdeform",
             "version": __version__,
@@ -221,6 +222,10 @@ def run_job(
             "iterations": settings.iterations,
             "damping": settings.options.damping,
             "frames": len(max_stretch),
+            "start_frame": recipe.simulation.start_frame,
+            # the scene frames written, first and last: the rest pose is scene frame start_frame,
+            # the state after k frames start_frame + k (per-frame lists below start at k = 1)
+            "output_frames": [start + first, start + min(last, len(max_stretch))],
             "vertices": mesh.vertex_count,
             "welded_vertices": model.vertex_count,
             "faces": mesh.face_count,
