@@ -156,6 +156,7 @@ def run_job(
                 positions=frame.positions,
                 mesh=frame.mesh,
                 point_data=_point_data(frame_model, strain, frame),
+                subframes=frame.subframes,
             )
             tick = time.perf_counter()
             session.write(data)

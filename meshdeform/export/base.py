@@ -86,6 +86,8 @@ class FrameData:
         in force for the following frames until another one arrives.
     point_data: per-vertex arrays for formats that carry them (vtk, xdmf, npz), by convention
         "strain" (V,) stretch ratio (1 = rest length), "velocity" (V, 3), "pinned" (V,) uint8.
+    subframes: (time in s, positions (V, 3)) of the states between the frame before and this
+        one, in time order, for formats that write motion-blur samples (USD); usually empty.
     """
 
     index: int
@@ -93,6 +95,7 @@ class FrameData:
     positions: np.ndarray
     mesh: Mesh | None = None
     point_data: Mapping[str, np.ndarray] = field(default_factory=dict)
+    subframes: tuple[tuple[float, np.ndarray], ...] = ()
 
 
 @runtime_checkable

@@ -571,6 +571,9 @@ class OutputSpec(Table):
     #: the scene frames written, first and last included (None: the rest pose at
     #: [simulation] start_frame and every simulated frame after it)
     frames: tuple[StrictInt, StrictInt] | None = None
+    #: time samples per frame in USD (motion blur): the frame and the states between it and the
+    #: one before; the other formats write whole frames
+    subframes: StrictInt = Field(1, ge=1, le=16)
 
     @field_validator("frames")
     @classmethod
