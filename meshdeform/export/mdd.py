@@ -125,8 +125,9 @@ def mdd_fps(times: np.ndarray) -> float | None:
 
 
 def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
-    """The frames of a result folder's `cache.mdd` on the input mesh (`point_cache_frames`, fps from its
-    times), or None when there is none; MeshLoadError when there is one but no input mesh."""
+    """The frames of a result folder's `cache.mdd` on the input mesh (`point_cache_frames`: every sample,
+    sample k numbered k, its scene frame as ours are written; fps from its first two times), or None
+    when there is none; MeshLoadError when there is one but no input mesh."""
     path = root / FILE_NAME
     if not path.is_file():
         return None
@@ -136,7 +137,8 @@ def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) ->
 
 
 class MddReadBack(PointCacheReadBack):
-    """`read_mdd_result` for a run's frames in memory: the fps from the first two frames' float32 times."""
+    """`read_mdd_result` for a run's frames in memory: the fps from the cache's first two float32 times,
+    those of the copies before the first frame (`leading_samples`, at k / fps) when there are any."""
 
     source = FILE_NAME
 
@@ -145,6 +147,9 @@ class MddReadBack(PointCacheReadBack):
         self._times: list[float] = []
 
     def add(self, frame: FrameData, mesh: Mesh) -> None:
-        if len(self._times) < 2:
-            self._times.append(mdd_time(self.ctx, frame.index))
-            self.fps = mdd_fps(np.asarray(self._times, dtype=MDD_FLOAT).astype(np.float64))
+        if len(self._times) >= 2:
+            return
+        if not self._times:  # the samples the exporter writes before the first frame
+            self._times = [k / self.ctx.fps for k in range(min(leading_samples(self.ctx, frame.index), 2))]
+        self._times = [*self._times, mdd_time(self.ctx, frame.index)][:2]
+        self.fps = mdd_fps(np.asarray(self._times, dtype=MDD_FLOAT).astype(np.float64))

@@ -123,14 +123,16 @@ def read_pc2(path: str | Path) -> tuple[np.ndarray, float, float]:
 
 
 def read_pc2_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
-    """The frames of a result folder's `cache.pc2` on the input mesh (`point_cache_frames`), or None when
+    """The frames of a result folder's `cache.pc2` on the input mesh (`point_cache_frames`: every sample,
+    sample k numbered the header's start frame + k, scene frame k as ours are written), or None when
     there is none; MeshLoadError when there is one but no input mesh."""
     path = root / FILE_NAME
     if not path.is_file():
         return None
     mesh = require_input_mesh(root, input_mesh)
-    positions, _, _ = read_pc2(path)
-    return point_cache_frames(path, positions, mesh, up_axis, fps=None)
+    positions, start, _ = read_pc2(path)
+    first = round(start) if np.isfinite(start) else 0
+    return point_cache_frames(path, positions, mesh, up_axis, fps=None, first_number=first)
 
 
 class Pc2ReadBack(PointCacheReadBack):

@@ -218,8 +218,9 @@ class UsdExporter(BaseExporter):
 
 def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     """A stage's first `UsdGeom.Mesh`: (mesh at its default topology and first sample, positions (F, V, 3)
-    in the input's Y-up coordinates, frame numbers from 1, time codes per second). MeshLoadError when it
-    cannot be opened, has no mesh or its vertex count changes over time."""
+    in the input's Y-up coordinates, frame numbers: the time codes, scene frames as ours are written (a
+    stage without time samples: its start time code, else 1), time codes per second). MeshLoadError when
+    it cannot be opened, has no mesh or its vertex count changes over time."""
     start_usd()
     from pxr import Usd, UsdGeom
 
@@ -242,8 +243,10 @@ def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     if len({p.shape for p in positions}) != 1:
         raise MeshLoadError(f"{path}: the topology changes over time; preview the frames/ files instead")
     offsets = np.concatenate([[0], np.cumsum(counts)])
-    start = stage.GetStartTimeCode() if stage.HasAuthoredTimeCodeRange() else (codes[0] if codes else 1)
-    numbers = [round(float(c) - float(start)) + 1 for c in codes] if points_attr.GetTimeSamples() else [1]
+    if points_attr.GetTimeSamples():
+        numbers = [round(float(c)) for c in codes]
+    else:
+        numbers = [round(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange() else 1]
     mesh = Mesh(positions=positions[0], face_indices=indices, face_offsets=offsets, source=path)
     return mesh, np.stack(positions), numbers, float(stage.GetTimeCodesPerSecond() or 24.0)
 
