@@ -150,6 +150,20 @@ def test_every_kind_of_folder_gives_the_scene_frames_the_run_wrote(
             np.testing.assert_allclose(np.asarray(seq.frames[k]), motion(mesh, indices[0]), atol=1e-6)
 
 
+def test_usd_samples_between_whole_time_codes_are_not_frames(tmp_path: Path) -> None:
+    """Motion-blur subframes are authored between the frames' time codes: the frames are the whole ones."""
+    from pxr import Usd, UsdGeom
+
+    mesh = make_result(tmp_path / "r", ["usd"])
+    stage = Usd.Stage.Open(str(tmp_path / "r" / "scene.usdc"))
+    geom = UsdGeom.Mesh(next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)))
+    geom.GetPointsAttr().Set(geom.GetPointsAttr().Get(2.0), 2.5)
+    stage.Save()
+    seq = open_result(tmp_path / "r")
+    assert seq.frame_numbers == list(range(1, FRAMES + 2))
+    np.testing.assert_allclose(np.asarray(seq.frames[2]), motion(mesh, 2), atol=1e-6)
+
+
 def test_pngs_are_named_by_scene_frame_and_every_counts_from_the_rest_pose(tmp_path: Path) -> None:
     for name in ("obj", "pc2"):
         make_result(tmp_path / name, [name], start_frame=0)

@@ -219,8 +219,9 @@ class UsdExporter(BaseExporter):
 def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     """A stage's first `UsdGeom.Mesh`: (mesh at its default topology and first sample, positions (F, V, 3)
     in the input's Y-up coordinates, frame numbers: the time codes, scene frames as ours are written (a
-    stage without time samples: its start time code, else 1), time codes per second). MeshLoadError when
-    it cannot be opened, has no mesh or its vertex count changes over time."""
+    stage without time samples: its start time code, else 1), time codes per second). Samples between
+    whole time codes (motion-blur subframes) are not frames, unless the stage has no others.
+    MeshLoadError when it cannot be opened, has no mesh or its vertex count changes over time."""
     start_usd()
     from pxr import Usd, UsdGeom
 
@@ -234,7 +235,9 @@ def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
     indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
     points_attr = geom.GetPointsAttr()
-    codes = points_attr.GetTimeSamples() or [Usd.TimeCode.Default()]
+    samples = list(points_attr.GetTimeSamples())
+    frames = [c for c in samples if abs(c - round(c)) < 1e-6]  # whole time codes: frames (others: subframes)
+    codes = frames or samples or [Usd.TimeCode.Default()]
     z_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
     positions = []
     for code in codes:
@@ -243,7 +246,7 @@ def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     if len({p.shape for p in positions}) != 1:
         raise MeshLoadError(f"{path}: the topology changes over time; preview the frames/ files instead")
     offsets = np.concatenate([[0], np.cumsum(counts)])
-    if points_attr.GetTimeSamples():
+    if samples:
         numbers = [round(float(c)) for c in codes]
     else:
         numbers = [round(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange() else 1]
