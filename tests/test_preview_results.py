@@ -150,6 +150,29 @@ def test_every_kind_of_folder_gives_the_scene_frames_the_run_wrote(
             np.testing.assert_allclose(np.asarray(seq.frames[k]), motion(mesh, indices[0]), atol=1e-6)
 
 
+def test_point_caches_say_the_scene_frame_of_their_first_sample(tmp_path: Path) -> None:
+    """A cache written elsewhere (or before the rest pose came first) whose first sample is scene frame 5:
+    a PC2 header's start frame, an MDD's first time (s) times its fps."""
+    from meshdeform.export.mdd import MDD_FLOAT, MDD_HEADER
+    from meshdeform.export.pc2 import PC2_FLOAT, pc2_header
+
+    mesh = grid_sheet(4)
+    samples = np.stack([motion(mesh, k) for k in range(3)]).astype(np.float32)
+    for name in ("pc2", "mdd"):
+        (tmp_path / name).mkdir()
+    (tmp_path / "pc2" / "cache.pc2").write_bytes(
+        pc2_header(mesh.vertex_count, 5.0, 3) + samples.astype(PC2_FLOAT).tobytes()
+    )
+    times = np.array([5, 6, 7], dtype=np.float64) / 24.0
+    (tmp_path / "mdd" / "cache.mdd").write_bytes(
+        MDD_HEADER.pack(3, mesh.vertex_count) + times.astype(MDD_FLOAT).tobytes() + samples.astype(MDD_FLOAT).tobytes()
+    )
+    for name in ("pc2", "mdd"):
+        seq = open_result(tmp_path / name, mesh=mesh, up_axis="y")
+        assert seq.frame_numbers == [5, 6, 7], name
+        np.testing.assert_allclose(np.asarray(seq.frames[1]), motion(mesh, 1), atol=1e-6)
+
+
 def test_usd_samples_between_whole_time_codes_are_not_frames(tmp_path: Path) -> None:
     """Motion-blur subframes are authored between the frames' time codes: the frames are the whole ones."""
     from pxr import Usd, UsdGeom

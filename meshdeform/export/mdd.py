@@ -126,14 +126,18 @@ def mdd_fps(times: np.ndarray) -> float | None:
 
 def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
     """The frames of a result folder's `cache.mdd` on the input mesh (`point_cache_frames`: every sample,
-    sample k numbered k, its scene frame as ours are written; fps from its first two times), or None
-    when there is none; MeshLoadError when there is one but no input mesh."""
+    sample k numbered the first time's scene frame (first time * fps, 0 as ours are written) + k; fps
+    from its first two times), or None when there is none; MeshLoadError when there is one but no input
+    mesh."""
     path = root / FILE_NAME
     if not path.is_file():
         return None
     mesh = require_input_mesh(root, input_mesh)
     positions, times = read_mdd(path)
-    return point_cache_frames(path, positions, mesh, up_axis, fps=mdd_fps(times))
+    fps = mdd_fps(times)
+    first = float(times[0]) * fps if fps is not None else 0.0
+    number = round(first) if abs(first - round(first)) < 1e-3 else 0
+    return point_cache_frames(path, positions, mesh, up_axis, fps=fps, first_number=number)
 
 
 class MddReadBack(PointCacheReadBack):
