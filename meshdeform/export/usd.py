@@ -7,7 +7,9 @@ when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves
 The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame index k (0: the
 rest pose) sits at time code `start_frame + k`, and `upAxis` is Y (or Z with `up_axis="z"`, the
 points then converted as for Blender's world). When the topology changes (tearing) the face lists and UV
-indices become time-sampled too, from that frame on.
+indices become time-sampled too, from that frame on. States between frames (`FrameData.subframes`,
+`[output] subframes`: motion blur) are time samples at their fractional time codes
+(start_frame + time * fps).
 
 Samples are authored as the frames come; the layer lives in memory until it is saved at close.
 `read_usd_result` reads the frames back (`meshdeform.export.results`).
@@ -160,7 +162,7 @@ class UsdExporter(BaseExporter):
             self._curves.GetCurveVertexCountsAttr().Set(Vt.IntArray.FromNumpy(counts), code)
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
-        from pxr import Usd, Vt
+        from pxr import Usd
 
         code = self._code(ctx, frame.index)
         if self._topology_mesh is None:
@@ -172,9 +174,18 @@ class UsdExporter(BaseExporter):
                 self._topology_sampled = True
             self._author_topology(mesh, Usd.TimeCode(code))
             self._topology_mesh = mesh
+        if self._first_code is not None:  # motion blur: the states between the frame before and this one
+            for when, between in frame.subframes:
+                self._author_points(ctx, mesh, np.asarray(between, dtype=np.float64), ctx.start_frame + when * ctx.fps)
         if self._first_code is None:
             self._first_code = code
         self._last_code = code
+        self._author_points(ctx, mesh, positions, code)
+
+    def _author_points(self, ctx: ExportContext, mesh: Mesh, positions: np.ndarray, code: float) -> None:
+        """Points, extent and normals (and the polylines' points) at time code `code`."""
+        from pxr import Usd, Vt
+
         time = Usd.TimeCode(code)
         points = convert_up_axis(np.asarray(positions, dtype=np.float64), ctx.up_axis)
         points32 = np.ascontiguousarray(points, dtype=np.float32)
