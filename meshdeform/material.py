@@ -13,16 +13,21 @@ series). How each solver uses a kind's `stiffness` s, `compression` c and `dampi
 | solver     | stiffness s                                  | compression c            | damping z (ratio)            |
 |------------|----------------------------------------------|--------------------------|------------------------------|
 | `anchor`   | neighbour springs (option): k = s * modulus  | k = c * modulus          | as `springs`                 |
-| `verlet`   | relaxation: fraction of a spring's error     | same, when shorter than  | not used (air damping only)  |
-|            | removed per substep; per iteration           | rest                     |                              |
-|            | 1 - (1 - s) ** (1 / iterations) (Mueller 07) |                          |                              |
+| `verlet`   | relaxation: a substep removes the fraction   | same, k = c * modulus,   | not used (air damping only)  |
+|            | k dt^2 w / (1 + k dt^2 w) of a spring's      | when shorter than rest   |                              |
+|            | error, k = s * modulus, w = w_a + w_b; per   |                          |                              |
+|            | sweep 1 - (1 - that) ** (1 / iterations)     |                          |                              |
 | `xpbd`     | compliance alpha = 1 / (s * modulus) [m/N];  | alpha = 1 / (c * modulus)| XPBD constraint damping with |
 |            | s = 0 removes the constraint                 |                          | c = 2 z sqrt(k m_reduced)    |
 | `springs`  | Hooke: f = k (l - L), k = s * modulus        | k = c * modulus          | c = 2 z sqrt(k m_reduced)    |
 | `implicit` | k = s * modulus (projective dynamics weight) | k = c * modulus          | not used (integrator + air)  |
 
 A single spring of stiffness s between a pinned point and a mass m therefore oscillates
-with period 2 pi sqrt(m / (s * stretch_modulus)) under `springs`, `implicit` and `xpbd`.
+with period 2 pi sqrt(m / (s * stretch_modulus)) under `springs`, `implicit` and `xpbd`, and
+hangs at the stretch m g / (s * stretch_modulus) under all four. On a mesh the position based
+solvers (`verlet`, `xpbd`) reach that equilibrium only when their sweeps converge; too few for
+the mesh leave the cloth softer (each frame's `force_residual` says how far from it a cloth at
+rest is: `meshdeform.simulate`, figures in docs/performance.md).
 `damping` z is the spring's damping ratio: 1 damps the relative motion of its two ends
 critically. Air damping of whole-vertex velocity is a solver option
 (`SolverOptions.damping`), not a material property.
@@ -60,8 +65,8 @@ class Material:
     """Spring kinds plus mass: area density (kg/m^2; kg/m for polylines) or a fixed per-vertex mass.
 
     stretch_modulus: N/m, the spring constant of a spring of stiffness 1 (see the module
-    docstring for how each solver uses it). The default 100 N/m stretches a 1 m cloth of
-    0.2 kg/m^2 hanging from two corners by about a percent near the corners.
+    docstring for how each solver uses it). The default 1000 N/m lets a 1 m cloth of 0.2 kg/m^2
+    hanging from two corners sag about 2 to 3 mm.
     """
 
     structural: KindMaterial = field(default_factory=lambda: KindMaterial(stiffness=1.0, damping=0.1))

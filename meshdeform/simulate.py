@@ -33,6 +33,17 @@ near 60 m/s (a 200 m free fall, cloth shot onto plates, hurricane wind; the samp
 bound for meshes modelled in centimetres or millimetres (their units per second are larger),
 the free-fall term for long falls and gravity given in those units, as in the runaway bound.
 
+Each frame reports its force residual (`Frame.force_residual`, `guard_kernels.force_residual`):
+how far the free vertices are from the balance of their springs (Hooke forces with the
+material's spring constants, `common.spring_constants`, the same for every solver) and the
+external accelerations of the frame's last substep (gravity and the scene's forces), as the
+norm of the imbalance over the norm of the load. Moving cloth is out of balance by its inertia
+(1 in free fall); a cloth at rest in a converged solution is in balance, so at rest the figure
+says whether the solver converged: a position based solver whose sweeps do not converge
+settles, still, out of balance and softer than its material (`CONVERGED_RESIDUAL`). Contact,
+soft pins, tethers and other constraints hold the cloth with forces it does not count: where
+they act, a cloth at rest is out of balance by their share too.
+
 Each frame reports its largest vertex speed and whether the model is at rest
 (`max_speed < Settings.rest_speed`, default 1e-4 m/s); `rest_frame` is the first frame of the
 current run of frames at rest (None while moving), and `rest_frame(frames)` finds it in a list.
@@ -62,7 +73,7 @@ from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
 from meshdeform.solvers import guard_kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions
-from meshdeform.solvers.common import structural_mask
+from meshdeform.solvers.common import spring_constants, structural_mask
 from meshdeform.solvers.registry import make_solver, solver_class, solver_options
 
 if TYPE_CHECKING:
@@ -140,6 +151,8 @@ class Frame:
     subframes: the states kept inside the frame for motion blur (`Settings.subframes`): (time in
     s, positions in the input layout (V, 3)) in time order, after the frame before and before
     this one; empty unless asked for.
+    force_residual: the free vertices' force imbalance relative to their load at the end of the
+        frame (see the module docstring); at rest above `CONVERGED_RESIDUAL`: not converged.
     """
 
     index: int
@@ -157,6 +170,7 @@ class Frame:
     pieces: int | None = None
     contact: ContactWork | None = None
     subframes: tuple[tuple[float, np.ndarray], ...] = ()
+    force_residual: float = 0.0
 
 
 def initial_frame(model: SpringModel, state: State | None = None) -> Frame:
@@ -180,6 +194,36 @@ def initial_frame(model: SpringModel, state: State | None = None) -> Frame:
         max_stretch=stretch,
         max_speed=speed,
         model=model,
+    )
+
+
+#: force residual (`Frame.force_residual`) above which a cloth at rest has not converged: on the
+#: 1 m cloth hanging from two corners the runs above it settled 2 % to 9x off the material's sag,
+#: those below it within 4.5 % (docs/performance.md, "Convergence")
+CONVERGED_RESIDUAL = 0.1
+#: cells a side of the grid the force residual sums forces over (see `guard_kernels.force_residual`)
+RESIDUAL_CELLS = 4
+
+
+def converged(frame: Frame, scene: Scene) -> bool | None:
+    """Whether a run that ended with `frame` settled on a converged shape: True or False when the
+    cloth is at rest and nothing but springs and forces holds it (no constraints, self-collision
+    or pin animation, whose forces the residual does not count: `Frame.force_residual`), by
+    `CONVERGED_RESIDUAL`; None otherwise (still moving, or held by what the figure cannot see)."""
+    held = bool(scene.constraints) or scene.self_collision is not None or scene.pin_motion is not None
+    if not frame.at_rest or held:
+        return None
+    return frame.force_residual <= CONVERGED_RESIDUAL
+
+
+def convergence_warning(frame: Frame, scene: Scene) -> str | None:
+    """The report's sentence when a run settled unconverged (`converged` is False), else None."""
+    if converged(frame, scene) is not False:
+        return None
+    return (
+        f"not converged: at rest the cloth is out of force balance by {frame.force_residual:.3g} times "
+        f"its weight (tolerance {CONVERGED_RESIDUAL:g}), so it hangs softer than its material; "
+        "raise iterations or substeps"
     )
 
 
@@ -280,6 +324,7 @@ def simulate(
     pin_motion = scene.pin_motion if pinned_idx.size else None
     center = model.rest_positions.mean(axis=0) if model.vertex_count else np.zeros(3)
     structural = _Structural.of(model)
+    balance = _Balance.of(model)
     tearing = scene.tearing
     stretch_limit = _stretch_limit(tearing)
     pin_slot: np.ndarray | None = None  # after a cut splits pins: current pinned -> original pin target
@@ -347,6 +392,7 @@ def simulate(
                     accelerations[:] = gravity
                     control = Control(accelerations=accelerations)
                     structural = _Structural.of(model)
+                    balance = _Balance.of(model)
             if substep in keep_after:
                 kept.append((state.time, model.to_input_layout(state.positions.copy())))
         positions = state.positions
@@ -381,6 +427,7 @@ def simulate(
                     frame=frame,
                     solver=name,
                 )
+        residual = balance.residual(positions, accelerations)
         at_rest = bool(speed < settings.rest_speed)
         if not at_rest:
             resting_since = None
@@ -408,6 +455,7 @@ def simulate(
             model=model,
             contact=self_collision.take_work() if self_collision is not None else None,
             subframes=tuple(kept),
+            force_residual=residual,
             **torn,
         )
 
@@ -445,3 +493,62 @@ class _Structural:
         if self.guard_rest is None:
             return stretch
         return float(guard_kernels.max_ratio(positions, self.a, self.b, self.guard_rest))
+
+
+@dataclass(frozen=True)
+class _Balance:
+    """A model's springs, masses and cells for the frames' force residual
+    (`guard_kernels.force_residual`).
+
+    a, b: spring ends (S,) int64; rest (S,); kt, kc: spring constants under tension and
+    compression (S,) N/m (`common.spring_constants`); mass, inv_mass (W,); cell (W,) int64: the
+    vertex's cell of a grid of `RESIDUAL_CELLS` cells a side over the rest shape's bounding box
+    (one along an axis it does not extend in), so its cells are the same on any mesh of a shape;
+    cells: how many.
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    rest: np.ndarray
+    kt: np.ndarray
+    kc: np.ndarray
+    mass: np.ndarray
+    inv_mass: np.ndarray
+    cell: np.ndarray
+    cells: int
+
+    @classmethod
+    def of(cls, model: SpringModel) -> _Balance:
+        kt, kc = spring_constants(model)
+        rest = np.asarray(model.rest_positions, dtype=np.float64)
+        cell = np.zeros(model.vertex_count, dtype=np.int64)
+        cells = 1
+        if model.vertex_count:
+            low = rest.min(axis=0)
+            extent = rest.max(axis=0) - low
+            size = float(extent.max())
+            for axis in range(3):
+                if extent[axis] > 1e-9 * size:
+                    index = np.floor((rest[:, axis] - low[axis]) / extent[axis] * RESIDUAL_CELLS).astype(np.int64)
+                    cell = cell * RESIDUAL_CELLS + np.clip(index, 0, RESIDUAL_CELLS - 1)
+                    cells *= RESIDUAL_CELLS
+        return cls(
+            np.ascontiguousarray(model.springs[:, 0], dtype=np.int64),
+            np.ascontiguousarray(model.springs[:, 1], dtype=np.int64),
+            np.ascontiguousarray(model.rest_lengths, dtype=np.float64),
+            np.ascontiguousarray(kt),
+            np.ascontiguousarray(kc),
+            np.ascontiguousarray(model.mass, dtype=np.float64),
+            np.ascontiguousarray(model.inv_mass, dtype=np.float64),
+            cell,
+            cells,
+        )
+
+    def residual(self, positions: np.ndarray, accelerations: np.ndarray) -> float:
+        """The force residual of welded positions (W, 3) under accelerations (W, 3) m/s^2."""
+        return float(
+            guard_kernels.force_residual(
+                positions, self.a, self.b, self.rest, self.kt, self.kc, self.mass, self.inv_mass,
+                accelerations, self.cell, self.cells,
+            )
+        )

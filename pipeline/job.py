@@ -89,7 +89,7 @@ def run_job(
     from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.live import RunPreview
     from meshdeform.scene.colliders import ContactStats
-    from meshdeform.simulate import Frame, initial_frame, simulate
+    from meshdeform.simulate import Frame, converged, convergence_warning, initial_frame, simulate
     from meshdeform.strain import VertexStrain
     from pipeline.build import build_simulation
     from pipeline.estimate import estimate_run, require_disk_space
@@ -112,6 +112,8 @@ def run_job(
 
     max_stretch: list[float] = []
     max_speed: list[float] = []
+    force_residual: list[float] = []
+    last_frame = None
     rest_frame: int | None = None
     broken_springs: list[int] = []
     split_vertices: list[int] = []
@@ -173,6 +175,8 @@ def run_job(
                 sim_seconds += time.perf_counter() - tick
                 max_stretch.append(round(frame.max_stretch, 9))
                 max_speed.append(round(frame.max_speed, 9))
+                force_residual.append(round(frame.force_residual, 6))
+                last_frame = frame
                 rest_frame = frame.rest_frame  # first frame of the still run that lasts to the end
                 if frame.pieces is not None:  # tearing: what broke, what came apart
                     broken_springs.append(frame.broken_springs)
@@ -207,6 +211,8 @@ def run_job(
             tick = time.perf_counter()
             outputs += render_job_previews(preview, stage)
             preview_seconds += time.perf_counter() - tick
+        warning = convergence_warning(last_frame, built.scene) if last_frame is not None else None
+        unconverged = [warning] if warning is not None else []
         relative = sorted({str(Path(p).resolve().relative_to(stage.resolve())) for p in outputs})
         start = recipe.simulation.start_frame
         report = {
@@ -237,6 +243,8 @@ def run_job(
             "max_stretch": max_stretch,
             "max_speed": max_speed,
             "rest_frame": rest_frame,
+            "force_residual": force_residual,
+            "converged": converged(last_frame, built.scene) if last_frame is not None else None,
             **(
                 {
                     "first_tear_frame": first_tear_frame,
@@ -258,7 +266,7 @@ def run_job(
             **({"contact_extra_work_frames": extra_work} if colliders or built.scene.self_collision else {}),
             "formats": formats,
             "outputs": [*relative, REPORT_NAME],
-            "warnings": [*mesh.warnings, *built.warnings],
+            "warnings": [*mesh.warnings, *built.warnings, *unconverged],
             "seconds": round(sim_seconds, 4),
             "frames_per_second": round(len(max_stretch) / sim_seconds, 3) if sim_seconds > 0 else None,
             "setup_seconds": round(setup_seconds, 4),

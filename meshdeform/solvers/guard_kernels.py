@@ -45,3 +45,64 @@ def guard_figures(x, v, center):  # pragma: no cover - compiled
         elif s > speed2:
             speed2 = s
     return finite, reach, np.sqrt(speed2)
+
+
+@nb.njit(**JIT)
+def force_residual(x, a, b, rest, kt, kc, mass, inv_mass, accel, cell, cells):  # pragma: no cover - compiled
+    """The free vertices' force imbalance at positions x (W, 3), relative to their load, in cells.
+
+    Per free vertex (inv_mass > 0) r_i = the sum of its springs' Hooke forces (k = kt under
+    tension, kc under compression, N/m; a, b, rest: (S,) ends and rest lengths) plus m_i accel_i
+    (N). The r_i and the loads m_i accel_i are summed over the vertices of each cell (cell: (W,)
+    int64 in 0..cells-1), so that forces between vertices of one cell cancel: what is left is the
+    imbalance on the scale of the cells (the cloth's shape), not the jitter of single springs
+    (which the stiff springs of a fine mesh make large against a vertex's small weight). Returns
+    |R| / |L| (Euclidean norms over every cell's three components); without any load, |R| over
+    the norm of the cells' sums of spring force magnitudes; 0 when there is neither.
+    """
+    f = np.zeros((cells, 3))
+    load = np.zeros((cells, 3))
+    mag = np.zeros(cells)
+    for s in range(a.shape[0]):
+        ia = a[s]
+        ib = b[s]
+        dx = x[ib, 0] - x[ia, 0]
+        dy = x[ib, 1] - x[ia, 1]
+        dz = x[ib, 2] - x[ia, 2]
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if length < 1e-300:
+            continue
+        c = length - rest[s]
+        t = (kt[s] if c > 0.0 else kc[s]) * c / length
+        m = abs(t) * length
+        if inv_mass[ia] != 0.0:
+            ca = cell[ia]
+            f[ca, 0] += t * dx
+            f[ca, 1] += t * dy
+            f[ca, 2] += t * dz
+            mag[ca] += m
+        if inv_mass[ib] != 0.0:
+            cb = cell[ib]
+            f[cb, 0] -= t * dx
+            f[cb, 1] -= t * dy
+            f[cb, 2] -= t * dz
+            mag[cb] += m
+    for i in range(x.shape[0]):
+        if inv_mass[i] != 0.0:
+            ci = cell[i]
+            for k in range(3):
+                load[ci, k] += mass[i] * accel[i, k]
+    r2 = 0.0
+    load2 = 0.0
+    mag2 = 0.0
+    for c in range(cells):
+        for k in range(3):
+            r = f[c, k] + load[c, k]
+            r2 += r * r
+            load2 += load[c, k] * load[c, k]
+        mag2 += mag[c] * mag[c]
+    if load2 > 0.0:
+        return np.sqrt(r2 / load2)
+    if mag2 > 0.0:
+        return np.sqrt(r2 / mag2)
+    return 0.0

@@ -133,3 +133,5 @@ def register(app: typer.Typer) -> None:
                 f"({report['frames_per_second'] or 0:.1f} frames/s), max stretch {max(report['max_stretch']):.3f}"
                 f" -> {out}"
             )
+            if report["converged"] is False:  # the report's warning, on the summary's stream
+                typer.echo(f"  {next(w for w in report['warnings'] if w.startswith('not converged'))}")

@@ -8,15 +8,21 @@ hold across the cloth in one pass), slabs of the mesh in parallel (see `layout`)
 pump energy into the cloth, see `xpbd`) and 18 substeps per frame (the measurements behind it:
 docs/performance.md).
 
-Per-kind stiffness: a kind's stiffness s (0..1, compression separately) is the fraction of a
-spring's length error removed per substep; each sweep uses 1 - (1 - s) ** (1 / iterations)
-(Mueller et al. 2007) so that changing the iteration count changes convergence, not the
-material. s = 1 makes a spring as stiff as the sweeps can make it. Velocities are
-(x - x_prev) / dt. Material spring damping is not used; air damping is `options.damping`.
+Per-kind stiffness: the spring constant k = stiffness * material.stretch_modulus of the force
+based solvers (compression alike), turned into the fraction of a spring's length error a substep
+removes, k dt^2 w / (1 + k dt^2 w) (`relaxation`): a spring holding a mass against a pin hangs
+at the stretch m g / k whatever the step, as with `springs`, `implicit` and `xpbd`; each sweep
+removes 1 - (1 - that) ** (1 / iterations) (Mueller et al. 2007), so the iteration count
+changes convergence, not the material. On a mesh the sweeps reach that equilibrium only when
+k dt^2 w is small; otherwise the cloth comes out softer (docs/performance.md has figures; each
+frame's `force_residual` measures it). Velocities are (x - x_prev) / dt. Material spring
+damping is not used; air damping is `options.damping`.
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
 the sweeps so that a cloth hanging from a few pins does not stretch far near them; their
-distances run along structural springs only (tighter, octile tethers as in `xpbd` fight the
-fully stiff relaxation here and raise the stretch).
+paths and slack are xpbd's (`xpbd.solver.TETHER_KINDS`, `TETHER_SLACK`: structural and shear
+springs, 3 %; a tether acts only past that stretch, so it does not stiffen the material below
+it). Structural paths only and no slack, as before verlet read the spring constant, clamp the
+stretch below the pins to zero and make the cloth stiffer than its material.
 
 A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
 bytes either way: `dispatch.SubstepPicker` runs the faster on the machine now), and
@@ -34,16 +40,24 @@ import numpy as np
 
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
-from meshdeform.solvers.common import SweepSolver
+from meshdeform.solvers.common import SweepSolver, spring_constants
 from meshdeform.solvers.options import VerletOptions
 from meshdeform.solvers.verlet import kernels
+from meshdeform.solvers.xpbd.solver import TETHER_KINDS, TETHER_SLACK
 
 
-def per_iteration(stiffness: np.ndarray, iterations: int) -> np.ndarray:
-    """Relaxation factor per sweep so that `iterations` sweeps remove the fraction `stiffness`."""
-    s = np.maximum(np.asarray(stiffness, dtype=np.float64), 0.0)
-    soft = 1.0 - np.power(np.clip(1.0 - s, 0.0, 1.0), 1.0 / max(iterations, 1))
-    return np.where(s >= 1.0, s, soft)
+def relaxation(k: np.ndarray, w: np.ndarray, dt: float, iterations: int) -> np.ndarray:
+    """Relaxation factor per sweep (S,) of springs of constant k (S,) N/m whose ends' inverse
+    masses sum to w (S,) 1/kg, for substeps of dt s and `iterations` sweeps.
+
+    A substep removes the fraction s = k dt^2 w / (1 + k dt^2 w) of a spring's length error: a
+    spring holding a mass m against a pin then settles where (1 - s) / s = 1 / (k dt^2 w), at
+    the stretch m g / k of a spring of constant k, whatever dt (the same equilibrium as the force
+    based solvers). Spread over the sweeps as 1 - (1 - s) ** (1 / iterations) (Mueller et al. 2007).
+    """
+    kw = np.maximum(k, 0.0) * w * (dt * dt)
+    keep = 1.0 / (1.0 + kw)  # 1 - s
+    return 1.0 - np.power(keep, 1.0 / max(int(iterations), 1))
 
 
 class VerletSolver(SweepSolver, Solver):
@@ -55,24 +69,35 @@ class VerletSolver(SweepSolver, Solver):
     options_class: ClassVar[type[VerletOptions]] = VerletOptions
     default_substeps: ClassVar[int] = 18
     default_iterations: ClassVar[int] = 2
+    tether_kinds: ClassVar[tuple[int, ...]] = TETHER_KINDS
+    tether_slack: ClassVar[float] = TETHER_SLACK
 
     def _prepare(self, model: SpringModel) -> None:
         lay = self._prepare_sweeps(model, kernels.verlet_substep, kernels.verlet_substep_parallel)
-        self.kt = lay.take(per_iteration(model.stiffness, self.iterations))
-        self.kc = lay.take(per_iteration(model.compression, self.iterations))
+        kt, kc = spring_constants(model)
+        self.kt = lay.take(kt)
+        self.kc = lay.take(kc)
         wa = self.inv_mass[lay.a]
         wb = self.inv_mass[lay.b]
-        w = wa + wb
-        share_a = np.where(w > 0.0, wa / np.where(w > 0.0, w, 1.0), 0.0)
-        share_b = np.where(w > 0.0, wb / np.where(w > 0.0, w, 1.0), 0.0)
+        self.w = wa + wb
+        self.share_a = np.where(self.w > 0.0, wa / np.where(self.w > 0.0, self.w, 1.0), 0.0)
+        self.share_b = np.where(self.w > 0.0, wb / np.where(self.w > 0.0, self.w, 1.0), 0.0)
         p = self.params = self._buffer("params", lay.a.shape[0], kernels.RELAX_SPRING)
         p["a"] = lay.ends["a"]
         p["b"] = lay.ends["b"]
         p["rest"] = lay.rest
-        p["at"] = self.kt * share_a
-        p["bt"] = self.kt * share_b
-        p["ac"] = self.kc * share_a
-        p["bc"] = self.kc * share_b
+
+    def _coefficients(self, dt: float) -> None:
+        """The relaxation factors of the records for substeps of dt (`relaxation`)."""
+        p = self.params
+        ft = relaxation(self.kt, self.w, dt, self.iterations)
+        fc = relaxation(self.kc, self.w, dt, self.iterations)
+        p["at"] = ft * self.share_a
+        p["bt"] = ft * self.share_b
+        p["ac"] = fc * self.share_a
+        p["bc"] = fc * self.share_b
+        self.retention = velocity_retention(self.options.damping, dt)
+        self._dt = dt
 
     def advance(self, model: SpringModel, state: State, dt: float, control: Control, count: int) -> None:
         """`count` substeps of dt with the same accelerations, as one compiled call (the same
@@ -80,8 +105,7 @@ class VerletSolver(SweepSolver, Solver):
         if not self._prepared(model):
             self._prepare(model)
         if dt != self._dt:
-            self.retention = velocity_retention(self.options.damping, dt)
-            self._dt = dt
+            self._coefficients(dt)
         lay = self.layout
         args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,

@@ -87,9 +87,24 @@ def _xpbd_range(X, P, lam, lo, hi, backward, damped, first):  # pragma: no cover
             _xpbd_spring(X, P, lam, s, False, False)
 
 
+@nb.njit(inline="always", **SWEEP)
+def _warm_range(X, P, lam, lo, hi, warm):  # pragma: no cover - compiled
+    """Springs lo..hi-1: the multipliers left from the last substep, times `warm`, applied to the
+    positions (the iteration's starting guess), and kept as the multipliers the sweeps start from."""
+    for s in range(lo, hi):
+        c = P[s]
+        va = X[c.a]
+        vb = X[c.b]
+        lam_s = lam[s] * warm
+        lam[s] = lam_s
+        dx, dy, dz, length, inv_d2 = span(va, vb)
+        q = -lam_s * length * inv_d2
+        pull(va, vb, dx, dy, dz, q * va.w, q * vb.w)
+
+
 def xpbd_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, lam, offsets, parts, iterations, damped,
-    tethers, vchunks, tchunks, count,
+    tethers, vchunks, tchunks, warm, count,
 ):  # pragma: no cover - compiled
     """`count` XPBD substeps: predict, tethers, `iterations` sweeps, tethers; then positions,
     previous positions and velocities back to the State.
@@ -109,12 +124,18 @@ def xpbd_substep(
         load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
     for p in nb.prange(parts):
         apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
+    cold = warm == 0.0
     for step in range(count):
+        if not cold:
+            for p in nb.prange(parts):
+                _warm_range(X, P, lam, offsets[p], offsets[p + 1], warm)
+            _warm_range(X, P, lam, offsets[parts], offsets[parts + 1], warm)
         for it in range(iterations):
             backward = (it % 2) == 1
+            first = cold and it == 0
             for p in nb.prange(parts):
-                _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, it == 0)
-            _xpbd_range(X, P, lam, offsets[parts], offsets[parts + 1], backward, damped, it == 0)
+                _xpbd_range(X, P, lam, offsets[p], offsets[p + 1], backward, damped, first)
+            _xpbd_range(X, P, lam, offsets[parts], offsets[parts + 1], backward, damped, first)
         if step + 1 < count:
             for p in nb.prange(parts):
                 apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])

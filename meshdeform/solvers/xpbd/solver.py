@@ -18,6 +18,17 @@ substep is not symmetric and pumps energy into stiff cloth. The default is the "
 style (Macklin et al. 2019): 2 sweeps (one forward, one backward) and 22 substeps per frame
 (the measurements behind it: docs/performance.md).
 
+Convergence: the multipliers start from zero every substep (`options.warm_start` = 0, the
+default), so a cloth at rest rebuilds its spring forces in every substep's few sweeps; where a
+substep's Gauss-Seidel does not converge (k dt^2 (w_a + w_b) well above 1: fine meshes, stiff
+materials, long substeps) the cloth settles softer than its material, more so with fewer sweeps
+or longer substeps. `warm_start` = 1 starts each substep from the last one's multipliers (a pass
+applying them to the positions, then the sweeps): a cloth at rest then keeps its forces and its
+shape no longer depends on the counts, but the sweeps must then damp every mode the step
+cannot resolve, which needs short substeps (it diverges on the defaults once k dt^2 w is
+above about 2). docs/performance.md has the figures; each frame's `force_residual`
+(`meshdeform.simulate`) says how far from equilibrium a cloth at rest is.
+
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
 the sweeps. Their distances run along `TETHER_KINDS`, structural and shear springs (the octile
 distance on a grid: a vertex diagonal from a pin cannot stretch 41 % before its tether acts, as
@@ -41,6 +52,7 @@ a substep writes the multipliers without reading them (they start at zero).
 
 from __future__ import annotations
 
+import weakref
 from typing import ClassVar
 
 import numpy as np
@@ -75,6 +87,8 @@ class XPBDSolver(SweepSolver, Solver):
         self.params["a"] = lay.ends["a"]
         self.params["b"] = lay.ends["b"]
         self.lam = self._buffer("lam", lay.a.shape[0], np.float64)
+        self.lam[:] = 0.0
+        self._warm_state = None
 
     def _coefficients(self, dt: float) -> None:
         """Per-spring records (`kernels.XPBD_SPRING`) for this step size, in one compiled pass
@@ -95,12 +109,18 @@ class XPBDSolver(SweepSolver, Solver):
         if not self._prepared(model):
             self._prepare(model)
         if dt != self._dt:
+            if self._dt > 0.0:
+                self.lam *= (dt / self._dt) ** 2  # a multiplier is a force times dt^2
             self._coefficients(dt)
+        held = self._warm_state() if self._warm_state is not None else None
+        if held is not state:  # another run: its multipliers start from zero
+            self.lam[:] = 0.0
+            self._warm_state = weakref.ref(state)
         lay = self.layout
         args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.lam,
             self.offsets, lay.parts, self.iterations, self.damped,
-            self.tethers, self.chunks.vertices, self.chunks.tethers,
+            self.tethers, self.chunks.vertices, self.chunks.tethers, float(self.options.warm_start),
         )
         self.substep(*args, count)
