@@ -67,7 +67,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from meshdeform.errors import SimulationDiverged
+from meshdeform.errors import MeshdeformError, SimulationDiverged
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
@@ -93,6 +93,9 @@ class Settings:
         that class's defaults, resolved on construction like substeps. Options of another
         solver's class raise MeshdeformError.
     rest_speed: m/s; a frame whose largest vertex speed is below it is at rest.
+    subframes: states per frame kept for motion blur: each frame also carries the `subframes - 1`
+        states between it and the frame before, at the substeps nearest to j / subframes of the
+        frame (`Frame.subframes`); 1 keeps none. At most `substeps`.
     """
 
     solver: str = "xpbd"
@@ -101,12 +104,24 @@ class Settings:
     substeps: int | None = None
     options: SolverOptions | None = None
     rest_speed: float = 1e-4
+    subframes: int = 1
 
     def __post_init__(self) -> None:
         cls = solver_class(self.solver)
         if self.substeps is None:
             object.__setattr__(self, "substeps", int(cls.default_substeps))
         object.__setattr__(self, "options", solver_options(cls, self.options))
+        if not 1 <= int(self.subframes) <= int(self.substeps):
+            raise MeshdeformError(
+                f"subframes must be 1 to the {self.substeps} substeps a frame, not {self.subframes}"
+            )
+
+    @property
+    def subframe_substeps(self) -> tuple[int, ...]:
+        """The substeps (1 .. substeps - 1, increasing) after which a frame's in-between states are
+        kept: the nearest to j / subframes of the frame, j = 1 .. subframes - 1."""
+        m, n = int(self.subframes), int(self.substeps)
+        return tuple(sorted({max(1, min(n - 1, round(j * n / m))) for j in range(1, m)}))
 
     @property
     def dt(self) -> float:
@@ -120,7 +135,8 @@ class Settings:
 
 @dataclass(frozen=True)
 class Frame:
-    """One output frame: number (from 1), time, positions in the input layout and figures.
+    """One output frame: number (from 1; `initial_frame` is frame 0, the state before the first
+    step), time, positions in the input layout and figures.
 
     max_stretch: largest structural spring length / rest length. max_speed: m/s.
     at_rest: max_speed below `Settings.rest_speed`. rest_frame: the first frame of the
@@ -132,6 +148,9 @@ class Frame:
     many springs broke and vertices were added during the frame; pieces: connected pieces of
     the mesh at the end of it (None without tearing).
     contact: what self-collision did during the frame (`Scene.self_collision`; None when off).
+    subframes: the states kept inside the frame for motion blur (`Settings.subframes`): (time in
+    s, positions in the input layout (V, 3)) in time order, after the frame before and before
+    this one; empty unless asked for.
     force_residual: the free vertices' force imbalance relative to their load at the end of the
         frame (see the module docstring); at rest above `CONVERGED_RESIDUAL`: not converged.
     """
@@ -150,7 +169,32 @@ class Frame:
     split_vertices: int = 0
     pieces: int | None = None
     contact: ContactWork | None = None
+    subframes: tuple[tuple[float, np.ndarray], ...] = ()
     force_residual: float = 0.0
+
+
+def initial_frame(model: SpringModel, state: State | None = None) -> Frame:
+    """Frame 0: the model where `simulate` starts from it (its rest pose unless `state` is given),
+    at time 0, before any step. Outputs write it as the first frame (the rest pose at the start
+    frame, as Blender's own cloth cache does), so frame k is the state k / fps seconds later."""
+    state = state or State.at_rest(model)
+    welded = np.array(state.positions, dtype=np.float64)
+    structural = _Structural.of(model)
+    stretch = (
+        float(guard_kernels.max_ratio(welded, structural.a, structural.b, structural.rest))
+        if structural.a.size
+        else 1.0
+    )
+    speed = float(np.sqrt(np.max(np.einsum("ij,ij->i", state.velocities, state.velocities), initial=0.0)))
+    return Frame(
+        index=0,
+        time=float(state.time),
+        positions=model.to_input_layout(welded),
+        welded_positions=welded,
+        max_stretch=stretch,
+        max_speed=speed,
+        model=model,
+    )
 
 
 #: force residual (`Frame.force_residual`) above which a cloth at rest has not converged: on the
@@ -296,14 +340,21 @@ def simulate(
     whole_frames = (
         not forces and not constraints and pin_motion is None and tearing is None and self_collision is None
     )
+    keep_after = settings.subframe_substeps  # substeps whose state the frame keeps (motion blur)
     for frame in range(1, settings.frames + 1):
-        if whole_frames:
-            solver.advance(model, state, dt, control, substeps)
-            if pinned_idx.size:
-                state.positions[pinned_idx] = pinned_rest
-            step_count += substeps
-            state.time = start_time + step_count * dt
-        for _ in range(0 if whole_frames else substeps):
+        kept: list[tuple[float, np.ndarray]] = []
+        if whole_frames:  # in runs of substeps between the states kept: the same bytes
+            done = 0
+            for until in (*keep_after, substeps):
+                solver.advance(model, state, dt, control, until - done)
+                if pinned_idx.size:
+                    state.positions[pinned_idx] = pinned_rest
+                step_count += until - done
+                state.time = start_time + step_count * dt
+                done = until
+                if until < substeps:
+                    kept.append((state.time, model.to_input_layout(state.positions.copy())))
+        for substep in range(1, 1 + (0 if whole_frames else substeps)):
             t0 = state.time
             step_count += 1
             t1 = start_time + step_count * dt
@@ -342,6 +393,8 @@ def simulate(
                     control = Control(accelerations=accelerations)
                     structural = _Structural.of(model)
                     balance = _Balance.of(model)
+            if substep in keep_after:
+                kept.append((state.time, model.to_input_layout(state.positions.copy())))
         positions = state.positions
         finite, reach, speed = guard_kernels.guard_figures(positions, state.velocities, center)
         diverged = f"simulation diverged at frame {frame} with solver {name!r}"
@@ -401,6 +454,7 @@ def simulate(
             rest_frame=resting_since,
             model=model,
             contact=self_collision.take_work() if self_collision is not None else None,
+            subframes=tuple(kept),
             force_residual=residual,
             **torn,
         )

@@ -316,7 +316,16 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
         # pins moving apart they stretch the cloth at the pins without limit and yank torn pieces,
         # so a recipe that tears runs without them unless it asks for them
         options = dataclasses.replace(options, tethers=None)
-    settings = Settings(solver=sim.solver, fps=sim.fps, frames=sim.frames, substeps=sim.substeps, options=options)
+    if recipe.output.subframes > 1 and recipe.changes_topology:
+        raise recipe.error(("output", "subframes"), "subframes need a fixed topology: this recipe tears the mesh")
+    settings = Settings(
+        solver=sim.solver,
+        fps=sim.fps,
+        frames=sim.frames,
+        substeps=sim.substeps,
+        options=options,
+        subframes=recipe.output.subframes,
+    )
     res = _Resolver(recipe, mesh)
     material = recipe.material.to_material()
     welding, springs = build_springs(mesh)

@@ -103,11 +103,16 @@ def human_bytes(n: float) -> str:
 
 def output_bytes(recipe: Recipe, mesh: Mesh) -> dict[str, int]:
     """Estimated bytes each of the recipe's output formats writes for `mesh`, plus "preview"."""
-    frames = recipe.simulation.frames
+    written = scene_frames_written(recipe)  # the rest pose, then every simulated frame
+    frames = len(written)
     sizes: dict[str, int] = {}
     for name in dict.fromkeys(recipe.output.formats):
         exporter = EXPORTERS.get(name)
-        size = None if exporter is None else exporter.estimated_bytes(mesh, frames)
+        # point caches also hold copies of the rest pose for scene frames 0 .. start_frame - 1
+        if exporter is None:
+            continue
+        lead = written.start if exporter.pads_to_scene_frame_zero else 0  # copies for scene frames 0 ..
+        size = exporter.estimated_bytes(mesh, frames + lead)
         if size is not None:
             sizes[name] = int(size)
     preview = _preview_bytes(recipe)
@@ -127,16 +132,26 @@ def _preview_bytes(recipe: Recipe) -> int:
         options = PreviewOptions.from_mapping(table)
     except ExportError as exc:
         raise recipe.error(("output", "preview"), str(exc).removeprefix("preview: ")) from None
-    frames = recipe.simulation.frames
+    written = scene_frames_written(recipe)
+    frames = len(written)
     pixels = options.size[0] * options.size[1]
-    pngs = len(options.png_frames(range(1, frames + 1))) if options.pngs else 0
+    pngs = len(options.png_frames(written)) if options.pngs else 0
     size = int(pngs * pixels * PNG_BYTES_PER_PIXEL)
     if options.video is not None:
         size += int(frames * pixels * VIDEO_BYTES_PER_PIXEL.get(options.video, max(VIDEO_BYTES_PER_PIXEL.values())))
     if options.contact_sheet:
         tile = options.sheet_tile_width
-        size += int(len(options.png_frames(range(1, frames + 1))) * tile * tile * PNG_BYTES_PER_PIXEL)
+        size += int(len(options.png_frames(written)) * tile * tile * PNG_BYTES_PER_PIXEL)
     return size
+
+
+def scene_frames_written(recipe: Recipe) -> range:
+    """The scene frames a run writes: `[output] frames`, else the rest pose at the start frame and
+    every simulated frame after it."""
+    sim = recipe.simulation
+    if recipe.output.frames is not None:
+        return range(recipe.output.frames[0], recipe.output.frames[1] + 1)
+    return range(sim.start_frame, sim.start_frame + sim.frames + 1)
 
 
 def estimate_run(recipe: Recipe, mesh: Mesh | None = None, model: SpringModel | None = None) -> RunEstimate:

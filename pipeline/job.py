@@ -14,7 +14,7 @@ import hashlib
 import json
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -57,6 +57,16 @@ def _point_data(model: Any, strain: Any, frame: Any) -> dict[str, np.ndarray]:
     }
 
 
+def output_indices(recipe: Recipe) -> tuple[int, int]:
+    """The frame indices (0: the rest pose) a run writes, first and last included: `[output]
+    frames` (scene frames) less `[simulation] start_frame`, else all of them."""
+    sim = recipe.simulation
+    if recipe.output.frames is None:
+        return 0, sim.frames
+    first, last = recipe.output.frames
+    return first - sim.start_frame, last - sim.start_frame
+
+
 def run_job(
     mesh_path: Path,
     recipe: Recipe,
@@ -79,7 +89,7 @@ def run_job(
     from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.live import RunPreview
     from meshdeform.scene.colliders import ContactStats
-    from meshdeform.simulate import converged, convergence_warning, simulate
+    from meshdeform.simulate import Frame, converged, convergence_warning, initial_frame, simulate
     from meshdeform.strain import VertexStrain
     from pipeline.build import build_simulation
     from pipeline.estimate import estimate_run, require_disk_space
@@ -91,6 +101,9 @@ def run_job(
     mesh = mesh if mesh is not None else load(mesh_path)
     built = build_simulation(recipe, mesh)
     model, settings = built.model, built.settings
+    first, last = output_indices(recipe)
+    if last < settings.frames:  # nothing after the last frame written is simulated
+        settings = replace(settings, frames=last)
     require_disk_space(estimate_run(recipe, mesh, model).total_bytes, Path(out_dir))  # before any frame is run
     formats = list(dict.fromkeys(recipe.output.formats or ["obj"]))
     session = ExportSession(formats)  # made now: opened on the staging folder once it exists
@@ -130,7 +143,33 @@ def run_job(
             if recipe.output.preview
             else None
         )
+
+        def export(frame: Frame) -> None:
+            """Hand one frame (index 0: the rest pose) to the exporters and the previews."""
+            nonlocal export_seconds, preview_seconds, strain, strain_model
+            if not first <= frame.index <= last:
+                return
+            frame_model = frame.model if frame.model is not None else model
+            if frame_model is not strain_model:  # the mesh opened: strain over the new springs
+                strain, strain_model = VertexStrain(frame_model), frame_model
+            data = FrameData(
+                index=frame.index,
+                time=frame.time,
+                positions=frame.positions,
+                mesh=frame.mesh,
+                point_data=_point_data(frame_model, strain, frame),
+                subframes=frame.subframes,
+            )
+            tick = time.perf_counter()
+            session.write(data)
+            export_seconds += time.perf_counter() - tick
+            if preview is not None:  # measured now, rendered once the files are complete
+                tick = time.perf_counter()
+                preview.add(data)
+                preview_seconds += time.perf_counter() - tick
+
         with session.open(context):  # an exception in the block aborts every exporter
+            export(initial_frame(model))
             tick = time.perf_counter()
             for frame in simulate(model, built.scene, settings):
                 sim_seconds += time.perf_counter() - tick
@@ -160,23 +199,7 @@ def run_job(
                     extra = extra or done.swept > 0 or done.rounds > 0 or done.reverted > 0
                 if extra:
                     extra_work.append(frame.index)
-                tick = time.perf_counter()
-                frame_model = frame.model if frame.model is not None else model
-                if frame_model is not strain_model:  # the mesh opened: strain over the new springs
-                    strain, strain_model = VertexStrain(frame_model), frame_model
-                data = FrameData(
-                    index=frame.index,
-                    time=frame.time,
-                    positions=frame.positions,
-                    mesh=frame.mesh,
-                    point_data=_point_data(frame_model, strain, frame),
-                )
-                session.write(data)
-                export_seconds += time.perf_counter() - tick
-                if preview is not None:  # measured now, rendered once the files are complete
-                    tick = time.perf_counter()
-                    preview.add(data)
-                    preview_seconds += time.perf_counter() - tick
+                export(frame)
                 if on_frame is not None:
                     on_frame(frame.index, settings.frames)
                 tick = time.perf_counter()
@@ -191,6 +214,7 @@ def run_job(
         warning = convergence_warning(last_frame, built.scene) if last_frame is not None else None
         unconverged = [warning] if warning is not None else []
         relative = sorted({str(Path(p).resolve().relative_to(stage.resolve())) for p in outputs})
+        start = recipe.simulation.start_frame
         report = {
             "tool": "meshdeform",
             "version": __version__,
@@ -205,6 +229,10 @@ def run_job(
             "iterations": settings.iterations,
             "damping": settings.options.damping,
             "frames": len(max_stretch),
+            "start_frame": recipe.simulation.start_frame,
+            # the scene frames written, first and last: the rest pose is scene frame start_frame,
+            # the state after k frames start_frame + k (per-frame lists below start at k = 1)
+            "output_frames": [start + first, start + min(last, len(max_stretch))],
             "vertices": mesh.vertex_count,
             "welded_vertices": model.vertex_count,
             "faces": mesh.face_count,

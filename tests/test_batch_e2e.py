@@ -157,9 +157,11 @@ def test_batch_of_real_meshes_with_two_workers(jobs2: tuple[Any, Path], env: dic
         assert report["recipe_sha256"] == entry["recipe_sha256"]
         for name in entry["outputs"]:
             assert (folder / name).is_file(), (key, name)
-        assert (folder / "frames" / f"frame_{entry['frames']:04d}.obj").is_file()
+        # the rest pose at scene frame 1 (the default start frame), then one file a frame
+        assert (folder / "frames" / f"frame_{entry['frames'] + 1:04d}.obj").is_file()
         vertices = report["vertices"]
-        assert (folder / "cache.pc2").stat().st_size == 32 + 12 * vertices * entry["frames"]
+        # samples for scene frames 0 .. frames + 1: a copy of the rest pose before start frame 1
+        assert (folder / "cache.pc2").stat().st_size == 32 + 12 * vertices * (entry["frames"] + 2)
     assert (out / "ünï" / "ico sphère" / "report.json").is_file()
     assert (out / "clash" / "a.obj").is_dir() and (out / "clash" / "a.ply").is_dir()
     assert "keeps the suffix" in entries["clash/a.ply"]["note"]

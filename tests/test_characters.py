@@ -102,14 +102,16 @@ def test_a_cape_attached_to_a_walking_turning_body_follows_it_and_stays_outside(
     done = runner.invoke(app, ["simulate", str(tmp_path / "cape.obj"), "-r", str(tmp_path / "cape.toml"),
                                "--out", str(out), "--format", "npz", "--quiet"])  # fmt: skip
     assert done.exit_code == 0, done.output
-    positions = np.load(out / "positions.npz")["positions"].astype(np.float64)
-    assert positions.shape == (FRAMES, cape.shape[0], 3)
+    data = np.load(out / "positions.npz")
+    positions = data["positions"].astype(np.float64)
+    assert positions.shape == (FRAMES + 1, cape.shape[0], 3)  # the rest pose, then every frame
+    np.testing.assert_array_equal(data["frames"], np.arange(1, FRAMES + 2))  # their scene frames
     attached = (np.abs(cape[:, 0]) <= 0.08) & (cape[:, 1] >= 0.24)
     assert attached.sum() >= 3
     faces = np.asarray(capsule().faces)
     quads = np.asarray(grid_mesh(12, 16, plane="xy").face_indices).reshape(-1, 4)
     cloth_triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-    for k in range(FRAMES):  # output frame k + 1 is scene frame k + 1, the cache's sample k
+    for k in range(FRAMES + 1):  # row k is scene frame 1 + k, as is the cache's sample k
         rotation, translation = body_pose(k)
         expected = cape[attached] @ rotation.T + translation
         assert np.abs(positions[k, attached] - expected).max() < 1e-3, k

@@ -99,8 +99,10 @@ def test_simulate_writes_frames_in_input_order_with_pins_unmoved(tmp_path: Path)
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     frames = sorted((out / "frames").glob("frame_*.obj"))
-    assert [f.name for f in frames] == [f"frame_{i:04d}.obj" for i in range(1, 13)]
+    # scene frame 1 (the default start frame) is the rest pose, 2 .. 13 the 12 frames after it
+    assert [f.name for f in frames] == [f"frame_{i:04d}.obj" for i in range(1, 14)]
     rest = load(mesh_path)
+    np.testing.assert_array_equal(load(frames[0]).positions, rest.positions)
     last = load(frames[-1])
     assert last.vertex_count == rest.vertex_count
     np.testing.assert_array_equal(last.face_indices, rest.face_indices)
@@ -143,7 +145,7 @@ def test_simulate_ply_output_keeps_vertex_count(tmp_path: Path, samples_dir: Pat
     result = run("simulate", mesh, "--out", out, "--frames", "3", "--format", "ply", "--quiet", "--gravity", "0,0,0")
     assert result.exit_code == 0, result.output
     frames = sorted((out / "frames").glob("*.ply"))
-    assert len(frames) == 3
+    assert len(frames) == 4  # the rest pose and 3 frames
     assert load(frames[0]).vertex_count == load(mesh).vertex_count
 
 

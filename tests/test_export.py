@@ -53,10 +53,12 @@ def point_data(mesh: Mesh, pos: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def frames_of(mesh: Mesh, count: int = FRAMES) -> list[FrameData]:
+    """`count` frames as a run hands them over: frame index i - 1 (0: the first, a run's rest pose,
+    at scene frame start_frame) holds wave(mesh, i), so scene frame start_frame + i - 1 does."""
     out = []
     for i in range(1, count + 1):
         pos = wave(mesh, i)
-        out.append(FrameData(index=i, time=i / FPS, positions=pos, point_data=point_data(mesh, pos)))
+        out.append(FrameData(index=i - 1, time=(i - 1) / FPS, positions=pos, point_data=point_data(mesh, pos)))
     return out
 
 
@@ -192,7 +194,7 @@ def read_pc2(path: Path) -> tuple[dict, np.ndarray]:
 def read_mdd(path: Path) -> tuple[np.ndarray, np.ndarray]:
     data = path.read_bytes()
     frames, points = struct.unpack(">ii", data[:8])
-    assert len(data) == 8 + 4 * frames + 12 * points * frames  # exactly F blocks, no extra rest block
+    assert len(data) == 8 + 4 * frames + 12 * points * frames  # exactly F blocks
     times = np.frombuffer(data, dtype=">f4", count=frames, offset=8)
     pos = np.frombuffer(data, dtype=">f4", offset=8 + 4 * frames).reshape(frames, points, 3)
     return times, pos
@@ -201,23 +203,26 @@ def read_mdd(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def test_pc2_matches_the_published_layout(mesh: Mesh, tmp_path: Path) -> None:
     export(["pc2"], mesh, tmp_path, start_frame=10)
     header, pos = read_pc2(tmp_path / "cache.pc2")
-    assert header == {"magic": b"POINTCACHE2\0", "version": 1, "points": mesh.vertex_count, "start": 10.0, "rate": 1.0}
-    expected = np.stack([wave(mesh, i) for i in range(1, FRAMES + 1)]).astype(np.float32)
+    # sample k is scene frame k (Blender's Mesh Cache defaults): the first frame, at start frame 10,
+    # is also written for scene frames 0 .. 9 before it
+    assert header == {"magic": b"POINTCACHE2\0", "version": 1, "points": mesh.vertex_count, "start": 0.0, "rate": 1.0}
+    expected = np.stack([wave(mesh, 1)] * 10 + [wave(mesh, i) for i in range(1, FRAMES + 1)]).astype(np.float32)
     np.testing.assert_array_equal(pos, expected)
 
 
 def test_mdd_matches_the_published_layout(mesh: Mesh, tmp_path: Path) -> None:
     export(["mdd"], mesh, tmp_path)
     times, pos = read_mdd(tmp_path / "cache.mdd")
-    np.testing.assert_allclose(times, np.arange(1, FRAMES + 1) / FPS, rtol=1e-7)  # scene seconds
-    expected = np.stack([wave(mesh, i) for i in range(1, FRAMES + 1)]).astype(np.float32)
+    # block k is scene frame k: the first frame (start frame 1) also fills scene frame 0
+    np.testing.assert_allclose(times, np.arange(0, FRAMES + 1) / FPS, rtol=1e-7)  # scene seconds
+    expected = np.stack([wave(mesh, 1)] + [wave(mesh, i) for i in range(1, FRAMES + 1)]).astype(np.float32)
     np.testing.assert_array_equal(pos, expected)
 
 
 def test_mdd_times_follow_the_start_frame(mesh: Mesh, tmp_path: Path) -> None:
     export(["mdd"], mesh, tmp_path, start_frame=1001)
     times, _ = read_mdd(tmp_path / "cache.mdd")
-    np.testing.assert_allclose(times, np.arange(1001, 1001 + FRAMES) / FPS, rtol=1e-7)
+    np.testing.assert_allclose(times, np.arange(0, 1001 + FRAMES) / FPS, rtol=1e-7)
 
 
 def test_point_cache_readers_read_what_the_exporters_wrote(mesh: Mesh, tmp_path: Path) -> None:
@@ -226,13 +231,13 @@ def test_point_cache_readers_read_what_the_exporters_wrote(mesh: Mesh, tmp_path:
 
     export(["pc2", "mdd"], mesh, tmp_path, start_frame=3)
     positions, start, rate = our_read_pc2(tmp_path / "cache.pc2")
-    assert (positions.shape, start, rate) == ((FRAMES, mesh.vertex_count, 3), 3.0, 1.0)
+    assert (positions.shape, start, rate) == ((3 + FRAMES, mesh.vertex_count, 3), 0.0, 1.0)
     np.testing.assert_array_equal(positions, our_read_mdd(tmp_path / "cache.mdd")[0])
 
 
 def test_point_caches_convert_to_blender_z_up(mesh: Mesh, tmp_path: Path) -> None:
     export(["pc2", "mdd"], mesh, tmp_path, up_axis="z")
-    p = wave(mesh, 2)
+    p = wave(mesh, 1)  # sample 1: scene frame 1, the first frame
     blender = np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1).astype(np.float32)
     np.testing.assert_array_equal(read_pc2(tmp_path / "cache.pc2")[1][1], blender)
     np.testing.assert_array_equal(read_mdd(tmp_path / "cache.mdd")[1][1], blender)
@@ -303,7 +308,7 @@ def test_usd_writes_polylines_as_basis_curves(tmp_path: Path) -> None:
         line_indices=np.arange(6),
         line_offsets=np.array([0, 6]),
     )
-    frames = [FrameData(i, i / FPS, pos + [0, -0.1 * i, 0]) for i in (1, 2)]
+    frames = [FrameData(i, i / FPS, pos + [0, -0.1 * (i + 1), 0]) for i in (0, 1)]
     export(["usd", "vtk"], rope, tmp_path, frames)
     stage = Usd.Stage.Open(str(tmp_path / "scene.usdc"))
     curves = UsdGeom.BasisCurves(stage.GetPrimAtPath("/Root/mesh_lines"))
@@ -330,7 +335,7 @@ def test_vtk_collection_of_vtp_frames_with_point_data(mesh: Mesh, tmp_path: Path
     assert tmp_path / "scene.pvd" in outputs["vtk"]
     root = ET.parse(tmp_path / "scene.pvd").getroot()
     entries = [(float(d.get("timestep")), d.get("file")) for d in root.iter("DataSet")]
-    assert entries == [(i / FPS, f"vtk/frame_{i:04d}.vtp") for i in range(1, FRAMES + 1)]
+    assert entries == [((i - 1) / FPS, f"vtk/frame_{i:04d}.vtp") for i in range(1, FRAMES + 1)]
     for i in range(1, FRAMES + 1):
         m = read_with_vtk(tmp_path / "vtk" / f"frame_{i:04d}.vtp")
         expected = wave(mesh, i)
@@ -356,7 +361,7 @@ def test_xdmf_time_series_reads_back_through_meshio(mesh: Mesh, tmp_path: Path) 
         assert reader.num_steps == FRAMES
         for k in range(FRAMES):
             t, pd, _ = reader.read_data(k)
-            assert t == pytest.approx((k + 1) / FPS)
+            assert t == pytest.approx(k / FPS)
             expected = wave(mesh, k + 1)
             np.testing.assert_allclose(rest + pd["displacement"], expected, rtol=0, atol=2e-7)
             np.testing.assert_allclose(pd["strain"], point_data(mesh, expected)["strain"], rtol=1e-6)
@@ -385,7 +390,7 @@ def test_npz_holds_positions_topology_and_point_data(mesh: Mesh, tmp_path: Path)
         np.testing.assert_array_equal(data["face_indices"], mesh.face_indices)
         np.testing.assert_array_equal(data["face_offsets"], mesh.face_offsets)
         assert float(data["fps"]) == FPS and int(data["start_frame"]) == 5
-        np.testing.assert_array_equal(data["frames"], np.arange(1, FRAMES + 1))
+        np.testing.assert_array_equal(data["frames"], np.arange(5, 5 + FRAMES))  # scene frames from the start
         assert data["point_velocity"].shape == (FRAMES, mesh.vertex_count, 3)
         assert data["point_pinned"].dtype == np.uint8
 
@@ -430,8 +435,9 @@ def npz_frames(folder: Path) -> list[np.ndarray]:
 INDEPENDENT_READERS: dict[str, Callable[[Path], list[np.ndarray]]] = {
     "obj": lambda folder: trimesh_frames(sorted((folder / "frames").glob("*.obj"))),
     "ply": lambda folder: [np.asarray(read_with_vtk(p).points) for p in sorted((folder / "frames").glob("*.ply"))],
-    "pc2": lambda folder: list(read_pc2(folder / "cache.pc2")[1]),
-    "mdd": lambda folder: list(read_mdd(folder / "cache.mdd")[1]),
+    # sample k of a point cache is scene frame k: the frames from the start frame (1) on
+    "pc2": lambda folder: list(read_pc2(folder / "cache.pc2")[1][1:]),
+    "mdd": lambda folder: list(read_mdd(folder / "cache.mdd")[1][1:]),
     "usd": usd_frames,
     "vtk": vtk_frames,
     "xdmf": xdmf_frames,
@@ -451,8 +457,8 @@ def torn_run(mesh: Mesh) -> list[FrameData]:
     """Four frames: the cloth tears at frame 3 (the torn mesh given with it), the loose corner 0.3 m off."""
     frames = frames_of(mesh, 2)
     moved = np.vstack([wave(mesh, 3), wave(mesh, 3)[:1] + [0.0, 0.0, 0.3]])
-    frames.append(FrameData(3, 3 / FPS, moved, mesh=torn(mesh)))
-    frames.append(FrameData(4, 4 / FPS, moved + 0.01))
+    frames.append(FrameData(2, 2 / FPS, moved, mesh=torn(mesh)))
+    frames.append(FrameData(3, 3 / FPS, moved + 0.01))
     return frames
 
 
@@ -672,8 +678,12 @@ def test_each_reader_reads_back_its_own_files_only(mesh: Mesh, tmp_path: Path) -
         export(unread, mesh, tmp_path / "unread")
     for source, folder in folders.items():
         found = source.read(folder, mesh, "y")
-        assert found is not None and list(folder.glob(found.source)) and found.numbers == list(range(1, FRAMES + 1))
+        assert found is not None and list(folder.glob(found.source))
+        # scene frames 1 .. FRAMES (the default start frame 1); a point cache also holds sample 0,
+        # its copy of the first frame (sample k is scene frame k)
+        assert found.from_frame(1).numbers == list(range(1, FRAMES + 1))
+        assert found.numbers[0] in (0, 1)
         assert found.base is mesh  # the input mesh: same vertex count (and polygons for vtk)
-        np.testing.assert_allclose(np.asarray(found.frames[FRAMES - 1]), wave(mesh, FRAMES), atol=1e-6)
+        np.testing.assert_allclose(np.asarray(found.from_frame(1).frames[FRAMES - 1]), wave(mesh, FRAMES), atol=1e-6)
         for elsewhere in [*(f for s, f in folders.items() if s is not source), tmp_path / "none", tmp_path / "unread"]:
             assert source.read(elsewhere, mesh, "y") is None, (kinds[source], elsewhere.name)

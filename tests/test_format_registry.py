@@ -32,10 +32,11 @@ def sag(mesh: Mesh, index: int) -> np.ndarray:
 
 
 def write(name: str, mesh: Mesh, out: Path, count: int = 3) -> ExportContext:
-    """`count` frames of `sag` in format `name` into `out`."""
+    """A run of `count` frames of `sag` in format `name` into `out`: frame index 0 (the rest pose, at the
+    default start frame 1) to `count`, frame index i holding sag(mesh, i)."""
     ctx = ExportContext(mesh=mesh, out_dir=out, fps=24.0, frame_count=count)
     with ExportSession([name], ctx) as session:
-        for i in range(1, count + 1):
+        for i in range(count + 1):
             session.write(FrameData(index=i, time=i / 24.0, positions=sag(mesh, i)))
     return ctx
 
@@ -52,7 +53,9 @@ def test_every_format_declares_its_help_its_topology_and_a_growing_size_estimate
 def test_the_run_estimate_is_each_formats_own_in_the_recipes_order(mesh: Mesh) -> None:
     formats = list(reversed(EXPORTERS))
     recipe = parse_recipe(f"[simulation]\nframes = 5\n[output]\nformats = {json.dumps(formats)}\n")
-    expected = {n: EXPORTERS[n].estimated_bytes(mesh, 5) for n in formats}
+    # 6 frames written (the rest pose, then 5); point caches also hold a copy for scene frame 0 (start frame 1)
+    written = {n: 6 + (1 if EXPORTERS[n].pads_to_scene_frame_zero else 0) for n in formats}
+    expected = {n: EXPORTERS[n].estimated_bytes(mesh, written[n]) for n in formats}
     assert output_bytes(recipe, mesh) == {n: size for n, size in expected.items() if size is not None}
     assert list(output_bytes(recipe, mesh)) == [n for n in formats if expected[n] is not None]
 
@@ -81,8 +84,13 @@ def test_a_folder_in_one_format_is_read_by_that_formats_reader_as_its_read_back_
     result = open_result(ctx.out_dir, mesh=mesh)
     read_back = read_back_for([name], ctx)
     assert read_back is not None and result.source == read_back.source
-    assert result.frame_numbers == [1, 2, 3]
+    # scene frames; a point cache without the run's report also has its sample 0 (a copy of the rest pose)
+    padded = EXPORTERS[name].pads_to_scene_frame_zero
+    assert result.frame_numbers == ([0] if padded else []) + [1, 2, 3, 4]
+    np.testing.assert_allclose(np.asarray(result.frames[0]), sag(mesh, 0), atol=1e-6)
     np.testing.assert_allclose(np.asarray(result.frames[-1]), sag(mesh, 3), atol=1e-6)
+    (ctx.out_dir / "report.json").write_text(json.dumps({"start_frame": 1, "output_frames": [1, 4]}))
+    assert open_result(ctx.out_dir, mesh=mesh).frame_numbers == [1, 2, 3, 4]  # from the run's first frame
 
 
 def test_formats_previews_cannot_read_have_no_read_back(mesh: Mesh, tmp_path: Path) -> None:
@@ -104,7 +112,8 @@ def test_the_format_table_of_the_export_package_is_the_registrys() -> None:
 @pytest.mark.parametrize("name", list(EXPORTERS))
 def test_a_runs_preview_from_memory_is_the_one_read_back_from_its_files(name: str, tmp_path: Path) -> None:
     """`RunPreview` (a run's previews from its frames) renders the same bytes, or raises the same error,
-    as rendering the folder the run wrote in that one format."""
+    as rendering the folder the run wrote in that one format, read with the frame range of the report
+    the run writes after its previews (`start_frame`, `output_frames`; written here by hand)."""
     from meshdeform.model import SpringModel
     from meshdeform.preview.live import RunPreview
     from meshdeform.preview.results import render_result_previews
@@ -115,10 +124,11 @@ def test_a_runs_preview_from_memory_is_the_one_read_back_from_its_files(name: st
     ctx = ExportContext(mesh=mesh, out_dir=tmp_path / "run", fps=24.0, frame_count=3)
     live = RunPreview(options, ctx, [name], model)
     with ExportSession([name], ctx) as session:
-        for i in range(1, 4):
+        for i in range(4):  # the rest pose, then 3 frames: scene frames 1 to 4
             frame = FrameData(index=i, time=i / 24.0, positions=sag(mesh, i))
             session.write(frame)
             live.add(frame)
+    (ctx.out_dir / "report.json").write_text(json.dumps({"start_frame": 1, "output_frames": [1, 4]}))
 
     def outcome(render) -> dict[str, bytes] | str:
         try:

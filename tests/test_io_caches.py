@@ -384,26 +384,26 @@ def cache_of(tmp_path: Path, values: list[float], start: float = 1.0, rate: floa
 def test_sample_interpolates_between_neighbouring_frames(tmp_path: Path) -> None:
     cache = cache_of(tmp_path, [0.0, 2.0, 6.0])
     timing = cache_timing(cache, sim_fps=24.0, sim_start_frame=1)
-    # output frame 1 (t = 1/24) is scene frame 1 = cache frame 0; the rest state (t = 0) is before it
-    x = [sample(cache, timing, t / 24.0)[0, 0] for t in (0.0, 1.0, 1.5, 2.0, 2.25, 3.0, 4.0)]
-    assert x == [0.0, 0.0, 1.0, 2.0, 3.0, 6.0, 6.0]
+    # the rest state (t = 0) is scene frame 1 = cache frame 0, frame k (t = k/24) scene frame 1 + k
+    x = [sample(cache, timing, t / 24.0)[0, 0] for t in (0.0, 0.5, 1.0, 1.25, 2.0, 3.0)]
+    assert x == [0.0, 1.0, 2.0, 3.0, 6.0, 6.0]
     out = np.full((1, 3), 9.0)
-    assert sample(cache, timing, 1.75 / 24.0, out=out) is out
+    assert sample(cache, timing, 0.75 / 24.0, out=out) is out
     np.testing.assert_array_equal(out, [[1.5, 0.0, 0.0]])
     # the cache starting later than the run holds its first frame until it starts
     later = cache_timing(cache, sim_fps=24.0, sim_start_frame=1, start_frame=3)
-    assert [sample(cache, later, t / 24.0)[0, 0] for t in (1.0, 3.0, 3.5, 4.0)] == [0.0, 0.0, 1.0, 2.0]
+    assert [sample(cache, later, t / 24.0)[0, 0] for t in (1.0, 2.0, 2.5, 3.0)] == [0.0, 0.0, 1.0, 2.0]
 
 
 def test_sample_with_other_fps_start_and_step(tmp_path: Path) -> None:
     # samples every 2 scene frames from frame 1000, at 48 fps; the run at 24 fps from frame 500
     cache = cache_of(tmp_path, [0.0, 4.0, 8.0, 16.0], start=1000.0, rate=2.0)
     timing = cache_timing(cache, sim_fps=24.0, sim_start_frame=500, fps=48.0)
-    # simulation time t is scene second 499/24 + t = scene frame (at 48 fps) 998 + 48 t
-    # t = 2/24: frame 1002 = cache frame 1 (4); t = 2.5/24: frame 1003 = halfway 1 -> 2 (6);
-    # t = 3.25/24: frame 1004.5 = cache frame 2.25 (8 + 0.25 * 8 = 10)
-    x = [sample(cache, timing, t / 24.0)[0, 0] for t in (0.0, 1.0, 2.0, 2.5, 3.25, 9.0)]
-    np.testing.assert_allclose(x, [0.0, 0.0, 4.0, 6.0, 10.0, 16.0], rtol=1e-12, atol=0)
+    # simulation time t is scene second 500/24 + t = scene frame (at 48 fps) 1000 + 48 t
+    # t = 1/24: frame 1002 = cache frame 1 (4); t = 1.5/24: frame 1003 = halfway 1 -> 2 (6);
+    # t = 2.25/24: frame 1004.5 = cache frame 2.25 (8 + 0.25 * 8 = 10)
+    x = [sample(cache, timing, t / 24.0)[0, 0] for t in (0.0, 1.0, 1.5, 2.25, 8.0)]
+    np.testing.assert_allclose(x, [0.0, 4.0, 6.0, 10.0, 16.0], rtol=1e-12, atol=0)
 
 
 def test_timing_resolution_order(tmp_path: Path, mesh: Mesh) -> None:
@@ -423,33 +423,33 @@ def test_timing_resolution_order(tmp_path: Path, mesh: Mesh) -> None:
 def test_check_cache_covers(tmp_path: Path) -> None:
     cache = cache_of(tmp_path, [float(i) for i in range(10)])
     timing = cache_timing(cache, sim_fps=24.0, sim_start_frame=1)
-    check_cache_covers(cache, timing, 10)  # output frames 1..10 = cache frames 0..9
+    check_cache_covers(cache, timing, 9)  # the rest pose and frames 1..9: scene frames 1..10 = cache frames 0..9
     with pytest.raises(MeshLoadError) as info:
-        check_cache_covers(cache, timing, 11)
+        check_cache_covers(cache, timing, 10)
     message = str(info.value)
     assert "\n" not in message and str(tmp_path / "c.pc2") in message
-    assert "10 frames (scene frames 1 to 10 at 24 fps)" in message and "11 frames" in message
+    assert "10 frames (scene frames 1 to 10 at 24 fps)" in message and "10 frames at 24 fps" in message
     assert "up to scene frame 11" in message
-    # at half the simulation's rate the same cache covers half the frames
+    # at half the simulation's rate the same cache covers about twice the frames
     slow = cache_timing(cache, sim_fps=24.0, sim_start_frame=1, fps=12.0)
-    check_cache_covers(cache, slow, 20)
+    check_cache_covers(cache, slow, 19)
     with pytest.raises(MeshLoadError, match=r"scene frame 10\.5"):
-        check_cache_covers(cache, slow, 21)
+        check_cache_covers(cache, slow, 20)
 
 
 @pytest.mark.parametrize("fmt", ["pc2", "mdd", "usd"])
 def test_exported_run_read_back_as_a_cache_lines_up_frame_for_frame(tmp_path: Path, mesh: Mesh, fmt: str) -> None:
     """A run exported by the project's exporters, read as a collider cache of a run with the same fps and
-    start frame, gives output frame k's positions at output frame k's time."""
+    start frame, gives frame k's positions at frame k's time (k = 0: the rest pose, at the start frame)."""
     fps, start = 25.0, 1001
     positions = animation(mesh)
     ctx = ExportContext(mesh=mesh, out_dir=tmp_path, fps=fps, frame_count=FRAMES, start_frame=start)
     with ExportSession([fmt], ctx) as session:
-        for k in range(1, FRAMES + 1):
-            session.write(FrameData(index=k, time=k / fps, positions=positions[k - 1]))
+        for k in range(FRAMES):
+            session.write(FrameData(index=k, time=k / fps, positions=positions[k]))
     name = {"pc2": "cache.pc2", "mdd": "cache.mdd", "usd": "scene.usdc"}[fmt]
     cache = read_point_cache(name, tmp_path, mesh.vertex_count)
     timing = cache_timing(cache, sim_fps=fps, sim_start_frame=start)
-    check_cache_covers(cache, timing, FRAMES)
-    for k in range(1, FRAMES + 1):
-        np.testing.assert_array_equal(sample(cache, timing, k / fps), positions[k - 1].astype(np.float32))
+    check_cache_covers(cache, timing, FRAMES - 1)
+    for k in range(FRAMES):
+        np.testing.assert_array_equal(sample(cache, timing, k / fps), positions[k].astype(np.float32))

@@ -359,8 +359,9 @@ def test_check_prints_the_estimate_without_and_with_a_mesh(tmp_path: Path) -> No
     found = re.match(r"estimate: (\d+) springs x 22 substeps x 2 iterations x 10 frames = ([\d,]+) spring", lines[1])
     assert found, lines[1]
     assert int(found.group(1)) == springs and int(found.group(2).replace(",", "")) == springs * 440
-    # pc2: a 32-byte header and 12 bytes per vertex per frame (20 vertices, 10 frames)
-    assert "pc2 2.4 KB)" in lines[1], lines[1]
+    # pc2: a 32-byte header and 12 bytes per vertex per sample (20 vertices; samples for scene
+    # frames 0 .. 11: the start frame 1's copy of the rest pose before it, the rest pose, 10 frames)
+    assert f"pc2 {(32 + 12 * 20 * 12) / 1000:.1f} KB)" in lines[1], lines[1]
 
 
 @pytest.mark.parametrize("name", list(EXPORTERS))

@@ -156,14 +156,14 @@ def test_a_previous_result_is_replaced_whole(user: dict[str, Path]) -> None:
     assert first.exit_code == 0, first.output
     marker = json.loads((out / MARKER_NAME).read_text())
     assert marker["tool"] == "meshdeform" and marker["files"] == [
-        *(f"frames/frame_{i:04d}.obj" for i in range(1, 5)),
+        *(f"frames/frame_{i:04d}.obj" for i in range(1, 6)),  # the rest pose and 4 frames
         "report.json",
     ]
     outside = {k: v for k, v in snapshot(user["root"]).items() if not k.startswith("results/cloth/")}
     again = cli("simulate", user["mesh"], "-o", str(out) + "/", "--frames", "2", "-q", "--solver", "verlet")
     assert again.exit_code == 0, again.output
     # the frames of the first run not written again are gone with it: the folder is the second run alone
-    assert written_files(out) == [MARKER_NAME, "frames/frame_0001.obj", "frames/frame_0002.obj", "report.json"]
+    assert written_files(out) == [MARKER_NAME, *(f"frames/frame_{i:04d}.obj" for i in range(1, 4)), "report.json"]
     assert json.loads((out / MARKER_NAME).read_text())["files"] == written_files(out)[1:]
     # nothing left beside it (no staging folder, no lock file), nothing else changed
     assert {k: v for k, v in snapshot(user["root"]).items() if not k.startswith("results/cloth/")} == outside
@@ -210,12 +210,12 @@ def test_overwrite_writes_beside_the_users_files_and_keeps_them(user: dict[str, 
     now = snapshot(docs)
     assert {k: now[k] for k in keep} == keep  # every other file as it was
     assert json.loads((docs / "report.json").read_text())["frames"] == 3
-    frames = [f"frames/frame_{i:04d}.obj" for i in range(1, 4)]
+    frames = [f"frames/frame_{i:04d}.obj" for i in range(1, 5)]  # the rest pose and 3 frames
     assert json.loads((docs / MARKER_NAME).read_text())["files"] == [*frames, "report.json"]
     # a shorter run: the frame meshdeform wrote and does not write again is removed, the user's stay
     result = cli("simulate", user["mesh"], "-o", docs, "-q", "--frames", "2", "--overwrite")
     assert result.exit_code == 0, result.output
-    assert not (docs / "frames" / "frame_0003.obj").exists() and (docs / "frames" / "frame_0002.obj").is_file()
+    assert not (docs / "frames" / "frame_0004.obj").exists() and (docs / "frames" / "frame_0003.obj").is_file()
     now = snapshot(docs)
     assert {k: now[k] for k in keep} == keep
     # without --overwrite the folder is still refused: it holds the user's files
@@ -436,11 +436,11 @@ def test_a_result_file_the_user_changed_is_theirs(user: dict[str, Path]) -> None
     --overwrite, and --overwrite keeps it when the new run does not write that file again."""
     out = user["root"] / "cloth"
     assert cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "3").exit_code == 0
-    edited = out / "frames" / "frame_0003.obj"
+    edited = out / "frames" / "frame_0004.obj"  # the last of the rest pose and 3 frames
     edited.write_text(edited.read_text() + "# my cleanup\n")
     before = snapshot(user["root"])
     line = one_error_line(cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2"))
-    assert "1 entry meshdeform did not write (e.g. 'frames/frame_0003.obj')" in line
+    assert "1 entry meshdeform did not write (e.g. 'frames/frame_0004.obj')" in line
     assert snapshot(user["root"]) == before
     assert cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2", "--overwrite").exit_code == 0
     assert edited.read_text().endswith("# my cleanup\n")

@@ -261,6 +261,12 @@ def test_options_are_validated() -> None:
     opts = PreviewOptions.from_mapping({"every": 12, "video": "mp4", "color": "strain", "size": [640, 480]})
     assert opts.every == 12 and opts.video == "mp4" and opts.size == (640, 480)
     assert opts.png_frames(range(1, 30)) == [1, 13, 25]
+    # frame numbers are scene frames: every Nth counts from the sequence's first (a run's rest pose)
+    assert opts.png_frames(range(0, 30)) == [0, 12, 24]
+    assert opts.png_frames(range(1001, 1030)) == [1001, 1013, 1025]
+    assert PreviewOptions(frames=(0, 7)).png_frames(range(0, 8)) == [0, 7]  # a run starting at scene frame 0
+    with pytest.raises(ExportError, match="scene frames, from 0"):
+        PreviewOptions(frames=(-1, 3))
     assert PreviewOptions(video="none").video is None
 
 

@@ -140,18 +140,31 @@ def test_the_ground_is_a_floor_under_the_cloth() -> None:
         assert blue_mask(pixel(image, project(camera, point, SIZE)[0])[None, None])[0, 0], point
 
 
-def test_a_keyframed_ball_is_drawn_where_it_is_at_each_frames_time(tmp_path: Path) -> None:
-    """Frames n at n / fps seconds: the ball keyed at x = -0.5 (t = 0.5 s) and x = +0.5 (t = 1 s) shows at
-    those places in frames 1 and 2 at 2 fps, in front of a backdrop sheet."""
+@pytest.mark.parametrize(
+    ("numbers", "start_frame", "places"),
+    [
+        (None, None, (-0.5, -0.5, 0.5)),  # frames 1, 2, 3, the first the rest pose: t = 0, 0.5, 1 s
+        ([5, 6, 7], 4, (-0.5, 0.5, 0.5)),  # the rest pose at scene frame 4: t = 0.5, 1, 1.5 s
+    ],
+)
+def test_a_keyframed_ball_is_drawn_where_it_is_at_each_frames_time(
+    tmp_path: Path, numbers: list[int] | None, start_frame: int | None, places: tuple[float, ...]
+) -> None:
+    """Frame n at (n - start frame) / fps seconds since the rest pose (the first frame unless the start
+    frame is given): the ball keyed at x = -0.5 (t = 0.5 s, held before) and x = +0.5 (t = 1 s, held
+    after) shows at those places at 2 fps, in front of a backdrop sheet."""
     backdrop = grid_sheet(8, plane="xy", centred=True, size=2.0, offset=[0.0, 0.0, -1.0])
     keys = Keyframes([Keyframe(0.5, translate=(0.0, 0.0, 0.0)), Keyframe(1.0, translate=(1.0, 0.0, 0.0))], [0, 0, 0])
     ball = Collider(Sphere([-0.5, 0.0, 0.0], 0.2), keys=keys)
-    frames = [backdrop.positions, backdrop.positions]
-    result = render_previews(backdrop, frames, tmp_path, {**OPTIONS, "view": "front"}, fps=2.0, colliders=[ball])
-    assert len(result.images) == 2
+    frames = [backdrop.positions] * 3
+    options = {**OPTIONS, "view": "front"}
+    result = render_previews(
+        backdrop, frames, tmp_path, options, frame_numbers=numbers, fps=2.0, colliders=[ball], start_frame=start_frame
+    )
+    assert len(result.images) == 3
     bounds = np.stack([backdrop.positions.min(axis=0), backdrop.positions.max(axis=0)])
     camera = frame_camera(bounds, "front", SIZE)
-    for path, x in zip(result.images, (-0.5, 0.5), strict=True):
+    for path, x in zip(result.images, places, strict=True):
         grey = grey_mask(iio.imread(path)[..., :3])
         rows, cols = np.nonzero(grey)
         assert rows.size > 200

@@ -164,9 +164,10 @@ def test_damped_scene_comes_to_rest_and_the_report_says_from_which_frame(
     rest_frame = report["rest_frame"]
     assert rest_frame is not None and rest_frame <= frames - AT_REST_FOR
     positions = read_obj_frames(tmp_path / "out")
-    assert positions.shape[0] == frames
+    assert positions.shape[0] == frames + 1  # the rest pose, then every frame
     initial = load(mesh).positions
+    assert np.array_equal(positions[0], initial)
     assert np.abs(positions - initial).max() > 0.05  # the scene did move
-    # frame k is positions[k - 1]: the steps from the rest frame to the next, and on to the last
-    step = np.linalg.norm(np.diff(positions[rest_frame - 1 :], axis=0), axis=2).max()
+    # frame k is positions[k]: the steps from the rest frame to the next, and on to the last
+    step = np.linalg.norm(np.diff(positions[rest_frame:], axis=0), axis=2).max()
     assert step * fps < 1e-4

@@ -37,11 +37,14 @@ class ExportContext:
     mesh: the input mesh (topology, UVs, groups, input vertex order; its positions are the rest pose).
     out_dir: the result folder; each format writes its fixed file names inside it.
     fps: frames per second of the sequence (USD timeCodesPerSecond, MDD times, npz `fps`).
-    start_frame: number of the first frame in caches and on the USD time line.
+    start_frame: the scene frame of the rest pose (frame index 0): frame index k is scene frame
+        `start_frame + k`, the state k / fps seconds after the start (`scene_frame`), as Blender's
+        own cloth cache numbers them. File names, cache samples and USD time codes use it.
     up_axis: "y" keeps the input's coordinates (Y up, as OBJ); "z" converts point caches and USD
         to a Z-up world as Blender's: (x, y, z) -> (x, -z, y). None for start_frame or up_axis
         means the default.
-    frame_count: the number of frames, when known (file-name padding; otherwise 4 digits).
+    frame_count: the number of simulated frames (after the rest pose), when known (file-name
+        padding; otherwise 4 digits).
     """
 
     mesh: Mesh
@@ -61,18 +64,30 @@ class ExportContext:
         if not (np.isfinite(self.fps) and self.fps > 0):
             raise ExportError(f"fps must be a positive number, not {self.fps!r}")
 
+    def scene_frame(self, index: int) -> int:
+        """The scene frame of frame index `index` (0: the rest pose)."""
+        return self.start_frame + int(index)
+
+    @property
+    def last_scene_frame(self) -> int | None:
+        """The scene frame of the run's last frame, when the frame count is known."""
+        return None if self.frame_count is None else self.scene_frame(self.frame_count)
+
 
 @dataclass(frozen=True)
 class FrameData:
     """One frame handed to the exporters.
 
-    index: frame number, from 1 (file names use it).
-    time: seconds since the start of the simulation.
+    index: frame index, 0 for the rest pose, k for the state after k frames (scene frame
+        `ExportContext.scene_frame(index)`, which file names, samples and time codes use).
+    time: seconds since the start of the simulation (index / fps).
     positions: (V, 3) positions in the input vertex layout (of `mesh` when that is given).
     mesh: the new mesh when the topology changed at this frame (tearing), else None; it stays
         in force for the following frames until another one arrives.
     point_data: per-vertex arrays for formats that carry them (vtk, xdmf, npz), by convention
         "strain" (V,) stretch ratio (1 = rest length), "velocity" (V, 3), "pinned" (V,) uint8.
+    subframes: (time in s, positions (V, 3)) of the states between the frame before and this
+        one, in time order, for formats that write motion-blur samples (USD); usually empty.
     """
 
     index: int
@@ -80,6 +95,7 @@ class FrameData:
     positions: np.ndarray
     mesh: Mesh | None = None
     point_data: Mapping[str, np.ndarray] = field(default_factory=dict)
+    subframes: tuple[tuple[float, np.ndarray], ...] = ()
 
 
 @runtime_checkable
@@ -109,10 +125,21 @@ def uvs_have_seams(mesh: Mesh) -> bool:
     return not per_vertex
 
 
-def frame_file_name(index: int, frame_count: int | None, suffix: str, stem: str = "frame_") -> str:
-    """`frame_0001.obj`: 4-digit zero padding, more digits when the sequence has more than 9999 frames."""
-    width = max(4, len(str(frame_count))) if frame_count else 4
-    return f"{stem}{index:0{width}d}{suffix}"
+def frame_file_name(number: int, last_number: int | None, suffix: str, stem: str = "frame_") -> str:
+    """`frame_0001.obj` for (scene) frame `number`: 4-digit zero padding, more digits when the
+    sequence's last number (`last_number`, when known) has more."""
+    width = max(4, len(str(last_number))) if last_number else 4
+    return f"{stem}{number:0{width}d}{suffix}"
+
+
+def leading_samples(ctx: ExportContext, first_index: int) -> int:
+    """How many copies of the first frame a point cache writes before it, so that its sample k is
+    scene frame k: Blender's Mesh Cache modifier at its default settings (Frame time mode, Frame
+    Start 0) plays sample F at scene frame F, and Blender's own MDD exporter writes an extra rest
+    sample in the same way. The copies cost `start_frame` samples: a run that starts at frame
+    1001 writes 1001 of them (set the modifier's Frame Start to the start frame instead and
+    they are never shown, but they are always written so that the defaults work)."""
+    return max(ctx.scene_frame(first_index), 0)
 
 
 def convert_up_axis(points: np.ndarray, up_axis: str) -> np.ndarray:
@@ -139,6 +166,8 @@ class BaseExporter:
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
     supports_topology_change: ClassVar[bool] = False
+    #: a point cache whose sample k is scene frame k (`leading_samples` copies before the first frame)
+    pads_to_scene_frame_zero: ClassVar[bool] = False
     #: the reason given when a frame changes the topology and the format cannot follow
     topology_message: ClassVar[str] = "this format needs a fixed topology"
 

@@ -1,9 +1,11 @@
 """MDD (LightWave point cache, read by Blender's Mesh Cache modifier) export: one big-endian file.
 
 Layout (DESIGN.md section 5): `int32 num_frames`, `int32 num_points`, `float32 times[num_frames]`
-(seconds), then exactly `num_frames` blocks of `num_points * 3` float32 (no extra rest block).
-The times are scene times, `(start_frame + index - 1) / fps`, so that Blender's Mesh Cache
-modifier in "Time" mode plays frame 1 at scene frame `start_frame` (checked with Blender 5.0.1).
+(seconds), then exactly `num_frames` blocks of `num_points * 3` float32. Block k is scene frame k:
+the first frame written (the rest pose at `start_frame`, frame index 0) is preceded by copies of
+itself for scene frames 0 .. start_frame - 1 (`base.leading_samples`), and the times are scene
+frame / fps, so Blender's Mesh Cache modifier at its defaults ("Frame" time mode, Frame Start 0)
+and in "Time" mode both show at scene frame F the OBJ file of frame F.
 The header's size depends on the frame count, so positions are streamed into an anonymous
 temporary file and the cache is composed (header + times + blocks) at close.
 
@@ -22,7 +24,7 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.atomic import atomic_open
-from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis, leading_samples
 from meshdeform.export.results import (
     PointCacheReadBack,
     ResultFrames,
@@ -43,8 +45,8 @@ def mdd_bytes(frames: int, points: int) -> int:
 
 
 def mdd_time(ctx: ExportContext, index: int) -> float:
-    """The scene time in seconds of frame `index` (from 1) in the MDD times: `(start_frame + index - 1) / fps`."""
-    return (ctx.start_frame + index - 1) / ctx.fps
+    """The scene time in seconds of frame index `index` in the MDD times: scene frame / fps."""
+    return ctx.scene_frame(index) / ctx.fps
 
 
 class MddExporter(BaseExporter):
@@ -53,6 +55,7 @@ class MddExporter(BaseExporter):
     name: ClassVar[str] = "mdd"
     summary: ClassVar[str] = "MDD point cache (LightWave, Blender)"
     supports_topology_change: ClassVar[bool] = False
+    pads_to_scene_frame_zero: ClassVar[bool] = True
     topology_message: ClassVar[str] = "point caches need a fixed vertex count"
 
     @classmethod
@@ -70,6 +73,11 @@ class MddExporter(BaseExporter):
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
         data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=MDD_FLOAT)
+        if not self._times:  # the first frame also fills the samples of scene frames 0 .. it - 1
+            lead = leading_samples(ctx, frame.index)
+            for k in range(lead):
+                self._spool.write(data.tobytes())
+                self._times.append(k / ctx.fps)
         self._spool.write(data.tobytes())
         self._times.append(mdd_time(ctx, frame.index))
 
@@ -117,18 +125,24 @@ def mdd_fps(times: np.ndarray) -> float | None:
 
 
 def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
-    """The frames of a result folder's `cache.mdd` on the input mesh (`point_cache_frames`, fps from its
-    times), or None when there is none; MeshLoadError when there is one but no input mesh."""
+    """The frames of a result folder's `cache.mdd` on the input mesh (`point_cache_frames`: every sample,
+    sample k numbered the first time's scene frame (first time * fps, 0 as ours are written) + k; fps
+    from its first two times), or None when there is none; MeshLoadError when there is one but no input
+    mesh."""
     path = root / FILE_NAME
     if not path.is_file():
         return None
     mesh = require_input_mesh(root, input_mesh)
     positions, times = read_mdd(path)
-    return point_cache_frames(path, positions, mesh, up_axis, fps=mdd_fps(times))
+    fps = mdd_fps(times)
+    first = float(times[0]) * fps if fps is not None else 0.0
+    number = round(first) if abs(first - round(first)) < 1e-3 else 0
+    return point_cache_frames(path, positions, mesh, up_axis, fps=fps, first_number=number)
 
 
 class MddReadBack(PointCacheReadBack):
-    """`read_mdd_result` for a run's frames in memory: the fps from the first two frames' float32 times."""
+    """`read_mdd_result` for a run's frames in memory: the fps from the cache's first two float32 times,
+    those of the copies before the first frame (`leading_samples`, at k / fps) when there are any."""
 
     source = FILE_NAME
 
@@ -137,6 +151,9 @@ class MddReadBack(PointCacheReadBack):
         self._times: list[float] = []
 
     def add(self, frame: FrameData, mesh: Mesh) -> None:
-        if len(self._times) < 2:
-            self._times.append(mdd_time(self.ctx, frame.index))
-            self.fps = mdd_fps(np.asarray(self._times, dtype=MDD_FLOAT).astype(np.float64))
+        if len(self._times) >= 2:
+            return
+        if not self._times:  # the samples the exporter writes before the first frame
+            self._times = [k / self.ctx.fps for k in range(min(leading_samples(self.ctx, frame.index), 2))]
+        self._times = [*self._times, mdd_time(self.ctx, frame.index)][:2]
+        self.fps = mdd_fps(np.asarray(self._times, dtype=MDD_FLOAT).astype(np.float64))

@@ -1,13 +1,14 @@
 """NPZ export for Python users: every frame's positions in one array plus the topology.
 
 `positions.npz` holds `positions` (frames, vertices, 3) float32 in the input layout and
-coordinates, `times` (frames,) seconds, `frames` (frames,) frame numbers, `fps`, `start_frame`,
+coordinates (row 0: the rest pose), `times` (frames,) seconds, `frames` (frames,) scene frame
+numbers (`start_frame` for the rest pose), `fps`, `start_frame`,
 the polygons in CSR (`face_indices`, `face_offsets`), `rest_positions` (vertices, 3) and, for
 each point-data array the frames carried, `point_<name>` (frames, vertices, ...), e.g.
 `point_strain`. Frames are streamed into anonymous spool files and zipped at close (NumPy
 copies a memory-mapped array in chunks), so memory stays flat however long the bake.
 
-    data = np.load("positions.npz"); data["positions"][frame - 1]
+    data = np.load("positions.npz"); data["positions"][frame - data["start_frame"]]
 
 The array needs a fixed vertex count: a frame with a changed topology (tearing) is refused.
 `read_npz_result` reads it back (`meshdeform.export.results`).
@@ -110,7 +111,7 @@ class NpzExporter(BaseExporter):
                 )
             spool.append(value)
         self._times.append(float(frame.time))
-        self._frames.append(int(frame.index))
+        self._frames.append(ctx.scene_frame(frame.index))
 
     def _close(self, ctx: ExportContext) -> list[Path]:
         n = len(self._times)

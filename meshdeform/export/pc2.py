@@ -6,8 +6,10 @@ Layout (DESIGN.md section 5): a 32-byte header `char[12] "POINTCACHE2\\0"`, `int
 (under a temporary name) and the header is patched with the sample count at close.
 
 Blender's Mesh Cache modifier plays PC2 in "Frame" mode as sample = scene frame - Frame Start and
-ignores the header's start frame: set the modifier's Frame Start to the start frame (checked with
-Blender 5.0.1, benchmarks/blender_check.py).
+ignores the header's start frame (benchmarks/blender_check.py). So that its defaults (Frame Start
+0) show at scene frame F the OBJ file of frame F, sample k is scene frame k: the first frame
+written (the rest pose at `start_frame`) is preceded by copies of itself for scene frames
+0 .. start_frame - 1 (`base.leading_samples`), and the header's start frame is 0.
 
 Point caches need a fixed vertex count: a frame with a changed topology (tearing) is refused.
 `read_pc2_result` reads it back on the input mesh (`meshdeform.export.results`).
@@ -22,7 +24,14 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.errors import ExportError
-from meshdeform.export.base import BaseExporter, ExportContext, FrameData, StreamedFile, convert_up_axis
+from meshdeform.export.base import (
+    BaseExporter,
+    ExportContext,
+    FrameData,
+    StreamedFile,
+    convert_up_axis,
+    leading_samples,
+)
 from meshdeform.export.results import (
     PointCacheReadBack,
     ResultFrames,
@@ -54,6 +63,7 @@ class Pc2Exporter(BaseExporter):
     name: ClassVar[str] = "pc2"
     summary: ClassVar[str] = "PC2 point cache (Blender, Maya, 3ds Max)"
     supports_topology_change: ClassVar[bool] = False
+    pads_to_scene_frame_zero: ClassVar[bool] = True
     topology_message: ClassVar[str] = "point caches need a fixed vertex count"
 
     @classmethod
@@ -67,7 +77,8 @@ class Pc2Exporter(BaseExporter):
 
     def _open(self, ctx: ExportContext) -> None:
         self._file = StreamedFile(ctx.out_dir / FILE_NAME)
-        self._file.handle.write(pc2_header(ctx.mesh.vertex_count, ctx.start_frame, 0))
+        self._file.handle.write(pc2_header(ctx.mesh.vertex_count, 0.0, 0))
+        self._samples = 0
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
         if self._last_index is not None and frame.index != self._last_index + 1:
@@ -75,12 +86,15 @@ class Pc2Exporter(BaseExporter):
                 f"pc2: frames must be consecutive (one sample per frame): frame {frame.index} after {self._last_index}"
             )
         data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=PC2_FLOAT)
-        self._file.handle.write(data.tobytes())
+        repeats = 1 + (leading_samples(ctx, frame.index) if self._samples == 0 else 0)
+        for _ in range(repeats):  # the first frame also fills the samples of scene frames 0 .. it - 1
+            self._file.handle.write(data.tobytes())
+        self._samples += repeats
 
     def _close(self, ctx: ExportContext) -> list[Path]:
         handle = self._file.handle
         handle.seek(0)
-        handle.write(pc2_header(ctx.mesh.vertex_count, ctx.start_frame, self.frames_written))
+        handle.write(pc2_header(ctx.mesh.vertex_count, 0.0, self._samples))
         return [self._file.finish()]
 
     def _abort(self) -> None:
@@ -109,14 +123,16 @@ def read_pc2(path: str | Path) -> tuple[np.ndarray, float, float]:
 
 
 def read_pc2_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
-    """The frames of a result folder's `cache.pc2` on the input mesh (`point_cache_frames`), or None when
+    """The frames of a result folder's `cache.pc2` on the input mesh (`point_cache_frames`: every sample,
+    sample k numbered the header's start frame + k, scene frame k as ours are written), or None when
     there is none; MeshLoadError when there is one but no input mesh."""
     path = root / FILE_NAME
     if not path.is_file():
         return None
     mesh = require_input_mesh(root, input_mesh)
-    positions, _, _ = read_pc2(path)
-    return point_cache_frames(path, positions, mesh, up_axis, fps=None)
+    positions, start, _ = read_pc2(path)
+    first = round(start) if np.isfinite(start) else 0
+    return point_cache_frames(path, positions, mesh, up_axis, fps=None, first_number=first)
 
 
 class Pc2ReadBack(PointCacheReadBack):

@@ -7,14 +7,22 @@ returns the frames it found as `ResultFrames`, or None when the folder holds non
 each reader, a `ReadBack` gives what it would read for a run's frames still in memory (previews of a
 run). The exporter class declares both, and where they come in the search, as a `ResultReading`
 (`BaseExporter.reading`); `meshdeform.preview.results` searches the registry's in priority order.
+
+Frame numbers are scene frames (`ExportContext.scene_frame`: the rest pose at `start_frame`, then one a
+frame): the per-frame files' numbers, npz `frames`, USD time codes, and a point cache's sample index (PC2
+from its header's start frame, 0 as ours write it; sample k is scene frame k). Point caches also hold
+copies of their first frame for the scene frames before it (`base.leading_samples`); their readers return
+those samples too (the files do not say where the run's frames begin), `ResultFrames.from_frame` drops
+them, as `meshdeform.preview.results.open_result` does with the first frame the run's report names.
 """
 
 from __future__ import annotations
 
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -51,13 +59,30 @@ class LazyFrames(Sequence[FrameItem]):
         return frame.positions if self.same_topology(frame, self.base) else frame
 
 
+class FramesFrom(Sequence[Any]):
+    """The items of a sequence from position `skip` on, read from it on each access (a lazy loader stays lazy)."""
+
+    def __init__(self, items: Sequence[Any], skip: int) -> None:
+        self.items = items
+        self.skip = max(int(skip), 0)
+
+    def __len__(self) -> int:
+        return max(len(self.items) - self.skip, 0)
+
+    def __getitem__(self, k: int) -> Any:  # type: ignore[override]
+        if not -len(self) <= k < len(self):
+            raise IndexError(k)
+        return self.items[self.skip + (k % len(self))]
+
+
 @dataclass
 class ResultFrames:
     """The frames one reader found in a result folder.
 
     base: the mesh the frames are in (topology; its positions are the rest pose).
     frames: per frame a `FrameItem`, possibly read lazily from disk on each access.
-    numbers: the frames' numbers (from 1). source: what was read, e.g. "frames/*.obj", "cache.pc2".
+    numbers: the frames' scene frame numbers, increasing (module docstring). source: what was read,
+        e.g. "frames/*.obj", "cache.pc2".
     fps / pinned ((V,) bool) / strain (per frame (V,) stretch ratios): when the files carry them.
     """
 
@@ -68,6 +93,15 @@ class ResultFrames:
     fps: float | None = None
     pinned: np.ndarray | None = None
     strain: Sequence[np.ndarray] | None = None
+
+    def from_frame(self, first: int) -> ResultFrames:
+        """The frames numbered `first` or later (a point cache's copies before the run's first frame
+        dropped); itself when none is before. Base, source, fps and pinned mask are kept."""
+        skip = sum(1 for n in self.numbers if n < first)
+        if skip == 0:
+            return self
+        strain = None if self.strain is None else FramesFrom(self.strain, skip)
+        return replace(self, frames=FramesFrom(self.frames, skip), numbers=self.numbers[skip:], strain=strain)
 
 
 def numbered_files(folder: Path, suffixes: Sequence[str]) -> list[tuple[int, Path]]:
@@ -106,9 +140,15 @@ def detect_up_axis(first: np.ndarray, rest: np.ndarray) -> str:
 
 
 def point_cache_frames(
-    path: Path, positions: np.ndarray, input_mesh: Mesh, up_axis: str | None, fps: float | None
+    path: Path,
+    positions: np.ndarray,
+    input_mesh: Mesh,
+    up_axis: str | None,
+    fps: float | None,
+    first_number: int = 0,
 ) -> ResultFrames:
-    """The frames of a point cache (`positions` (F, V, 3) as stored) on the input mesh's topology.
+    """The frames of a point cache (`positions` (F, V, 3) as stored) on the input mesh's topology, every
+    sample (leading copies included), numbered `first_number` + sample index (the scene frame).
 
     `up_axis` is the convention the cache was written in; None: `detect_up_axis`.
     """
@@ -117,7 +157,8 @@ def point_cache_frames(
     if up_axis is None:
         up_axis = detect_up_axis(positions[0], input_mesh.positions)
     frames = list(restore_up_axis(positions.astype(np.float64), up_axis))
-    return ResultFrames(input_mesh, frames, list(range(1, len(frames) + 1)), path.name, fps=fps)
+    numbers = list(range(first_number, first_number + len(frames)))
+    return ResultFrames(input_mesh, frames, numbers, path.name, fps=fps)
 
 
 def require_input_mesh(root: Path, input_mesh: Mesh | None) -> Mesh:
@@ -134,9 +175,11 @@ class ReadBack:
     of from its files: a run previews its own result without reading it back.
 
     Fed the frames in order (`keep` each one's positions, `add` the frame, `start` on the first), it gives
-    exactly what the format's reader gives for the folder the run writes (before its report.json exists):
-    the positions at the precision the files hold them, the same base mesh, frame items, fps and per-frame
-    data, and the same errors (`check`). Subclasses sit beside their reader.
+    exactly what the format's reader gives for the folder the run writes, from the run's first frame on
+    (`ResultFrames.from_frame`, as `open_result` reads it with the run's report.json: a point cache's
+    copies before that frame are not the run's): the positions at the precision the files hold them, the
+    same frame numbers (`number`), base mesh, frame items, fps and per-frame data, and the same errors
+    (`check`). Subclasses sit beside their reader.
     """
 
     #: `ResultFrames.source` of the reader
@@ -149,6 +192,10 @@ class ReadBack:
         self.fps: float | None = None
         #: the pinned mask the files carry (the reader's `ResultFrames.pinned`)
         self.pinned: np.ndarray | None = None
+
+    def number(self, frame: FrameData) -> int:
+        """The frame's number as the reader gives it: its scene frame."""
+        return self.ctx.scene_frame(frame.index)
 
     def keep(self, positions: np.ndarray) -> np.ndarray:
         """A frame's (V, 3) positions as the files hold them, compact enough to keep in memory."""

@@ -2,10 +2,11 @@
 
 Each frame is written by the mesh writers of `meshdeform.io` (input vertex order, polygons, UVs,
 groups and properties kept; normals recomputed per frame when the input had them), atomically.
-The file number is the frame number (from 1), zero padded to 4 digits, or more when the run has
-more than 9999 frames and `frame_count` says so. A changed topology (tearing) simply switches
-the writer to the new mesh from that frame on. `read_frame_files` reads the frames back
-(`meshdeform.export.results`); `frame_files_reading` is the reading both formats declare.
+The file number is the scene frame (`ExportContext.scene_frame`: the rest pose at `start_frame`,
+then one a frame), zero padded to 4 digits, or more when the last one has more digits. A changed
+topology (tearing) simply switches the writer to the new mesh from that frame on.
+`read_frame_files` reads the frames back (`meshdeform.export.results`); `frame_files_reading` is
+the reading both formats declare.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ class FrameSequenceExporter(BaseExporter):
         if self._writer_mesh is not mesh:
             self._writer = self._make_writer(mesh)
             self._writer_mesh = mesh
-        target = self._folder / frame_file_name(frame.index, ctx.frame_count, self.suffix)
+        target = self._folder / frame_file_name(ctx.scene_frame(frame.index), ctx.last_scene_frame, self.suffix)
         self._writer.write(target, positions)
         self._written.append(target)
 

@@ -4,10 +4,12 @@
 (faceVertexCounts / faceVertexIndices, quads stay quads, subdivisionScheme "none"), time-sampled
 `points`, `normals` (per vertex) and `extent`, and the UVs as an indexed faceVarying primvar `st`
 when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside it.
-The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame k (from 1) sits at
-time code `start_frame + k - 1`, and `upAxis` is Y (or Z with `up_axis="z"`, the points then
-converted as for Blender's world). When the topology changes (tearing) the face lists and UV
-indices become time-sampled too, from that frame on.
+The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame index k (0: the
+rest pose) sits at time code `start_frame + k`, and `upAxis` is Y (or Z with `up_axis="z"`, the
+points then converted as for Blender's world). When the topology changes (tearing) the face lists and UV
+indices become time-sampled too, from that frame on. States between frames (`FrameData.subframes`,
+`[output] subframes`: motion blur) are time samples at their fractional time codes
+(start_frame + time * fps).
 
 Samples are authored as the frames come; the layer lives in memory until it is saved at close.
 `read_usd_result` reads the frames back (`meshdeform.export.results`).
@@ -131,7 +133,7 @@ class UsdExporter(BaseExporter):
         self._st: Any = None
 
     def _code(self, ctx: ExportContext, index: int) -> float:
-        return float(ctx.start_frame + index - 1)
+        return float(ctx.scene_frame(index))
 
     def _author_topology(self, mesh: Mesh, code: Any) -> None:
         """Face lists, UV primvar and curve counts, as defaults or (after tearing) time samples."""
@@ -160,7 +162,7 @@ class UsdExporter(BaseExporter):
             self._curves.GetCurveVertexCountsAttr().Set(Vt.IntArray.FromNumpy(counts), code)
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
-        from pxr import Usd, Vt
+        from pxr import Usd
 
         code = self._code(ctx, frame.index)
         if self._topology_mesh is None:
@@ -172,9 +174,18 @@ class UsdExporter(BaseExporter):
                 self._topology_sampled = True
             self._author_topology(mesh, Usd.TimeCode(code))
             self._topology_mesh = mesh
+        if self._first_code is not None:  # motion blur: the states between the frame before and this one
+            for when, between in frame.subframes:
+                self._author_points(ctx, mesh, np.asarray(between, dtype=np.float64), ctx.start_frame + when * ctx.fps)
         if self._first_code is None:
             self._first_code = code
         self._last_code = code
+        self._author_points(ctx, mesh, positions, code)
+
+    def _author_points(self, ctx: ExportContext, mesh: Mesh, positions: np.ndarray, code: float) -> None:
+        """Points, extent and normals (and the polylines' points) at time code `code`."""
+        from pxr import Usd, Vt
+
         time = Usd.TimeCode(code)
         points = convert_up_axis(np.asarray(positions, dtype=np.float64), ctx.up_axis)
         points32 = np.ascontiguousarray(points, dtype=np.float32)
@@ -218,8 +229,10 @@ class UsdExporter(BaseExporter):
 
 def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     """A stage's first `UsdGeom.Mesh`: (mesh at its default topology and first sample, positions (F, V, 3)
-    in the input's Y-up coordinates, frame numbers from 1, time codes per second). MeshLoadError when it
-    cannot be opened, has no mesh or its vertex count changes over time."""
+    in the input's Y-up coordinates, frame numbers: the time codes, scene frames as ours are written (a
+    stage without time samples: its start time code, else 1), time codes per second). Samples between
+    whole time codes (motion-blur subframes) are not frames, unless the stage has no others.
+    MeshLoadError when it cannot be opened, has no mesh or its vertex count changes over time."""
     start_usd()
     from pxr import Usd, UsdGeom
 
@@ -233,7 +246,9 @@ def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
     indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
     points_attr = geom.GetPointsAttr()
-    codes = points_attr.GetTimeSamples() or [Usd.TimeCode.Default()]
+    samples = list(points_attr.GetTimeSamples())
+    frames = [c for c in samples if abs(c - round(c)) < 1e-6]  # whole time codes: frames (others: subframes)
+    codes = frames or samples or [Usd.TimeCode.Default()]
     z_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
     positions = []
     for code in codes:
@@ -242,8 +257,10 @@ def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     if len({p.shape for p in positions}) != 1:
         raise MeshLoadError(f"{path}: the topology changes over time; preview the frames/ files instead")
     offsets = np.concatenate([[0], np.cumsum(counts)])
-    start = stage.GetStartTimeCode() if stage.HasAuthoredTimeCodeRange() else (codes[0] if codes else 1)
-    numbers = [round(float(c) - float(start)) + 1 for c in codes] if points_attr.GetTimeSamples() else [1]
+    if samples:
+        numbers = [round(float(c)) for c in codes]
+    else:
+        numbers = [round(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange() else 1]
     mesh = Mesh(positions=positions[0], face_indices=indices, face_offsets=offsets, source=path)
     return mesh, np.stack(positions), numbers, float(stage.GetTimeCodesPerSecond() or 24.0)
 

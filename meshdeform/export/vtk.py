@@ -174,7 +174,7 @@ class VtkExporter(BaseExporter):
         if self._uvs is not None:
             set_point_array(poly, "TCoords", self._uvs)
             pd.SetActiveTCoords("TCoords")
-        rel = f"{FOLDER}/{frame_file_name(frame.index, ctx.frame_count, '.vtp')}"
+        rel = f"{FOLDER}/{frame_file_name(ctx.scene_frame(frame.index), ctx.last_scene_frame, '.vtp')}"
         target = ctx.out_dir / rel
         with atomic_path(target) as tmp:
             self._writer.SetFileName(str(tmp))

@@ -16,13 +16,13 @@ API (three calls and two records):
 
 Time convention. Cache frame `i` (from 0) is at scene frame `start_frame + i * frame_step` of the
 cache's own time line, `fps` scene frames a second; scene seconds are scene frame / fps, as in the MDD
-times our exporter writes. The simulation's output frame `k` (from 1, at simulation time `k / sim_fps`)
-is scene frame `sim_start_frame + k - 1`, so simulation time `t` is at scene second
-`(sim_start_frame - 1) / sim_fps + t`, and with the same fps cache frame `i` is at simulation time
-`(start_frame + i * frame_step - sim_start_frame + 1) / fps`: the run's first output frame meets the
-cache frame of the same number, and the rest state (t = 0) the frame before it. Between two cache
-frames positions are interpolated linearly; before the first frame the first is held, past the last the
-last (`check_cache_covers` refuses a run that would need it).
+times our exporter writes. The simulation's frame index `k` (0: the rest pose, at simulation time
+`k / sim_fps`) is scene frame `sim_start_frame + k`, so simulation time `t` is at scene second
+`sim_start_frame / sim_fps + t`, and with the same fps cache frame `i` is at simulation time
+`(start_frame + i * frame_step - sim_start_frame) / fps`: every output frame meets the cache frame of
+the same scene frame number, the rest state (t = 0) the one at the simulation's start frame. Between
+two cache frames positions are interpolated linearly; before the first frame the first is held, past
+the last the last (`check_cache_covers` refuses a run that would need it).
 
 What each format says:
 
@@ -120,7 +120,7 @@ class CacheTiming:
     """Where a cache's frames sit on a simulation's clock (module docstring: time convention).
 
     fps, start_frame, frame_step: the cache's, resolved (recipe, else file, else the simulation's).
-    sim_fps, sim_start_frame: the simulation's frames per second and first output frame number.
+    sim_fps, sim_start_frame: the simulation's frames per second and the scene frame of its rest pose.
     """
 
     fps: float
@@ -131,7 +131,7 @@ class CacheTiming:
 
     def scene_frame(self, time: float) -> float:
         """The scene frame (in the cache's fps) at simulation time `time` (s)."""
-        return (self.sim_start_frame - 1.0 + float(time) * self.sim_fps) * (self.fps / self.sim_fps)
+        return (self.sim_start_frame + float(time) * self.sim_fps) * (self.fps / self.sim_fps)
 
     def index(self, time: float) -> float:
         """The fractional cache frame index at simulation time `time` (s), not clamped; within 1e-9 of an
@@ -148,7 +148,7 @@ def cache_timing(
     fps: float | None = None,
     start_frame: float | None = None,
 ) -> CacheTiming:
-    """The cache's timing on a simulation at `sim_fps` whose first output frame is `sim_start_frame`.
+    """The cache's timing on a simulation at `sim_fps` whose rest pose is scene frame `sim_start_frame`.
 
     `fps` / `start_frame` (the recipe's) override the file's; where neither says, the simulation's are
     taken. ValueError for a non-positive or non-finite fps.

@@ -14,8 +14,11 @@ rest length, of the edges at a vertex; a diverging heat map centred on 1 with a 
 stretched, blue compressed) or the displacement from rest. Pinned vertices and torn edges
 (boundary edges the rest mesh did not have) can be highlighted, with an optional wireframe overlay.
 The scene's colliders, when given (`colliders`: a run's scene, or the one `meshdeform preview` rebuilds
-from the run's recipe), are drawn in neutral greys at each frame's time (frame number / fps), planes as
-a floor under the cloth; the camera stays framed on the cloth.
+from the run's recipe), are drawn in neutral greys at each frame's time (seconds since the rest pose:
+(frame number - start frame) / fps), planes as a floor under the cloth; the camera stays framed on the cloth.
+
+Frame numbers are scene frames, as the result's files number them (the rest pose at the run's start
+frame, 1 by default); `every` counts from the sequence's first frame.
 
 Files (inside `out_dir`; `media`): `preview/0001.png` ... (frame numbers, 4 digits),
 `preview/contact_sheet.png`, `preview.mp4` / `preview.gif`. Every file is written atomically.

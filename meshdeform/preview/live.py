@@ -1,13 +1,14 @@
 """A run's previews rendered from its frames as they are simulated, instead of read back from its files.
 
-`RunPreview` is fed the `FrameData` the run hands its exporters. It renders the same files
-`render_result(out_dir, options, mesh=input, model=model)` renders from the folder the run writes
-(called before the run's report.json exists): the frames as the reader `open_result` would pick reads
-them back (`meshdeform.export.results.ReadBack`: the positions at the precision the files hold them,
-the base mesh, fps, pinned flags, strain and the reading errors), and the run's model for the pinned
-vertices and the strain when the base has the input's vertex count. The run's colliders are drawn at
-each frame's time by the run's fps (`ctx.fps`), as `render_result` given them draws them by the fps of
-the report the run writes.
+`RunPreview` is fed the `FrameData` the run hands its exporters (the rest pose first, frame index 0).
+It renders the same files `render_result(out_dir, options, mesh=input, model=model)` renders from the
+folder the run writes, read with the frame range of its report.json (`start_frame`, `output_frames`):
+the frames as the reader `open_result` would pick reads them back from the run's first frame on
+(`meshdeform.export.results.ReadBack`: scene frame numbers, the positions at the precision the files
+hold them, the base mesh, fps, pinned flags, strain and the reading errors; a point cache's copies
+before the first frame are not shown), and the run's model for the pinned vertices and the strain when
+the base has the input's vertex count. The run's colliders are drawn at each frame's time since the
+rest pose by the run's fps (`ctx.fps`), as `render_result` given them draws them by the report's.
 
 Memory: each frame is measured (bounds, colour range) as it comes; only the frames to render are
 kept (every frame with a video), at the files' precision (float32 for all but OBJ). Errors are kept
@@ -36,7 +37,7 @@ class RunPreview:
 
     options: as `render_previews` takes them (a recipe's `[output] preview` table). model: the run's
     SpringModel (its `vertex_map`, `pinned` and springs for the strain). colliders: the run's scene's
-    colliders, drawn at each frame's time (frame number / `ctx.fps`).
+    colliders, drawn at each frame's time ((scene frame - `ctx.start_frame`) / `ctx.fps`).
     """
 
     def __init__(
@@ -82,14 +83,15 @@ class RunPreview:
         if self._error is not None:
             return
         try:
+            number = read_back.number(frame)
             if self._preview is None:
-                self._preview = self._start(frame, self._base)
+                self._preview = self._start(frame, self._base, number)
             strain = read_back.strain(frame)
             k = len(self._preview.numbers)
             if strain is not None:
                 self._strain[k] = strain
-            self._preview.measure(frame.index, read_back.item(mesh, kept))
-            if self._preview.wants(frame.index):
+            self._preview.measure(number, read_back.item(mesh, kept))
+            if self._preview.wants(number):
                 self._kept[k] = (mesh, kept)
             else:
                 self._strain.pop(k, None)
@@ -101,8 +103,9 @@ class RunPreview:
         self._kept.clear()
         self._strain.clear()
 
-    def _start(self, first: FrameData, base: Mesh) -> SequencePreview:
-        """The sequence preview on the base mesh the reader found, with what `render_result` adds."""
+    def _start(self, first: FrameData, base: Mesh, number: int) -> SequencePreview:
+        """The sequence preview on the base mesh the reader found, with what `render_result` adds
+        (`number`: the first frame's)."""
         read_back = self._read_back
         assert read_back is not None
         pinned = read_back.pinned
@@ -123,6 +126,8 @@ class RunPreview:
             strain=strain,
             colliders=self.colliders,
             scene_fps=self.ctx.fps,
+            first_frame=number,
+            start_frame=self.ctx.start_frame,
         )
 
     def render(self, out_dir: str | Path | None = None) -> PreviewResult:

@@ -20,8 +20,9 @@ CONTACT_SHEET_NAME = "contact_sheet.png"
 class PreviewOptions:
     """What to render and how.
 
-    every: save every Nth frame as PNG (frames 1, 1 + N, 1 + 2N, ...); `frames` (frame numbers
-        from 1) overrides it. The video always has every frame.
+    every: save every Nth frame as PNG, counted from the sequence's first frame F (a run's rest pose at
+        its start frame): frames F, F + N, F + 2N, ...; `frames` (scene frame numbers, as the result's
+        files number them, from 0) overrides it. The video always has every frame.
     size: image (width, height) in pixels. view: iso | front | side | top (with `up_axis`).
     color: strain | flat | displacement. wireframe: draw polygon edges over the surface.
     highlight_pins / highlight_tears: mark pinned vertices / boundary edges not in the rest mesh.
@@ -66,8 +67,8 @@ class PreviewOptions:
             raise bad(f"every must be at least 1, not {self.every!r}")
         if self.frames is not None:
             frames = tuple(int(f) for f in self.frames)
-            if any(f < 1 for f in frames):
-                raise bad("frame numbers start at 1")
+            if any(f < 0 for f in frames):
+                raise bad("frame numbers are scene frames, from 0")
             object.__setattr__(self, "frames", frames)
         size = tuple(int(s) for s in self.size)
         if len(size) != 2 or min(size) < 16 or max(size) > 8192:
@@ -120,15 +121,17 @@ class PreviewOptions:
                 values[key] = tuple(values[key])
         return cls(**values)
 
-    def is_png_frame(self, number: int) -> bool:
-        """Is frame `number` saved as PNG (and put on the contact sheet)?"""
+    def is_png_frame(self, number: int, first: int) -> bool:
+        """Is frame `number` of a sequence whose first frame is `first` saved as PNG (and put on the
+        contact sheet)?"""
         if self.frames is not None:
             return number in self.frames
-        return (number - 1) % self.every == 0
+        return (number - first) % self.every == 0
 
     def png_frames(self, numbers: Sequence[int]) -> list[int]:
-        """Which of the available frame numbers are saved as PNG (and go on the contact sheet)."""
-        return [n for n in numbers if self.is_png_frame(n)]
+        """Which of a sequence's frame numbers (increasing, the first one first) are saved as PNG (and go
+        on the contact sheet)."""
+        return [n for n in numbers if self.is_png_frame(n, numbers[0])]
 
 
 @dataclass

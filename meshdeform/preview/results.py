@@ -70,11 +70,16 @@ def frame_pinned(formats: Sequence[str], frame: FrameData, n: int) -> np.ndarray
 
 @dataclass
 class ResultSequence:
-    """A result folder's frames, ready for `render_previews`."""
+    """A result folder's frames, ready for `render_previews`.
+
+    frame_numbers: the frames' scene frame numbers. start_frame: the scene frame of the run's rest
+    pose (simulation time 0): the report's `start_frame`, else the first frame's number.
+    """
 
     mesh: Mesh
     frames: Sequence[FrameItem]
     frame_numbers: list[int]
+    start_frame: int
     fps: float
     rest_positions: np.ndarray
     pinned: np.ndarray | None
@@ -99,6 +104,20 @@ def _report_fps(report: Mapping[str, Any]) -> float | None:
         if isinstance(value, int | float) and value > 0:
             return float(value)
     return None
+
+
+def _report_int(value: Any) -> int | None:
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def report_frames(report: Mapping[str, Any]) -> tuple[int | None, int | None]:
+    """(the scene frame of the rest pose, the first scene frame written) a run's report says (keys
+    `start_frame` and `output_frames` = [first, last]), None for what it does not say; the first frame
+    written is the start frame unless `output_frames` says otherwise."""
+    start = _report_int(report.get("start_frame"))
+    written = report.get("output_frames")
+    first = _report_int(written[0]) if isinstance(written, list) and len(written) == 2 else None
+    return start, first if first is not None else start
 
 
 def _report_pinned(report: Mapping[str, Any], n: int) -> np.ndarray | None:
@@ -135,8 +154,11 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
     their axis convention is `up_axis`, the report's `up_axis`, or whichever makes the first
     frame closest to the rest pose. Pinned vertices come from the files read (`ResultFrames.pinned`),
     else the report (`pinned`: vertex indices), else another format's files in the folder
-    (`folder_pinned`); fps from the report, else the files read. Raises MeshLoadError when nothing
-    is found.
+    (`folder_pinned`); fps from the report, else the files read. Frame numbers are scene frames; the
+    frames before the first one the run wrote (the report's `output_frames`, else `start_frame`: a point
+    cache's copies of its first frame for the scene frames before it) are dropped, so that a folder's
+    previews show the same frames whatever format it holds; without a report every frame read is kept.
+    Raises MeshLoadError when nothing is found.
     """
     from meshdeform.io import load
 
@@ -154,6 +176,11 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
     found = next((f for f in (r.read(root, input_mesh, up_axis) for r in search_order()) if f is not None), None)
     if found is None:
         raise no_frames_found(root)
+    start_frame, first_written = report_frames(report)
+    if first_written is not None:
+        found = found.from_frame(first_written)
+        if not found.numbers:
+            raise MeshLoadError(f"{root}: no frames from frame {first_written} on, the first the report names")
     base = found.base
     pinned = found.pinned
     if pinned is None:
@@ -164,6 +191,7 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
         mesh=base,
         frames=found.frames,
         frame_numbers=found.numbers,
+        start_frame=start_frame if start_frame is not None else (found.numbers or [0])[0],
         fps=_report_fps(report) or found.fps or 24.0,
         rest_positions=np.asarray(base.positions, dtype=np.float64),
         pinned=pinned,
@@ -188,7 +216,8 @@ def render_result(
     With the SpringModel of the run (`model`), pinned vertices and strain come from it exactly
     (strain: the largest stretch of each vertex's structural springs, as in the VTK output).
     `up_axis` is the convention point caches were written in (default: detected). `colliders`: the
-    run's scene's colliders, drawn at each frame's time (frame number / the result's fps).
+    run's scene's colliders, drawn at each frame's time ((frame number - `start_frame`) / the result's
+    fps: `ResultSequence.start_frame`).
     Returns the sequence read and what was rendered.
     """
     seq = open_result(result_dir, mesh=mesh, up_axis=up_axis)
@@ -212,6 +241,7 @@ def render_result(
         pinned=pinned,
         strain=strain,
         colliders=colliders,
+        start_frame=seq.start_frame,
     )
     return seq, result
 

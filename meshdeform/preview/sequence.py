@@ -58,7 +58,10 @@ class SequencePreview:
     `render_previews` runs both over a sequence; a run measures its frames as they are simulated and keeps
     only the wanted ones (`meshdeform.preview.live`). Arguments as `render_previews`'s; `strain` frames are
     indexed by the frame's position (from 0) in the order measured. `scene_fps`: the simulation's frame
-    rate, which times the colliders (frame n at n / scene_fps seconds; default `fps`).
+    rate, which times the colliders (frame n at (n - start_frame) / scene_fps seconds; default `fps`).
+    first_frame: the number of the sequence's first frame, from which `options.every` counts (default:
+    the first measured). start_frame: the scene frame of the simulation's time 0, its rest pose (default:
+    `first_frame`).
     """
 
     def __init__(
@@ -72,8 +75,12 @@ class SequencePreview:
         strain: Sequence[np.ndarray] | Mapping[int, np.ndarray] | Callable[[np.ndarray], np.ndarray] | None = None,
         colliders: Sequence[Collider] = (),
         scene_fps: float | None = None,
+        first_frame: int | None = None,
+        start_frame: int | None = None,
     ) -> None:
         self.options = PreviewOptions.from_mapping(options)
+        self.first_frame = first_frame
+        self.start_frame = start_frame
         self.mesh = mesh
         self.fps = fps
         self.colliders = list(colliders)
@@ -90,9 +97,15 @@ class SequencePreview:
         self._hi = np.full(3, -np.inf)
         self._smin, self._smax = np.inf, -np.inf
 
+    def _first(self, number: int) -> int:
+        """The sequence's first frame number (`number` itself before any is known)."""
+        if self.first_frame is not None:
+            return self.first_frame
+        return self.numbers[0] if self.numbers else number
+
     def wants(self, number: int) -> bool:
         """Is frame `number` rendered: a PNG (or contact-sheet) frame, or any frame when there is a video?"""
-        return self.options.video is not None or self.options.is_png_frame(number)
+        return self.options.video is not None or self.options.is_png_frame(number, self._first(number))
 
     def measure(self, number: int, item: FrameItem) -> int:
         """Pass 1 for the next frame: its bounds and, if it is rendered, its colour range. Returns its
@@ -155,16 +168,18 @@ class SequencePreview:
             bounds = np.stack([self._lo, self._hi])
             surfaces = ColliderSurfaces(self.colliders, bounds) if self.colliders else None
             scene_fps = self.scene_fps or self.fps
+            first = self._first(numbers[0])
+            start = self.start_frame if self.start_frame is not None else first
             with FrameRenderer(mesh, options, bounds, self._clim(), self.pinned, surfaces) as renderer:
                 for k, item in frames:
                     positions, frame_mesh = _positions_and_mesh(item, mesh)
                     values = self.scalars(k, frame_mesh, positions)
-                    time_k = numbers[k] / scene_fps  # seconds: frame n is the state after n frames
+                    time_k = (numbers[k] - start) / scene_fps  # seconds since the rest pose
                     image = renderer.render(positions, numbers[k], values, frame_mesh, time_k)
                     result.frames_rendered += 1
                     if video is not None:
                         video.append(image)
-                    if options.is_png_frame(numbers[k]):
+                    if options.is_png_frame(numbers[k], first):
                         if options.pngs:
                             name = frame_file_name(numbers[k], frame_count, ".png", stem="")
                             result.images.append(write_png(preview_dir / name, image))
@@ -202,18 +217,21 @@ def render_previews(
     pinned: np.ndarray | Sequence[int] | None = None,
     strain: Sequence[np.ndarray] | Callable[[np.ndarray], np.ndarray] | None = None,
     colliders: Sequence[Collider] = (),
+    start_frame: int | None = None,
 ) -> PreviewResult:
     """Render the previews of a sequence into `out_dir` (see the package docstring for file names).
 
     mesh: the topology (and, unless `rest_positions` is given, the rest pose) of the frames.
     positions_by_frame: per frame (V, 3) positions in the mesh's layout, or a Mesh when the
         topology changed; any sequence, including a lazy loader (it is read twice: bounds, render).
-    frame_numbers: the frames' numbers (default 1..F). fps: sequence rate (video default).
+    frame_numbers: the frames' scene frame numbers, increasing (default 1..F); `options.every` counts
+        from the first. fps: sequence rate (video default).
     pinned: (V,) bool mask or vertex indices to highlight.
     strain: per-frame (V,) stretch ratios, or a function positions -> ratios; default: computed
         from the mesh's edges against the rest pose.
-    colliders: the scene's colliders, drawn at each frame's time (frame number / fps) unless
-        `options.colliders` is off.
+    colliders: the scene's colliders, drawn at each frame's time ((frame number - start_frame) / fps)
+        unless `options.colliders` is off. start_frame: the scene frame of time 0, the rest pose
+        (default: the first frame's number).
     """
     options = PreviewOptions.from_mapping(options)
     count = len(positions_by_frame)
@@ -223,7 +241,15 @@ def render_previews(
     if len(numbers) != count:
         raise ExportError(f"preview: {len(numbers)} frame numbers for {count} frames")
     preview = SequencePreview(
-        mesh, options, fps=fps, rest_positions=rest_positions, pinned=pinned, strain=strain, colliders=colliders
+        mesh,
+        options,
+        fps=fps,
+        rest_positions=rest_positions,
+        pinned=pinned,
+        strain=strain,
+        colliders=colliders,
+        first_frame=numbers[0],
+        start_frame=start_frame,
     )
     if not any(preview.wants(n) for n in numbers):
         raise ExportError("preview: none of the requested frames is in the sequence")

@@ -34,8 +34,8 @@ def parse_frames(text: str) -> tuple[int, ...]:
             raise fail(f"--frames: expected numbers or ranges like 1,12,20-24, got {text!r}")
         lo = int(match.group(1))
         hi = int(match.group(2)) if match.group(2) else lo
-        if lo < 1 or hi < lo:
-            raise fail(f"--frames: bad range {part!r} (frames are numbered from 1)")
+        if hi < lo:
+            raise fail(f"--frames: bad range {part!r} (frame numbers are scene frames, first to last)")
         numbers.extend(range(lo, hi + 1))
     if not numbers:
         raise fail("--frames: no frame numbers given")
@@ -125,7 +125,7 @@ def register(app: typer.Typer) -> None:
     def preview(
         result_dir: Path = typer.Argument(..., help="A result folder written by simulate or batch."),
         out: Path | None = typer.Option(None, "--out", "-o", help="Where to write (default: RESULT_DIR)."),
-        every: int = typer.Option(1, min=1, help="Save every Nth frame as PNG (1, 1+N, ...)."),
+        every: int = typer.Option(1, min=1, help="Save every Nth frame as PNG, from the first (the rest pose)."),
         frames: str | None = typer.Option(None, help="Frames to save as PNG, e.g. 1,12,20-24 (overrides --every)."),
         size: str = typer.Option("800x600", help="Image size WIDTHxHEIGHT in pixels."),
         view: str = typer.Option("iso", help="Camera view: iso | front | side | top."),

@@ -68,6 +68,19 @@ class Recipe(Table):
         return value
 
     @model_validator(mode="after")
+    def _output_frames_in_the_run(self) -> Recipe:
+        if self.output.frames is not None:
+            first, last = self.output.frames
+            start = self.simulation.start_frame
+            end = start + self.simulation.frames
+            if first < start or last > end:
+                raise ValueError(
+                    f"output: frames = [{first}, {last}] must lie within the run's scene frames {start} (the rest"
+                    f" pose) to {end} (start_frame + frames)"
+                )
+        return self
+
+    @model_validator(mode="after")
     def _attached_to_a_collider(self) -> Recipe:
         names = {c.name for c in self.colliders if c.name is not None}
         for pin in self.pins:

@@ -568,6 +568,19 @@ class OutputSpec(Table):
     formats: Annotated[tuple[StrictStr, ...], BeforeValidator(_formats)] = ("obj",)
     preview: Annotated[PreviewSpec | None, BeforeValidator(_preview)] = None
     up_axis: Literal["y", "z"] | None = None
+    #: the scene frames written, first and last included (None: the rest pose at
+    #: [simulation] start_frame and every simulated frame after it)
+    frames: tuple[StrictInt, StrictInt] | None = None
+    #: time samples per frame in USD (motion blur): the frame and the states between it and the
+    #: one before; the other formats write whole frames
+    subframes: StrictInt = Field(1, ge=1, le=16)
+
+    @field_validator("frames")
+    @classmethod
+    def _ordered_frames(cls, value: tuple[int, int] | None) -> tuple[int, int] | None:
+        if value is not None and value[0] > value[1]:
+            raise ValueError(f"frames = [{value[0]}, {value[1]}]: the first frame comes after the last")
+        return value
 
     @field_validator("formats")
     @classmethod
