@@ -25,11 +25,12 @@ def _make_samples_module(samples_dir: Path):
 
 
 def test_sample_meshes_are_exactly_what_the_script_makes(samples_dir: Path, tmp_path: Path) -> None:
-    written = _make_samples_module(samples_dir).make_samples(tmp_path)
-    committed = sorted(p.name for p in (samples_dir / "meshes").iterdir())
-    assert sorted(p.name for p in written) == committed
+    written = _make_samples_module(samples_dir).make_samples(tmp_path / "meshes", tmp_path / "body")
+    committed = {"meshes": samples_dir / "meshes", "body": samples_dir / "recipes" / "body"}
+    for folder, origin in committed.items():
+        assert sorted(p.name for p in written if p.parent.name == folder) == sorted(p.name for p in origin.iterdir())
     for path in written:
-        assert path.read_bytes() == (samples_dir / "meshes" / path.name).read_bytes(), path.name
+        assert path.read_bytes() == (committed[path.parent.name] / path.name).read_bytes(), path.name
 
 
 def test_showcase_recipe_gives_every_sample_its_own_scene(samples_dir: Path) -> None:
