@@ -1,18 +1,34 @@
-"""Make the bundled sample meshes: small, deterministic, written as plain text.
+"""Make the bundled sample meshes: small, deterministic, written as plain text (the body's cache
+as little-endian binary).
 
-    python samples/make_samples.py [OUT_DIR]      (default: samples/meshes)
+    python samples/make_samples.py [OUT_DIR [BODY_DIR]]
+        (defaults: samples/meshes, samples/recipes/body)
 
 flag.obj      32 x 20 quad grid in the XY plane (2 x 1.25 units, Y up), with UVs and two groups
 curtain.obj   40 x 30 quad grid in the XY plane (3 x 2.2 units), with UVs
 sheet.obj     24 x 24 grid in the XZ plane at height 1, triangulated (tests triangle shear springs)
 icosphere.ply subdivided icosahedron, radius 0.5, with a `weight` vertex property (1 at the top)
 rope.obj      a 40-vertex polyline (`l` element) hanging along X at height 1
+cape.obj      20 x 28 quad grid (0.6 x 0.9 m) curved around the back (z < 0) of the body below, its
+              top row along the shoulders (y = 1.35) 1.5 cm off the torso, its hem flaring to 8 cm off
+
+Into BODY_DIR (beside the recipes, as a recipe's cache paths stay inside the recipe's folder; not
+in OUT_DIR, whose meshes are all baked as assets):
+
+body.obj      a capsule figure, Y up, feet at y = 0, facing +z: a torso capsule (radius 0.17 m,
+              axis x = z = 0 from y = 0 to 1.52) and a separate head sphere (radius 0.09 m, centre
+              y = 1.64), one closed mesh of two parts, 1.73 m tall
+body.pc2      its animation, BODY_FRAMES samples (one a frame at 24 fps, start frame 1): `body_pose`,
+              a rigid motion: it walks along +z, speeding up to 1 m/s over the first 0.5 s, bobs
+              2 cm twice a second, and turns 90 degrees to its left (towards +x) and back over 3 s;
+              sample 0 is the rest mesh
 
 The files are written by this script alone, so tests can check that they are reproducible.
 """
 
 from __future__ import annotations
 
+import struct
 import sys
 from pathlib import Path
 
@@ -119,27 +135,102 @@ def icosphere_ply() -> str:
     return "\n".join(head + rows + faces) + "\n"
 
 
+#: the body's dimensions (m): torso capsule radius and the top of its axis, head sphere
+TORSO_RADIUS = 0.17
+TORSO_TOP = 1.52
+HEAD_RADIUS = 0.09
+HEAD_CENTRE = 1.64
+#: samples in body.pc2: 72 frames at 24 fps (3 s) and a few spare
+BODY_FRAMES = 76
+BODY_FPS = 24.0
+#: the cape's top row height (m, where the torso is still a cylinder) and its gap to the torso
+SHOULDERS = 1.35
+CAPE_GAP = 0.015
+
+
+def body_mesh() -> trimesh.Trimesh:
+    """The body at rest: torso capsule and head sphere as one mesh (vertices rounded to 1 nm)."""
+    torso = trimesh.creation.capsule(height=TORSO_TOP - 2 * TORSO_RADIUS, radius=TORSO_RADIUS, count=[24, 24])
+    torso.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # axis along y
+    torso.apply_translation([0.0, TORSO_TOP / 2, 0.0])
+    head = trimesh.creation.icosphere(subdivisions=2, radius=HEAD_RADIUS)
+    head.apply_translation([0.0, HEAD_CENTRE, 0.0])
+    vertices = np.round(np.concatenate([torso.vertices, head.vertices]), 9)
+    faces = np.concatenate([torso.faces, head.faces + len(torso.vertices)])
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def body_pose(frame: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) (m) taking the rest body to its pose at cache sample
+    `frame` (from 0, at t = frame / 24 s): rotated about its own vertical axis, then moved."""
+    t = frame / BODY_FPS
+    yaw = 0.5 * np.pi * np.sin(np.pi * min(t, 3.0) / 3.0) ** 2
+    c, s = np.cos(yaw), np.sin(yaw)
+    rotation = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    forward = t * t if t < 0.5 else t - 0.25  # speed t / 0.5 m/s up to 1 m/s, then steady
+    bob = 0.01 * (1.0 - np.cos(4.0 * np.pi * t))
+    return rotation, np.array([0.0, bob, forward])
+
+
+def body_obj() -> str:
+    body = body_mesh()
+    return obj_text(np.asarray(body.vertices), np.asarray(body.faces), header="capsule figure (rest of body.pc2)")
+
+
+def body_pc2() -> bytes:
+    """PC2: header (magic, version 1, points, start frame 1, one sample a frame, samples), then
+    every sample's points as float32, little-endian."""
+    rest = np.asarray(body_mesh().vertices)
+    samples = np.array([rest @ r.T + t for r, t in (body_pose(f) for f in range(BODY_FRAMES))])
+    header = struct.pack("<12siiffi", b"POINTCACHE2\0", 1, rest.shape[0], 1.0, 1.0, BODY_FRAMES)
+    return header + samples.astype("<f4").tobytes()
+
+
+def cape() -> str:
+    nx, ny, width, length = 20, 28, 0.6, 0.9
+    xyz, uv, quads = grid(nx, ny, width, length)
+    # columns around the back: the top row on a half circle 1.5 cm off the torso (0.6 m of arc),
+    # lower rows farther out (up to 8 cm at the hem), so that only the top touches the body
+    drop = length - xyz[:, 1]
+    radius = TORSO_RADIUS + CAPE_GAP + 0.065 * drop / length
+    angle = (xyz[:, 0] / width - 0.5) * width / (TORSO_RADIUS + CAPE_GAP)
+    curved = np.stack([radius * np.sin(angle), SHOULDERS - drop, -radius * np.cos(angle)], axis=1)
+    return obj_text(np.round(curved, 9), quads, uv, header="cape")
+
+
 SAMPLES = {
     "flag.obj": flag,
     "curtain.obj": curtain,
     "sheet.obj": sheet,
     "rope.obj": rope,
     "icosphere.ply": icosphere_ply,
+    "cape.obj": cape,
 }
+#: written into BODY_DIR: text (str) or binary (bytes)
+BODY_FILES = {"body.obj": body_obj, "body.pc2": body_pc2}
 
 
-def make_samples(out_dir: Path) -> list[Path]:
-    """Write every sample mesh into out_dir; returns the paths written."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+def make_samples(out_dir: Path, body_dir: Path | None = None) -> list[Path]:
+    """Write every sample mesh into out_dir and the body's files into body_dir (default: the
+    recipes' `body` folder beside out_dir); returns the paths written."""
+    body_dir = body_dir if body_dir is not None else out_dir.parent / "recipes" / "body"
     written = []
-    for name, make in SAMPLES.items():
-        path = out_dir / name
-        path.write_text(make(), encoding="utf-8", newline="\n")
-        written.append(path)
+    for folder, files in ((out_dir, SAMPLES), (body_dir, BODY_FILES)):
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, make in files.items():
+            path = folder / name
+            content = make()
+            if isinstance(content, bytes):
+                path.write_bytes(content)
+            else:
+                path.write_text(content, encoding="utf-8", newline="\n")
+            written.append(path)
     return written
 
 
 if __name__ == "__main__":
-    target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parent / "meshes"
-    for p in make_samples(target):
+    here = Path(__file__).resolve().parent
+    target = Path(sys.argv[1]) if len(sys.argv) > 1 else here / "meshes"
+    body_target = Path(sys.argv[2]) if len(sys.argv) > 2 else here / "recipes" / "body"
+    for p in make_samples(target, body_target):
         print(p)

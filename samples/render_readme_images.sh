@@ -22,4 +22,5 @@ render blackhole sheet.obj 100
 render rope rope.obj 30
 render tear curtain.obj 72
 render fold sheet.obj 72 --color displacement  # the flap has travelled farther than the cloth under it
+render cape cape.obj 48 --view side  # the body walks to the left, the cape trails behind it
 ls -la docs/images

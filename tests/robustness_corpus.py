@@ -147,6 +147,7 @@ def broken_meshes() -> tuple[tuple[str, bytes], ...]:
 #: sample recipe -> the sample mesh it is written for
 RECIPE_MESH = {
     "blackhole": "sheet.obj",
+    "cape": "cape.obj",
     "curtain": "curtain.obj",
     "drop": "sheet.obj",
     "flag": "flag.obj",
@@ -155,6 +156,15 @@ RECIPE_MESH = {
     "stressball": "icosphere.ply",
     "tear": "curtain.obj",
 }
+
+
+#: sample mesh -> the files beside the sample recipes that its recipe reads (the body collider)
+RECIPE_FILES = {"cape.obj": ("body/body.obj", "body/body.pc2")}
+
+
+def recipe_files(mesh_name: str, folder: str = "work") -> dict[str, bytes]:
+    """{folder/relative path: bytes} of the files the sample recipe for mesh_name reads."""
+    return {f"{folder}/{rel}": (SAMPLES / "recipes" / rel).read_bytes() for rel in RECIPE_FILES.get(mesh_name, ())}
 
 
 def shorten_recipe(text: str, frames: int = 2) -> str:
@@ -643,6 +653,7 @@ def _recipe_case(
         files={
             "work/recipe.toml": raw if raw is not None else recipe.encode(),
             f"work/{mesh_name}": sample_mesh(mesh_name),
+            **recipe_files(mesh_name),
         },
         out=out,
     )
@@ -1174,6 +1185,9 @@ def warm_up(
     runs: list[list[str]] = []
     for name, text, mesh in seed_recipes():
         (root / mesh).write_bytes(sample_mesh(mesh))
+        for rel, data in recipe_files(mesh, str(root)).items():
+            Path(rel).parent.mkdir(parents=True, exist_ok=True)
+            Path(rel).write_bytes(data)
         (root / f"{name}.toml").write_text(shorten_recipe(text, frames=1))
         runs.append(["simulate", mesh, "-r", f"{name}.toml", "-o", f"out-{name}", "-q"])
     (root / "grid.obj").write_bytes(obj_grid(8, 8))
