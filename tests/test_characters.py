@@ -146,3 +146,56 @@ def test_a_malformed_cache_fails_in_one_line_before_anything_runs(tmp_path: Path
     assert len(lines) == 1, lines
     assert "body.pc2" in lines[0] and "colliders" in lines[0]
     assert not (out / "positions.npz").exists()
+
+
+RIGID = """
+[simulation]
+fps = 24
+frames = 48
+gravity = [0, 0, 0]
+
+[[colliders]]
+name = "ball"
+sphere = {{ center = [0, 0, -0.5], radius = 0.2 }}
+animate = [ {{ time = 0.0 }}, {{ time = 0.5, translate = [0.3, 0.2, 0], rotate = [0, 0, 40] }} ]
+
+[[pins]]
+select = {{ indices = [0, 1] }}
+attach = "ball"
+stiffness = {stiffness}
+
+[output]
+formats = ["npz"]
+"""
+
+
+@pytest.mark.parametrize("stiffness", [1.0, 0.9])
+def test_pins_attached_to_a_keyframed_collider_follow_its_keys(tmp_path: Path, stiffness: float) -> None:
+    """Attached to a rigid collider, pinned vertices move by its keyframes: hard ones exactly,
+    soft ones (stiffness 0.9) close behind; the rest of the cloth, held by no gravity, is dragged."""
+    mesh = grid_mesh(6, 6, plane="xy")
+    quads = np.asarray(mesh.face_indices).reshape(-1, 4)
+    (tmp_path / "cloth.obj").write_text(obj_text(np.asarray(mesh.positions), quads))
+    (tmp_path / "r.toml").write_text(RIGID.format(stiffness=stiffness))
+    out = tmp_path / "out"
+    args = ["simulate", str(tmp_path / "cloth.obj"), "-r", str(tmp_path / "r.toml"), "-o", str(out), "-q"]
+    done = runner.invoke(app, args)
+    assert done.exit_code == 0, done.output
+    positions = np.load(out / "positions.npz")["positions"].astype(np.float64)
+    rest = np.asarray(mesh.positions)[[0, 1]]
+    pivot = np.array([0.0, 0.0, -0.5])  # a collider's keys turn about its centre
+    for k in range(positions.shape[0]):
+        s = min(k / 24 / 0.5, 1.0)  # linear keys: the fraction of the way at frame k
+        angle = np.radians(40.0 * s)
+        c, n = np.cos(angle), np.sin(angle)
+        rotation = np.array([[c, -n, 0.0], [n, c, 0.0], [0.0, 0.0, 1.0]])
+        expected = pivot + np.array([0.3, 0.2, 0.0]) * s + (rest - pivot) @ rotation.T
+        error = np.abs(positions[k, [0, 1]] - expected).max()
+        # soft: a spring (k = 9000 / s^2) pulling the whole cloth along lags while the keys move
+        assert error < (1e-5 if stiffness == 1.0 else 0.1), (k, error)
+    if stiffness < 1.0:
+        # a second after the keys stopped it has nearly caught up (the cloth it drags still swings),
+        # 0.36 m from where it was pinned
+        assert np.abs(positions[-1, [0, 1]] - expected).max() < 0.02
+        assert np.linalg.norm(positions[-1, [0, 1]] - rest, axis=1).min() > 0.3
+    assert np.abs(positions[-1, 2:] - np.asarray(mesh.positions)[2:]).max() > 0.05
