@@ -51,25 +51,47 @@ def edge_index(triangles: np.ndarray, vertex_count: int) -> np.ndarray:
 
 def surface_normals(vertices: np.ndarray, triangles: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """`Surface.normals` (K, 7, 3) of triangles (K, 3) over vertices (M, 3) float64, with their
-    `edge_index` edges (K, 3)."""
-    v, tri = vertices, triangles
-    m = v.shape[0]
-    a, b, c = v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]]
-    cross = np.cross(b - a, c - a)
-    length = np.linalg.norm(cross, axis=1)
-    unit = np.where(length[:, None] > 0, cross / np.where(length > 0, length, 1.0)[:, None], 0.0)
-    inverse = edges.ravel()
-    per_edge = np.repeat(unit, 3, axis=0)
-    sums = np.stack([np.bincount(inverse, weights=per_edge[:, k]) for k in range(3)], axis=1)
-    edge_normals = sums[inverse].reshape(tri.shape[0], 3, 3)
-    vertex_normals = np.zeros((m, 3))
-    for corner in range(3):  # three passes over all triangles, one per corner
-        e1 = v[tri[:, (corner + 1) % 3]] - v[tri[:, corner]]
-        e2 = v[tri[:, (corner + 2) % 3]] - v[tri[:, corner]]
-        angle = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=1), np.einsum("ij,ij->i", e1, e2))
-        for k in range(3):
-            vertex_normals[:, k] += np.bincount(tri[:, corner], weights=angle * unit[:, k], minlength=m)
-    return np.ascontiguousarray(np.concatenate([unit[:, None], edge_normals, vertex_normals[tri]], axis=1))
+    `edge_index` edges (K, 3). Compiled: a deforming collider recomputes them every substep."""
+    tri = np.ascontiguousarray(triangles, dtype=np.int64)
+    edge = np.ascontiguousarray(edges, dtype=np.int64)
+    count = int(edge.max(initial=-1)) + 1
+    return _surface_normals(np.ascontiguousarray(vertices, dtype=np.float64), tri, edge, count)
+
+
+@numba.njit(**_JIT)
+def _surface_normals(v: np.ndarray, tri: np.ndarray, edges: np.ndarray, edge_count: int) -> np.ndarray:
+    """`surface_normals`, in fixed order over the triangles (the same bytes on every run): unit face
+    normals; per edge the sum of its faces' normals; per vertex the angle-weighted sum."""
+    k_count = tri.shape[0]
+    out = np.zeros((k_count, 7, 3))
+    edge_sum = np.zeros((edge_count, 3))
+    vertex_sum = np.zeros((v.shape[0], 3))
+    for t in range(k_count):
+        a, b, c = tri[t, 0], tri[t, 1], tri[t, 2]
+        ux, uy, uz = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        wx, wy, wz = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length > 0.0:
+            out[t, 0, 0], out[t, 0, 1], out[t, 0, 2] = nx / length, ny / length, nz / length
+        for corner in range(3):
+            e = edges[t, corner]
+            for k in range(3):
+                edge_sum[e, k] += out[t, 0, k]
+        for corner in range(3):
+            i, j, q = tri[t, corner], tri[t, (corner + 1) % 3], tri[t, (corner + 2) % 3]
+            e1x, e1y, e1z = v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2]
+            e2x, e2y, e2z = v[q, 0] - v[i, 0], v[q, 1] - v[i, 1], v[q, 2] - v[i, 2]
+            cx, cy, cz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+            angle = np.arctan2(np.sqrt(cx * cx + cy * cy + cz * cz), e1x * e2x + e1y * e2y + e1z * e2z)
+            for k in range(3):
+                vertex_sum[i, k] += angle * out[t, 0, k]
+    for t in range(k_count):
+        for corner in range(3):
+            for k in range(3):
+                out[t, 1 + corner, k] = edge_sum[edges[t, corner], k]
+                out[t, 4 + corner, k] = vertex_sum[tri[t, corner], k]
+    return out
 
 
 def surface_of(vertices: np.ndarray, triangles: np.ndarray) -> Surface:
