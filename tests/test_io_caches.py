@@ -213,6 +213,25 @@ def test_frame_sequence_in_natural_order(tmp_path: Path, mesh: Mesh) -> None:
     assert cache.source == folder / "frame_1.ply"
 
 
+def test_a_folder_of_frames_is_its_sequence(tmp_path: Path, mesh: Mesh) -> None:
+    """A folder names the sequence of its .obj (or .ply) files; their .mtl neighbours do not count."""
+    positions = animation(mesh, 5)
+    folder = tmp_path / "body frames"
+    folder.mkdir()
+    for i, frame in enumerate(positions):
+        save(folder / f"body.{1001 + i}.obj", mesh, frame)
+    (folder / "body.mtl").write_text("newmtl skin\n")
+    cache = read_point_cache("body frames", tmp_path, mesh.vertex_count)
+    np.testing.assert_array_equal(cache.positions, positions)
+    assert cache.start_frame == 1001.0
+    save(folder / "body.1006.ply", mesh, positions[0])
+    with pytest.raises(MeshLoadError, match=r"both \.obj and \.ply"):
+        read_point_cache("body frames", tmp_path, mesh.vertex_count)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(MeshLoadError, match=r"no \.obj or \.ply"):
+        read_point_cache("empty", tmp_path, mesh.vertex_count)
+
+
 def test_frame_sequence_numbered_in_steps(tmp_path: Path, mesh: Mesh) -> None:
     positions = animation(mesh, 3)
     for number, frame in zip((1000, 1002, 1004), positions, strict=True):

@@ -4,7 +4,8 @@ API (three calls and two records):
 
 - `read_point_cache(spec, base, vertex_count) -> PointCache`: `spec` is a path relative to `base` (the
   recipe's folder) to a `.pc2`, `.mdd` or `.usd`/`.usdc`/`.usda` file, or a glob (`*`, `?`, `[...]`) of
-  per-frame `.obj`/`.ply` files with the same vertex count. Every frame must have `vertex_count` points.
+  per-frame `.obj`/`.ply` files with the same vertex count, or a folder of them (its files of the one
+  mesh suffix it holds). Every frame must have `vertex_count` points.
 - `PointCache`: `positions` (F, V, 3) float64 (read-only) in the file's frame order, `fps` and
   `start_frame` (None when the file does not say), `frame_step`, `source`.
 - `cache_timing(cache, sim_fps, sim_start_frame, fps=None, start_frame=None) -> CacheTiming`: where the
@@ -52,6 +53,7 @@ naming the file, the place in it (byte offset, frame or sample) and what is wron
 
 from __future__ import annotations
 
+import glob
 import itertools
 import math
 import re
@@ -225,6 +227,13 @@ def read_point_cache(spec: str, base: Path, vertex_count: int) -> PointCache:
         return _read_sequence(spec, base, vertex_count)
     path = base / spec
     _check_inside(path, base, spec)
+    if path.is_dir() and path.suffix.lower() not in CACHE_SUFFIXES:
+        # a folder of per-frame files: its .obj (or .ply) files, as a glob would name them
+        kinds = sorted({f.suffix for f in path.iterdir() if f.suffix.lower() in MESH_SUFFIXES})
+        if len(kinds) != 1:
+            found = "both .obj and .ply files" if kinds else "no .obj or .ply files"
+            raise MeshLoadError(f"{path}: a point-cache folder needs per-frame .obj or .ply files; it holds {found}")
+        return _read_sequence(f"{glob.escape(spec.rstrip('/'))}/*{kinds[0]}", base, vertex_count)
     suffix = path.suffix.lower()
     if suffix not in CACHE_SUFFIXES:
         shown = f"'{path.suffix}'" if path.suffix else "no extension"
