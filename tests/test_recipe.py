@@ -357,6 +357,7 @@ SAMPLE_MESHES = {
     "fold.toml": "sheet.obj",
     "rope.toml": "rope.obj",
     "tear.toml": "curtain.obj",
+    "cape.toml": "cape.obj",
 }
 
 
