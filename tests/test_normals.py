@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import meshio
 import numpy as np
 from typer.testing import CliRunner
 
-from meshdeform.io import ObjWriter, load
+from meshdeform.io import ObjWriter, PlyWriter, load
 from pipeline.cli import app
 
 
@@ -44,7 +45,9 @@ def unit(v: np.ndarray) -> np.ndarray:
 
 
 def angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", unit(a), unit(b)), -1.0, 1.0)))
+    """Angles (degrees) between rows, by atan2 (arccos loses precision near 0)."""
+    a, b = unit(a), unit(b)
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b)))
 
 
 def flat_plane_obj(path: Path, n: int = 9) -> None:
@@ -160,3 +163,39 @@ def test_smooth_input_keeps_smooth_normals_and_seams_stay_smooth(tmp_path: Path)
     written = vn[[c[1] for c in corners]]
     assert angles_deg(written, expected[welded[[c[0] for c in corners]]]).max() < 1e-4
     assert len(vn) == n * n  # one normal per position
+
+
+def test_ply_frames_of_a_seam_split_sheet_are_smooth_across_the_seam(tmp_path: Path) -> None:
+    """A PLY (normals per vertex) whose middle column is split into two vertices at one position:
+    both copies get the area-weighted normal of the position, from the faces of both sides."""
+    n = 6
+    xs = np.linspace(0.0, 1.0, n).tolist()
+    grid = [(x, y) for y in xs for x in xs]
+    seam = [k for k, (x, _) in enumerate(grid) if x == xs[2]]
+    v = grid + [grid[k] for k in seam]
+    copy = {k: len(grid) + i for i, k in enumerate(seam)}
+    faces = []
+    for j in range(n - 1):
+        for i in range(n - 1):
+            a = j * n + i
+            quad = [a, a + 1, a + n + 1, a + n]
+            faces.append([copy.get(q, q) for q in quad] if i >= 2 else quad)
+    header = ["ply", "format ascii 1.0", f"element vertex {len(v)}", "property float x", "property float y",
+              "property float z", "property float nx", "property float ny", "property float nz",
+              f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]  # fmt: skip
+    body = [f"{x!r} {y!r} 0 0 0 1" for x, y in v] + ["4 " + " ".join(map(str, f)) for f in faces]
+    source = tmp_path / "seam.ply"
+    source.write_text("\n".join(header + body) + "\n")
+    mesh = load(source)
+    bent = mesh.positions.copy()
+    bent[:, 2] = 0.4 * np.sin(2.5 * bent[:, 0]) * (1.0 + bent[:, 1])
+    frame = tmp_path / "frame.ply"
+    PlyWriter(mesh).write(frame, bent)
+    m = meshio.read(frame)
+    written = np.stack([m.point_data[c] for c in ("nx", "ny", "nz")], axis=1)
+    pos = np.asarray(m.points, dtype=np.float64)
+    welded = np.array(list(range(len(grid))) + seam)  # each copy -> its grid vertex
+    expected = np.zeros_like(pos)
+    for face in faces:
+        expected[welded[face]] += face_area_vector(pos, face)
+    assert angles_deg(written, expected[welded]).max() < 1e-4  # float32 normals and positions
