@@ -199,3 +199,18 @@ def test_ply_frames_of_a_seam_split_sheet_are_smooth_across_the_seam(tmp_path: P
     for face in faces:
         expected[welded[face]] += face_area_vector(pos, face)
     assert angles_deg(written, expected[welded]).max() < 1e-4  # float32 normals and positions
+
+
+def test_nearly_equal_input_normals_are_one_distinct_ones_split(tmp_path: Path) -> None:
+    """Two triangles of a square meet along the diagonal (vertices 1 and 3). Their input normals
+    differing in the 6th decimal count as one (4 written, one per vertex); 0.01 rad apart they
+    are a hard edge (the two diagonal vertices get one normal per side: 6)."""
+    counts = []
+    for second in ("0.000001 0 1", "0.01 0 1"):
+        text = f"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nvn {second}\nf 1//1 2//1 3//1\nf 1//2 3//2 4//2\n"
+        source = tmp_path / "square.obj"
+        source.write_text(text)
+        frame = tmp_path / "frame.obj"
+        ObjWriter(load(source)).write(frame)
+        counts.append(len(parse_obj(frame)[1]))
+    assert counts == [4, 6]
