@@ -280,7 +280,13 @@ class NormalLayout(NamedTuple):
     """How the frame writers lay out recomputed normals (see `normal_layout`)."""
 
     corner_normal: np.ndarray  # (C,) int64, output normal index of every polygon corner
-    input_normal: np.ndarray  # (K,) unit input normal of each output normal (K, 3)
+    input_normal: np.ndarray  # (K, 3) unit input normal of each output normal
+    vertex: np.ndarray  # (K,) int64, welded vertex of each output normal (`topology.weld` numbering)
+
+    @property
+    def hard_edges(self) -> bool:
+        """Whether some position has more than one output normal (a hard edge of the input)."""
+        return bool(np.unique(self.vertex).shape[0] < self.vertex.shape[0])
 
 
 def normal_layout(mesh: Mesh) -> NormalLayout | None:
@@ -302,7 +308,7 @@ def normal_layout(mesh: Mesh) -> NormalLayout | None:
 
         unit = _normalise(np.asarray(mesh.normals, dtype=np.float64).reshape(-1, 3))[0]
         if unit.shape[0] == 0:
-            return NormalLayout(np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
+            return NormalLayout(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
         # +0 so -0 rounds to the same integer key as 0
         quantised = np.rint(unit * 10.0**NORMAL_DECIMALS).astype(np.int64) + 0
         _, value_id = np.unique(quantised, axis=0, return_inverse=True)
@@ -311,7 +317,7 @@ def normal_layout(mesh: Mesh) -> NormalLayout | None:
         normal_ids = np.asarray(mesh.face_normal_indices, dtype=np.int64)
         keys = welded * (int(value_id.max()) + 1) + value_id[normal_ids]
         _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-        return NormalLayout(inverse.ravel().astype(np.int64), unit[normal_ids[first]])
+        return NormalLayout(inverse.ravel().astype(np.int64), unit[normal_ids[first]], welded[first])
 
     return _cached("layout", (mesh.normals, mesh.face_normal_indices, mesh.face_offsets), build)
 

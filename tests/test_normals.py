@@ -13,6 +13,7 @@ import meshio
 import numpy as np
 from typer.testing import CliRunner
 
+from meshdeform.export import ExportContext, ExportSession, FrameData
 from meshdeform.io import ObjWriter, PlyWriter, load
 from pipeline.cli import app
 
@@ -214,3 +215,30 @@ def test_nearly_equal_input_normals_are_one_distinct_ones_split(tmp_path: Path) 
         ObjWriter(load(source)).write(frame)
         counts.append(len(parse_obj(frame)[1]))
     assert counts == [4, 6]
+
+
+def test_usd_keeps_the_hard_edges_as_face_varying_normals(tmp_path: Path) -> None:
+    from pxr import Usd, UsdGeom
+
+    mesh = load(cube(tmp_path))
+    shear = np.array([[1.0, 0.4, 0.0], [0.0, 1.3, 0.2], [0.3, 0.0, 0.8]])
+    frames = [FrameData(index=k, time=k / 24.0, positions=mesh.positions @ (shear * (1 + k)).T) for k in range(3)]
+    context = ExportContext(mesh=mesh, out_dir=tmp_path / "out", fps=24.0, frame_count=len(frames))
+    with ExportSession(["usd"], context, None) as session:
+        for frame in frames:
+            session.write(frame)
+    stage = Usd.Stage.Open(str(tmp_path / "out" / "scene.usdc"))
+    geom = UsdGeom.Mesh(stage.GetDefaultPrim().GetChildren()[0])
+    assert geom.GetNormalsInterpolation() == UsdGeom.Tokens.faceVarying
+    counts = np.asarray(geom.GetFaceVertexCountsAttr().Get())
+    indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get())
+    for code in geom.GetPointsAttr().GetTimeSamples():
+        pts = np.asarray(geom.GetPointsAttr().Get(code), dtype=np.float64)
+        normals = np.asarray(geom.GetNormalsAttr().Get(code), dtype=np.float64)
+        assert normals.shape == (indices.shape[0], 3)
+        start = 0
+        for count in counts.tolist():
+            face = indices[start : start + count].tolist()
+            expected = np.tile(unit(face_area_vector(pts, face)), (count, 1))
+            assert angles_deg(normals[start : start + count], expected).max() < 1e-3  # float32
+            start += count
