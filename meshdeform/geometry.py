@@ -17,13 +17,17 @@ import numpy as np
 from meshdeform.mesh import Mesh
 
 __all__ = [
+    "NORMAL_DECIMALS",
+    "NormalLayout",
     "PolygonCleanup",
     "clean_polygons",
     "corner_normals",
+    "normal_layout",
     "polygon_area_vectors",
     "polygon_areas",
     "polygon_normals",
     "scatter_triangles",
+    "surface_normals",
     "triangle_area_vectors",
     "triangle_vertex_normals",
     "vertex_normals",
@@ -230,22 +234,34 @@ def corner_normals(mesh: Mesh, positions: np.ndarray | None = None) -> np.ndarra
     arrays, so call it with the input mesh (and per-frame `positions`, or `with_positions`
     copies, which share the arrays). Normals no polygon references (or whose polygons have no
     area) keep their input direction. Without input normals: per-vertex normals (V, 3).
+
+    One normal shared by a whole region (a flat plane written with a single `vn`) stays one
+    normal here; the frame writers use `surface_normals`, which splits it per vertex.
     """
     if mesh.normals is None or mesh.face_normal_indices is None:
         return vertex_normals(mesh, positions)
+    targets = np.asarray(mesh.face_normal_indices, dtype=np.int64)
+    input_normals = _normalise(np.asarray(mesh.normals, dtype=np.float64).reshape(-1, 3))[0]
+    return _target_normals(mesh, positions, targets, input_normals, "sign")
+
+
+def _target_normals(
+    mesh: Mesh, positions: np.ndarray | None, targets: np.ndarray, input_normals: np.ndarray, sign_name: str
+) -> np.ndarray:
+    """Area-weighted normals (K, 3) of K normal slots: slot k is the normalised sum of the area
+    vectors of the polygons with a corner in `targets` (C,) equal to k, flipped where the rest
+    result points against `input_normals` (K, 3) (unit), and `input_normals[k]` where it has no area."""
     pos = _positions(mesh, positions)
     topo = _topology(mesh)
-    n_normals = int(mesh.normals.shape[0])
-    targets = np.asarray(mesh.face_normal_indices, dtype=np.int64)
+    n_normals = int(input_normals.shape[0])
     pair_face, pair_normal = _cached_pairs(topo, targets, n_normals)
-    input_normals = _normalise(np.asarray(mesh.normals, dtype=np.float64).reshape(-1, 3))[0]
 
     def rest_sign() -> np.ndarray:
         rest = _normalise(_scatter_sum(pair_face, pair_normal, polygon_area_vectors(mesh), n_normals))[0]
         return np.where(np.einsum("ij,ij->i", rest, input_normals) < 0, -1.0, 1.0)
 
     # judged once, on the positions of the first mesh seen with these normals (the input, at rest)
-    sign = _cached("sign", (mesh.normals, mesh.face_normal_indices, mesh.face_offsets), rest_sign)
+    sign = _cached(sign_name, (mesh.normals, mesh.face_normal_indices, mesh.face_offsets), rest_sign)
 
     summed = _scatter_sum(pair_face, pair_normal, polygon_area_vectors(mesh, pos), n_normals)
     out, length = _normalise(summed)
@@ -253,6 +269,67 @@ def corner_normals(mesh: Mesh, positions: np.ndarray | None = None) -> np.ndarra
     missing = length == 0
     out[missing] = input_normals[missing]
     return out
+
+
+#: input normals whose unit vectors agree to this many decimals (about 1e-4 rad; Blender writes
+#: `vn` with 4) count as one normal when `normal_layout` groups the corners of a vertex
+NORMAL_DECIMALS = 4
+
+
+class NormalLayout(NamedTuple):
+    """How the frame writers lay out recomputed normals (see `normal_layout`)."""
+
+    corner_normal: np.ndarray  # (C,) int64, output normal index of every polygon corner
+    input_normal: np.ndarray  # (K, 3) unit input normal of each output normal
+    vertex: np.ndarray  # (K,) int64, welded vertex of each output normal (`topology.weld` numbering)
+
+    @property
+    def hard_edges(self) -> bool:
+        """Whether some position has more than one output normal (a hard edge of the input)."""
+        return bool(np.unique(self.vertex).shape[0] < self.vertex.shape[0])
+
+
+def normal_layout(mesh: Mesh) -> NormalLayout | None:
+    """The output normal layout of a mesh with input normals (None without them).
+
+    Corners are grouped by (welded vertex, input normal value): the corners around one position
+    whose input normals agree (to `NORMAL_DECIMALS` decimals of the unit vector) share one output
+    normal, so a region written with a single shared `vn` (a flat plane from Blender) gets a
+    normal per vertex, a smooth mesh split at UV seams stays smooth across them, and a position
+    with distinct input normals (a real hard edge) keeps one normal per side. Output normals are
+    numbered by welded vertex (input vertex order), then by input normal value. Judged on the
+    first mesh seen with these normal arrays (the input, at rest) and cached with them.
+    """
+    if mesh.normals is None or mesh.face_normal_indices is None:
+        return None
+
+    def build() -> NormalLayout:
+        from meshdeform.topology import weld
+
+        unit = _normalise(np.asarray(mesh.normals, dtype=np.float64).reshape(-1, 3))[0]
+        if unit.shape[0] == 0:
+            return NormalLayout(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+        # +0 so -0 rounds to the same integer key as 0
+        quantised = np.rint(unit * 10.0**NORMAL_DECIMALS).astype(np.int64) + 0
+        _, value_id = np.unique(quantised, axis=0, return_inverse=True)
+        value_id = value_id.ravel().astype(np.int64)
+        welded = weld(mesh.positions).vertex_map[np.asarray(mesh.face_indices, dtype=np.int64)]
+        normal_ids = np.asarray(mesh.face_normal_indices, dtype=np.int64)
+        keys = welded * (int(value_id.max()) + 1) + value_id[normal_ids]
+        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        return NormalLayout(inverse.ravel().astype(np.int64), unit[normal_ids[first]], welded[first])
+
+    return _cached("layout", (mesh.normals, mesh.face_normal_indices, mesh.face_offsets), build)
+
+
+def surface_normals(mesh: Mesh, positions: np.ndarray | None = None) -> np.ndarray:
+    """Normals (K, 3) for `positions` in `normal_layout(mesh)`, the layout the frame writers use:
+    each the area-weighted average of the polygons of its (welded vertex, input normal) group,
+    on the authored side (as `corner_normals`). Without input normals: `vertex_normals` (V, 3)."""
+    layout = normal_layout(mesh)
+    if layout is None:
+        return vertex_normals(mesh, positions)
+    return _target_normals(mesh, positions, layout.corner_normal, layout.input_normal, "layout sign")
 
 
 class PolygonCleanup(NamedTuple):

@@ -420,7 +420,7 @@ def test_negative_input_indices_written_absolute(tmp_path: Path) -> None:
     out = tmp_path / "out.obj"
     write_obj(out, mesh)
     faces = [line for line in out.read_text().splitlines() if line.startswith("f ")]
-    assert faces == ["f 1//1 2//1 3//1"]
+    assert faces == ["f 1//1 2//2 3//3"]  # the shared normal becomes one per vertex (normal_layout)
 
 
 def test_writer_replays_statements_between_faces(tmp_path: Path) -> None:
@@ -432,17 +432,18 @@ def test_writer_replays_statements_between_faces(tmp_path: Path) -> None:
     assert lines == ["mtllib m.mtl", "g a", "usemtl 100%", "f 1 2 3", "g b", "f 1 3 2", "l 1 2"]
 
 
-def test_writer_recomputes_normals_in_input_layout(tmp_path: Path) -> None:
-    # a flat-shaded square: two triangles sharing one normal, authored as +z
+def test_writer_recomputes_a_shared_normal_per_vertex(tmp_path: Path) -> None:
+    # a flat square: two triangles sharing one normal, authored as +z; the frame has a normal
+    # per vertex (each the same here: the square stays flat), corners indexing their vertex's
     text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\nf 1//1 3//1 4//1\n"
     mesh = read_obj(_write(tmp_path, text))
     rotated = mesh.positions[:, [0, 2, 1]] * np.array([1, -1, 1])  # the xy plane turned into xz
     out = tmp_path / "out.obj"
     ObjWriter(mesh).write(out, rotated)
     back = read_obj(out)
-    assert back.normals.shape == (1, 3)
-    assert np.allclose(back.normals[0], [0, -1, 0])
-    assert back.face_normal_indices.tolist() == mesh.face_normal_indices.tolist()
+    assert back.normals.shape == (4, 3)
+    assert np.allclose(back.normals, [0, -1, 0])
+    assert back.face_normal_indices.tolist() == mesh.face_indices.tolist()
 
 
 def test_writer_checks_shape_and_leaves_no_partial_files(tmp_path: Path) -> None:

@@ -1,7 +1,8 @@
 """OBJ sequence export: `frames/frame_0001.obj`, ... written by `meshdeform.io.ObjWriter`.
 
 Vertex order, polygons (quads stay quads), UVs, groups, materials statements and polylines
-are the input's; normals are recomputed per frame when the input had normals. The `.mtl`
+are the input's; normals are recomputed per frame when the input had normals, per vertex and split
+where the input has hard edges (`meshdeform.geometry.normal_layout`). The `.mtl`
 files the input names are copied beside the frames so the materials still resolve.
 
 The size estimate (`ObjExporter.estimated_bytes`) counts the text of each line; a coordinate is
@@ -18,6 +19,7 @@ import numpy as np
 from meshdeform.export.base import ExportContext
 from meshdeform.export.results import ResultReading
 from meshdeform.export.sequence import FrameSequenceExporter, copy_material_libraries, frame_files_reading
+from meshdeform.geometry import normal_layout
 from meshdeform.mesh import Mesh
 
 #: characters of one OBJ coordinate as `%r` writes a simulated float64 (sign, 17 digits, point: 19-20)
@@ -46,9 +48,10 @@ def obj_frame_bytes(mesh: Mesh) -> int:
     if has_uvs:
         size += int(mesh.uvs.shape[0]) * (3 + 2 * (1 + OBJ_COORDINATE_CHARS))
         size += corners + _digits(mesh.face_uv_indices + 1)  # "/" + index
-    if has_normals:
-        size += int(mesh.normals.shape[0]) * (3 + 3 * (1 + OBJ_NORMAL_CHARS))
-        size += corners * (1 if has_uvs else 2) + _digits(mesh.face_normal_indices + 1)
+    if has_normals:  # in the layout the writer uses: a normal per (welded vertex, input normal)
+        layout = normal_layout(mesh)
+        size += int(layout.input_normal.shape[0]) * (3 + 3 * (1 + OBJ_NORMAL_CHARS))
+        size += corners * (1 if has_uvs else 2) + _digits(layout.corner_normal + 1)
     if mesh.line_count:
         size += 2 * mesh.line_count + int(mesh.line_indices.shape[0]) + _digits(mesh.line_indices + 1)
     return size

@@ -2,7 +2,8 @@
 
 `/Root` (default prim, Xform) holds a `UsdGeom.Mesh` with the topology authored once
 (faceVertexCounts / faceVertexIndices, quads stay quads, subdivisionScheme "none"), time-sampled
-`points`, `normals` (per vertex) and `extent`, and the UVs as an indexed faceVarying primvar `st`
+`points`, `normals` (per vertex; per corner, faceVarying, when the input's normals have hard edges:
+`meshdeform.geometry.normal_layout`) and `extent`, and the UVs as an indexed faceVarying primvar `st`
 when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside it.
 The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame index k (0: the
 rest pose) sits at time code `start_frame + k`, and `upAxis` is Y (or Z with `up_axis="z"`, the
@@ -28,7 +29,7 @@ from meshdeform.atomic import atomic_path
 from meshdeform.errors import ExportError, MeshLoadError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
 from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, ResultReading, prefer_input, restore_up_axis
-from meshdeform.geometry import vertex_normals
+from meshdeform.geometry import normal_layout, surface_normals, vertex_normals
 from meshdeform.mesh import Mesh
 
 ROOT = "/Root"
@@ -80,8 +81,10 @@ class UsdExporter(BaseExporter):
         """float32 points (and normals) per frame, int32 topology once, UVs once, and the stage's own."""
         corners = int(mesh.face_indices.shape[0])
         uvs = 0 if mesh.uvs is None else 8 * int(mesh.uvs.shape[0]) + 4 * corners
-        per_vertex = 24 if mesh.normals is not None else 12
-        return int(8192 + (per_vertex * mesh.vertex_count + 64) * frames + 4 * (corners + mesh.face_count) + uvs)
+        layout = normal_layout(mesh)
+        normals = 0 if layout is None else 12 * (corners if layout.hard_edges else mesh.vertex_count)
+        per_frame = 12 * mesh.vertex_count + normals + 64
+        return int(8192 + per_frame * frames + 4 * (corners + mesh.face_count) + uvs)
 
     @classmethod
     def reading(cls) -> ResultReading | None:
@@ -195,11 +198,18 @@ class UsdExporter(BaseExporter):
             self._geom.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points32), time)
             self._geom.GetExtentAttr().Set(extent, time)
             if self.normals:
-                normals = convert_up_axis(vertex_normals(mesh, positions), ctx.up_axis)
+                layout = normal_layout(mesh)
+                if layout is not None and layout.hard_edges:  # per corner, split at the hard edges
+                    normals = surface_normals(mesh, positions)[layout.corner_normal]
+                    interpolation = "faceVarying"
+                else:
+                    normals = vertex_normals(mesh, positions)
+                    interpolation = "vertex"
+                normals = convert_up_axis(normals, ctx.up_axis)
                 self._geom.GetNormalsAttr().Set(
                     Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, dtype=np.float32)), time
                 )
-                self._geom.SetNormalsInterpolation("vertex")
+                self._geom.SetNormalsInterpolation(interpolation)
         if self._curves is not None:
             curve_points = np.ascontiguousarray(points32[mesh.line_indices])
             self._curves.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(curve_points), time)

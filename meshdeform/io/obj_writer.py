@@ -9,7 +9,7 @@ import numpy as np
 
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError
-from meshdeform.geometry import corner_normals
+from meshdeform.geometry import normal_layout, surface_normals
 from meshdeform.mesh import Mesh
 
 __all__ = ["ObjWriter", "require_finite", "write_obj"]
@@ -43,8 +43,9 @@ def _format_rows(prefix: str, values: np.ndarray, fmt: str = "%r") -> str:
 class ObjWriter:
     """Writes frames of one mesh as OBJ files; the static text is built once in __init__.
 
-    Per frame only the `v` lines (and the `vn` lines, recomputed by `corner_normals` when the
-    input had normals) are formatted. Vertex order and count, UVs, the `v/vt/vn` index pattern,
+    Per frame only the `v` lines (and the `vn` lines, recomputed by `surface_normals` when the
+    input had normals) are formatted. Vertex order and count, UVs, the `v/vt/vn` index pattern (with
+    the `vn` numbering of `normal_layout`: per vertex, split at the input's hard edges),
     statements (`g`, `o`, `usemtl`, `s`, `mtllib`) and `l` lines are those of the input.
     """
 
@@ -63,6 +64,8 @@ class ObjWriter:
         if self._colors is not None:
             require_finite(self._colors, "vertex colours")
         self._has_normals = mesh.normals is not None and mesh.face_normal_indices is not None
+        layout = normal_layout(mesh)
+        self._corner_normal = None if layout is None else layout.corner_normal
         self._has_uvs = mesh.uvs is not None and mesh.face_uv_indices is not None
         if self._has_uvs:
             require_finite(mesh.uvs, "texture coordinates")
@@ -81,13 +84,13 @@ class ObjWriter:
         columns = [mesh.face_indices + 1]
         if self._has_uvs and self._has_normals:
             corner = "%d/%d/%d"
-            columns += [mesh.face_uv_indices + 1, mesh.face_normal_indices + 1]
+            columns += [mesh.face_uv_indices + 1, self._corner_normal + 1]
         elif self._has_uvs:
             corner = "%d/%d"
             columns.append(mesh.face_uv_indices + 1)
         elif self._has_normals:
             corner = "%d//%d"
-            columns.append(mesh.face_normal_indices + 1)
+            columns.append(self._corner_normal + 1)
         else:
             corner = "%d"
         values = np.stack([np.asarray(c, dtype=np.int64) for c in columns], axis=1).ravel().tolist()
@@ -139,7 +142,7 @@ class ObjWriter:
             v_text = _format_rows("v", pos)
         vn_text = ""
         if self._has_normals:
-            normals = corner_normals(mesh, pos)
+            normals = surface_normals(mesh, pos)
             require_finite(normals, "normals", path)
             vn_text = _format_rows("vn", normals, "%.7g")
         return [self._head, v_text.encode("ascii"), self._uv_text, vn_text.encode("ascii"), self._tail]

@@ -10,7 +10,7 @@ import numpy as np
 
 from meshdeform.atomic import atomic_open
 from meshdeform.errors import ExportError
-from meshdeform.geometry import corner_normals, vertex_normals
+from meshdeform.geometry import normal_layout, surface_normals, vertex_normals
 from meshdeform.io.obj_writer import require_finite
 from meshdeform.io.ply import FACE_RESERVED, PLY_FORMATS, PLY_TYPES
 from meshdeform.mesh import Mesh
@@ -77,6 +77,12 @@ class PlyWriter:
         if mesh.normals is not None and mesh.face_normal_indices is not None:
             per_vertex = mesh.normals.shape[0] == n_v and np.array_equal(mesh.face_normal_indices, mesh.face_indices)
             self._normals = "corner" if per_vertex else "vertex"
+            # a corner of every vertex (0 for unused ones, whose input normal is kept)
+            corners = np.asarray(mesh.face_indices, dtype=np.int64)
+            self._used = np.zeros(n_v, dtype=bool)
+            self._used[corners] = True
+            self._first_corner = np.zeros(n_v, dtype=np.int64)
+            self._first_corner[corners[::-1]] = np.arange(corners.shape[0] - 1, -1, -1)
             columns += [(c, "f4", None) for c in ("nx", "ny", "nz")]
         uv_corner = None
         if mesh.uvs is not None and mesh.face_uv_indices is not None:
@@ -215,7 +221,13 @@ class PlyWriter:
         require_finite(np.stack([rows[f"c{i}"] for i in range(3)], axis=1), "vertex positions", path)
         if self._normals is not None:
             if self._normals == "corner":
-                normals = corner_normals(self.mesh, positions)
+                # one input normal per vertex: each vertex's corners share one group of the layout
+                # (unused vertices keep their input normal)
+                layout = normal_layout(self.mesh)
+                normals = np.array(self.mesh.normals, dtype=np.float64)
+                normals /= np.maximum(np.linalg.norm(normals, axis=1), 1e-300)[:, None]
+                corner = self._first_corner[self._used]
+                normals[self._used] = surface_normals(self.mesh, positions)[layout.corner_normal[corner]]
             else:
                 normals = vertex_normals(self.mesh, positions)
             for i in range(3):
