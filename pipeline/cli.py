@@ -87,6 +87,7 @@ app = typer.Typer(
     cls=MeshdeformGroup,
     help="Bake mass-spring cloth and soft-body deformation of OBJ/PLY meshes without a DCC tool.",
     no_args_is_help=True,
+    context_settings={"help_option_names": ["-h", "--help"]},  # (inherited by every command's context)
     add_completion=False,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,

@@ -230,3 +230,14 @@ def test_kernel_cache_folder_falls_back_when_home_cannot_be_written(
     monkeypatch.setattr("tempfile.tempdir", None)  # read TMPDIR again
     folder = Path(kernel_cache_dir() or "")
     assert folder.parent == tmp_path / "tmp" and folder.name.startswith("meshdeform-numba-") and folder.is_dir()
+
+
+def test_short_h_is_help_for_the_app_and_every_command() -> None:
+    command = typer.main.get_command(app)
+    top = run("-h")
+    assert top.exit_code == 0 and "Usage: meshdeform" in top.stdout
+    for name in sorted(command.commands):
+        result = run(name, "-h")
+        assert result.exit_code == 0, (name, result.output)
+        assert f"Usage: meshdeform {name}" in result.stdout, name
+        assert result.stdout == run(name, "--help").stdout, name
