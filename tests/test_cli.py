@@ -241,3 +241,17 @@ def test_short_h_is_help_for_the_app_and_every_command() -> None:
         assert result.exit_code == 0, (name, result.output)
         assert f"Usage: meshdeform {name}" in result.stdout, name
         assert result.stdout == run(name, "--help").stdout, name
+
+
+def test_help_shows_plain_metavars_not_type_names() -> None:
+    command = typer.main.get_command(app)
+    type_token = re.compile(
+        r"<(?:int|float|str|path|list|bool)[a-z_\[\]| ,]*>|\b(?:INTEGER|FLOAT|TEXT)(?: RANGE)?\b|\{[a-z_]+\}"
+    )
+    for name in ["", *sorted(command.commands)]:
+        text = run(*([name] if name else []), "-h").stdout
+        assert not type_token.findall(text), (name, type_token.findall(text))
+    batch = run("batch", "-h").stdout
+    assert "Usage: meshdeform batch [OPTIONS] ASSETS" in batch
+    assert re.search(r"-j, --jobs N\s", batch) and re.search(r"--include INCLUDE\s", batch)
+    assert re.search(r"-f, --format FORMAT\s", run("simulate", "-h").stdout)
