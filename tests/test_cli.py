@@ -255,3 +255,28 @@ def test_help_shows_plain_metavars_not_type_names() -> None:
     assert "Usage: meshdeform batch [OPTIONS] ASSETS" in batch
     assert re.search(r"-j, --jobs N\s", batch) and re.search(r"--include INCLUDE\s", batch)
     assert re.search(r"-f, --format FORMAT\s", run("simulate", "-h").stdout)
+
+
+def test_format_takes_a_comma_list_as_well_as_repeats(tmp_path: Path) -> None:
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "-o", out, "--frames", "2", "-q", "--format", "obj, usd", "-f", "pc2")
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["formats"] == ["obj", "usd", "pc2"]
+    assert (out / "scene.usdc").is_file() and (out / "cache.pc2").is_file()
+    assert len(list((out / "frames").glob("*.obj"))) == 3
+
+
+@pytest.mark.parametrize(("value", "named"), [("obj,fbx", "'fbx'"), ("obj,obj", "twice")])
+def test_format_list_is_checked_against_the_export_registry(tmp_path: Path, value: str, named: str) -> None:
+    from meshdeform.export import EXPORTERS
+
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "-o", out, "--frames", "2", "-q", "--format", value)
+    assert result.exit_code == 2, result.output
+    assert "--format" in result.stderr and named in result.stderr
+    if named == "'fbx'":
+        assert all(name in result.stderr for name in EXPORTERS)
+    assert not out.exists()

@@ -23,6 +23,12 @@ def parse_vector(text: str, option: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
+def split_commas(values: list[str]) -> list[str]:
+    """The values of a repeatable option, each of which may itself be a comma-separated list:
+    `--format obj,usd --format ply` -> ['obj', 'usd', 'ply'] (empty items dropped)."""
+    return [item.strip() for value in values for item in value.split(",") if item.strip()]
+
+
 def registry_help() -> dict[str, str]:
     """The help of the options that list a registry, by parameter name: the solvers
     (`meshdeform.solvers.SOLVERS`) and the output formats, each with their one-line summaries
@@ -35,7 +41,8 @@ def registry_help() -> dict[str, str]:
     solvers = "; ".join(f"{name}: {cls.summary}" for name, cls in SOLVERS.items())
     return {
         "solver": f"Solver, replaces the recipe's simulation.solver: {solvers}.",
-        "output_format": f"Output format, repeatable; replaces the recipe's output.formats: {formats}."
+        "output_format": "Output formats, comma-separated or repeated (--format obj,usd); replaces the recipe's"
+        f" output.formats: {formats}."
         f" A recipe that tears or cuts cannot write {fixed} (they need a fixed vertex count).",
     }
 
@@ -76,7 +83,7 @@ def register(app: typer.Typer) -> None:
             [], "--pin", help="Hard pin: 'indices:0,5,9' or 'box:x0,y0,z0,x1,y1,z1' (box relative 0..1 to bounds)."
         ),
         output_format: list[str] = typer.Option(
-            [], "--format", "-f", help="Output format, repeatable (listed by registry_help)."
+            [], "--format", "-f", help="Output formats, comma-separated or repeated (listed by registry_help)."
         ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar, no summary."),
         overwrite: bool = typer.Option(
@@ -111,7 +118,7 @@ def register(app: typer.Typer) -> None:
                 damping=damping,
                 gravity=parse_vector(gravity, "--gravity") if gravity else None,
                 pins=pin,
-                formats=output_format,
+                formats=split_commas(output_format),  # validated against EXPORTERS by the recipe
             )
             progress = Progress(
                 TextColumn("[bold]{task.description}"),
