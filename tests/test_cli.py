@@ -280,3 +280,41 @@ def test_format_list_is_checked_against_the_export_registry(tmp_path: Path, valu
     if named == "'fbx'":
         assert all(name in result.stderr for name in EXPORTERS)
     assert not out.exists()
+
+
+def test_simulate_json_prints_only_the_report(tmp_path: Path) -> None:
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "-o", out, "--frames", "3", "--json")
+    assert result.exit_code == 0, result.output
+    printed = json.loads(result.stdout)  # the whole of stdout is one JSON document
+    assert printed == json.loads((out / "report.json").read_text())
+    assert printed["frames"] == 3 and printed["vertices"] == 16
+
+
+def test_check_json_gives_ok_errors_and_the_estimate(tmp_path: Path) -> None:
+    mesh = write_grid(tmp_path / "flag.obj", 8, 5, size=(2.0, 1.0))
+    recipe = tmp_path / "r.toml"
+    recipe.write_text(
+        "[simulation]\nframes = 10\nsubsteps = 4\niterations = 3\n"
+        "[[pins]]\nselect = { box = { min = [0, 0.99, 0], max = [1, 1, 1] }, relative = true }\n"
+    )
+    plain = json.loads(run("check", recipe, "--json").stdout)
+    assert plain["ok"] is True and plain["errors"] == [] and "mesh" not in plain
+    assert plain["estimate"]["sweeps"] == 10 * 4 * 3 and plain["estimate"]["spring_projections"] is None
+
+    result = run("check", recipe, "-m", mesh, "--json")
+    assert result.exit_code == 0, result.output
+    on_mesh = json.loads(result.stdout)
+    assert on_mesh["mesh"]["vertices"] == 40 and on_mesh["mesh"]["selections"] == {"pins[0].select": 8}
+    assert on_mesh["mesh"]["hard_pinned"] == 8
+    assert on_mesh["estimate"]["vertices"] == 40 and on_mesh["estimate"]["total_bytes"] > 0
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[simulation]\nframes = -1\n")
+    result = run("check", bad, "--json")
+    assert result.exit_code == 2
+    failed = json.loads(result.stdout)
+    assert failed["ok"] is False and len(failed["errors"]) == 1 and "simulation.frames" in failed["errors"][0]
+    assert "estimate" not in failed
+    assert result.stderr.startswith(f"error: {bad}: simulation.frames")

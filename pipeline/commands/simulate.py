@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
@@ -86,6 +87,9 @@ def register(app: typer.Typer) -> None:
             [], "--format", "-f", help="Output formats, comma-separated or repeated (listed by registry_help)."
         ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar, no summary."),
+        as_json: bool = typer.Option(
+            False, "--json", help="Print only the run's report (report.json), as one JSON object on stdout."
+        ),
         overwrite: bool = typer.Option(
             False,
             "--overwrite",
@@ -126,14 +130,16 @@ def register(app: typer.Typer) -> None:
                 MofNCompleteColumn(),
                 TimeRemainingColumn(),
                 transient=True,
-                disable=quiet,
+                disable=quiet or as_json,
             )
             with output_lock(out), progress:  # a second run on the same --out is refused at once
                 task = progress.add_task(mesh.name, total=loaded.simulation.frames)
                 result = run_job(
                     mesh, loaded, out, overwrite=overwrite, on_frame=lambda i, n: progress.update(task, completed=i)
                 )
-        if not quiet:
+        if as_json:
+            typer.echo(json.dumps(result.report, ensure_ascii=False))
+        elif not quiet:
             report = result.report
             typer.echo(
                 f"{mesh.name}: {report['frames']} frames with {report['solver']} in {report['seconds']:.2f} s "
