@@ -318,3 +318,16 @@ def test_check_json_gives_ok_errors_and_the_estimate(tmp_path: Path) -> None:
     assert failed["ok"] is False and len(failed["errors"]) == 1 and "simulation.frames" in failed["errors"][0]
     assert "estimate" not in failed
     assert result.stderr.startswith(f"error: {bad}: simulation.frames")
+
+
+def test_simulate_stdout_has_no_stray_blank_line(tmp_path: Path) -> None:
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    quiet = run("simulate", mesh_path, "-o", tmp_path / "quiet", "--frames", "2", "-q")
+    assert quiet.exit_code == 0, quiet.output
+    assert quiet.stdout == "" and quiet.stderr == ""
+    loud = run("simulate", mesh_path, "-o", tmp_path / "loud", "--frames", "2")
+    assert loud.exit_code == 0, loud.output
+    lines = loud.stdout.split("\n")
+    assert lines[-1] == "" and all(line.strip() for line in lines[:-1]), loud.stdout
+    assert lines[0].startswith("cloth.obj: 2 frames")
+    assert loud.stderr == ""

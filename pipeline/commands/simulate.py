@@ -99,6 +99,7 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Simulate MESH with a recipe and write frames/frame_0001.obj ... and report.json into --out."""
+        from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
         from pipeline.job import run_job
@@ -124,13 +125,15 @@ def register(app: typer.Typer) -> None:
                 pins=pin,
                 formats=split_commas(output_format),  # validated against EXPORTERS by the recipe
             )
+            stderr = Console(stderr=True)  # the bar never on stdout (which carries the summary or the JSON)
             progress = Progress(
                 TextColumn("[bold]{task.description}"),
                 BarColumn(),
                 MofNCompleteColumn(),
                 TimeRemainingColumn(),
                 transient=True,
-                disable=quiet or as_json,
+                console=stderr,
+                disable=quiet or as_json or not stderr.is_terminal,  # no bar (nor its blank line) in a CI log
             )
             with output_lock(out), progress:  # a second run on the same --out is refused at once
                 task = progress.add_task(mesh.name, total=loaded.simulation.frames)
