@@ -331,3 +331,50 @@ def test_simulate_stdout_has_no_stray_blank_line(tmp_path: Path) -> None:
     assert lines[-1] == "" and all(line.strip() for line in lines[:-1]), loud.stdout
     assert lines[0].startswith("cloth.obj: 2 frames")
     assert loud.stderr == ""
+
+
+def _batch_folder(tmp_path: Path) -> tuple[Path, Path]:
+    assets = tmp_path / "assets_with_a_rather_long_folder_name_to_pass_eighty_columns"
+    write_grid(assets / "one.obj", 4, 4, plane="xz")
+    write_grid(assets / "sub" / "two.obj", 4, 4, plane="xz")
+    (assets / "bad.obj").write_text("v 0 0 0\nf 1 2 3\n")
+    recipe = tmp_path / "r.toml"
+    recipe.write_text("[simulation]\nframes = 2\n")
+    return assets, recipe
+
+
+def test_batch_in_a_ci_log_prints_one_unwrapped_line_per_finished_asset(tmp_path: Path) -> None:
+    assets, recipe = _batch_folder(tmp_path)
+    result = run("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", "0")
+    assert result.exit_code == 1, result.output
+    lines = result.stderr.splitlines()
+    assert sorted(line.split(":")[0] for line in lines) == ["failed bad.obj", "ok one.obj", "ok sub/two.obj"]
+    assert all(line.strip() for line in lines)
+    failed = next(line for line in lines if line.startswith("failed"))
+    assert len(failed) > 80 and str(assets / "bad.obj") in failed and "out of range" in failed
+    assert re.fullmatch(r"ok one\.obj: 2 frames in \d+\.\d\d s", next(x for x in lines if "one.obj" in x))
+    again = run("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", "0")
+    assert "skipped one.obj: up to date" in again.stderr.splitlines()
+
+
+def test_the_line_display_writes_each_asset_as_it_finishes(capsys: pytest.CaptureFixture[str]) -> None:
+    from pipeline.commands.batch import LineBatchProgress
+
+    display = LineBatchProgress()
+    display.finished("a.obj", {"status": "ok", "frames": 3, "seconds": 0.5})
+    assert capsys.readouterr().err == "ok a.obj: 3 frames in 0.50 s\n"
+    display.finished("b.obj", {"status": "failed", "error": "b.obj: line 2:\n  bad"})
+    assert capsys.readouterr().err == "failed b.obj: b.obj: line 2: bad\n"
+
+
+@pytest.mark.parametrize("flag", ["--quiet", "--json"])
+def test_batch_quiet_and_json_still_print_failures_on_stderr(tmp_path: Path, flag: str) -> None:
+    assets, recipe = _batch_folder(tmp_path)
+    result = run("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", "0", flag)
+    assert result.exit_code == 1, result.output
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("failed bad.obj: ") and "out of range" in lines[0]
+    if flag == "--quiet":
+        assert result.stdout == ""
+    else:
+        assert json.loads(result.stdout)["failed"] == 1
