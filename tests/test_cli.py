@@ -378,3 +378,30 @@ def test_batch_quiet_and_json_still_print_failures_on_stderr(tmp_path: Path, fla
         assert result.stdout == ""
     else:
         assert json.loads(result.stdout)["failed"] == 1
+
+
+def test_verbose_shows_library_warnings_one_line_each(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import warnings
+
+    import meshdeform.io
+
+    real_load = meshdeform.io.load
+
+    def warning_load(path, *args, **kwargs):
+        # as if raised inside the engine: a module of meshdeform, where DeprecationWarnings are hidden by default
+        here = {"__name__": "meshdeform.io.obj"}
+        warnings.warn_explicit("coarse mesh", UserWarning, "meshdeform/io/obj.py", 7, "meshdeform.io.obj", here)
+        warnings.warn_explicit("old spelling", DeprecationWarning, "meshdeform/io/obj.py", 9, "meshdeform.io.obj", here)
+        return real_load(path, *args, **kwargs)
+
+    monkeypatch.setattr(meshdeform.io, "load", warning_load)
+    mesh = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    quiet = run("inspect", mesh)
+    assert quiet.exit_code == 0 and quiet.stderr == ""
+    loud = run("--verbose", "inspect", mesh)
+    assert loud.exit_code == 0, loud.output
+    assert loud.stdout == quiet.stdout
+    assert loud.stderr.splitlines() == [
+        "warning: UserWarning: coarse mesh (meshdeform/io/obj.py:7)",
+        "warning: DeprecationWarning: old spelling (meshdeform/io/obj.py:9)",
+    ]
