@@ -137,7 +137,7 @@ app = typer.Typer(
     help="Bake mass-spring cloth and soft-body deformation of OBJ/PLY meshes without a DCC tool.",
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},  # (inherited by every command's context)
-    add_completion=False,
+    add_completion=True,  # --install-completion / --show-completion (Typer's, for bash, zsh, fish, PowerShell)
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )

@@ -405,3 +405,25 @@ def test_verbose_shows_library_warnings_one_line_each(tmp_path: Path, monkeypatc
         "warning: UserWarning: coarse mesh (meshdeform/io/obj.py:7)",
         "warning: DeprecationWarning: old spelling (meshdeform/io/obj.py:9)",
     ]
+
+
+def test_shell_completion_is_on_and_completes_commands_and_options() -> None:
+    import os
+    import subprocess
+    import sys
+
+    top = run("-h").stdout
+    assert "--install-completion" in top and "--show-completion" in top
+    script = run("--show-completion", "bash")
+    assert script.exit_code == 0 and "_meshdeform_completion" in script.stdout
+
+    def complete(words: str) -> list[str]:
+        env = {**os.environ, "_MESHDEFORM_COMPLETE": "complete_bash", "COMP_WORDS": words}
+        env["COMP_CWORD"] = str(len(words.split()) - 1)
+        code = "from pipeline.cli import app; app()"
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.split()
+
+    assert complete("meshdeform sim") == ["simulate"]
+    assert complete("meshdeform batch --inc") == ["--include"]
