@@ -427,3 +427,35 @@ def test_shell_completion_is_on_and_completes_commands_and_options() -> None:
 
     assert complete("meshdeform sim") == ["simulate"]
     assert complete("meshdeform batch --inc") == ["--include"]
+
+
+def test_nothing_at_run_time_needs_trimesh(tmp_path: Path) -> None:
+    import ast
+    import subprocess
+    import sys
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    for path in [*root.glob("meshdeform/**/*.py"), *root.glob("pipeline/**/*.py")]:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            names += [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            assert not any(n.split(".")[0] == "trimesh" for n in names), f"{path} imports trimesh"
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    assert not any(d.startswith("trimesh") for d in project["dependencies"])
+    assert any(d.startswith("trimesh") for d in project["optional-dependencies"]["test"])
+    # and runs with trimesh unimportable work: inspect, simulate writing every output format, check
+    from meshdeform.export import EXPORTERS
+
+    mesh = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    recipe = tmp_path / "r.toml"
+    recipe.write_text("[simulation]\nframes = 2\n")
+    code = "import sys; sys.modules['trimesh'] = None\nfrom pipeline.cli import app\napp()"
+    for args in (
+        ["inspect", mesh],
+        ["simulate", mesh, "-o", tmp_path / "out", "-r", recipe, "-q", "--format", ",".join(EXPORTERS)],
+        ["check", recipe, "-m", mesh],
+    ):
+        command = [sys.executable, "-c", code, *map(str, args)]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, (args, done.stderr)
