@@ -1,8 +1,9 @@
 """`meshdeform batch ASSETS --recipe R.toml --out OUT`: every OBJ/PLY under a folder, in parallel.
 
-A thin layer over `pipeline.batch.run_batch`: options, the Rich progress display, the summary
-table and the exit code (0 all ok or skipped, 1 some failed, 2 usage error, 128 + N stopped by
-signal N: 130 Ctrl-C, 143 SIGTERM; `pipeline.interrupts`).
+A thin layer over `pipeline.batch.run_batch`: options, the progress display (Rich bars in a
+terminal, one line per finished asset elsewhere), the summary table and the exit code (0 all ok
+or skipped, 1 some failed, 2 usage error, 128 + N stopped by signal N: 130 Ctrl-C, 143 SIGTERM;
+`pipeline.interrupts`).
 """
 
 from __future__ import annotations
