@@ -18,7 +18,7 @@ from typing import Any
 
 import typer
 from typer._click import exceptions as click_errors  # Typer's own Click: its usage errors
-from typer.core import TyperGroup
+from typer.core import TyperArgument, TyperGroup, TyperOption
 
 from pipeline import __version__
 from pipeline.diagnostics import quiet_libraries
@@ -31,6 +31,49 @@ COMMANDS = ("inspect", "simulate", "check", "preview", "batch")
 EXIT_ABORTED = 130
 
 
+class PlainArgument(TyperArgument):
+    """An argument shown as its metavar alone (`MESH`), without Typer's `<path>` type and braces."""
+
+    def display_type_rich(self, ctx: Any) -> str | None:
+        return None
+
+    def _usage_display_name(self) -> str:
+        name = self.display_name_raw
+        return name if self.required else f"[{name}]"
+
+
+class PlainOption(TyperOption):
+    """An option shown with a plain metavar (`--jobs N`), not Typer's type names (`<int range>`)."""
+
+
+def _plain_metavar(param: TyperOption) -> str:
+    """The metavar an option without one is shown with: N for a whole number, NUMBER for a real one,
+    PATH for a path, else the option's long name in capitals (`--pin PIN`, `--format FORMAT`)."""
+    annotation = param.type_descriptor.annotation
+    if annotation is int:
+        return "N"
+    if annotation is float:
+        return "NUMBER"
+    if param.type_descriptor.is_path:
+        return "PATH"
+    longest = max(param.opts, key=len).lstrip("-")
+    return longest.upper().replace("-", "_")
+
+
+def plain_help(command: Any) -> None:
+    """Give `command`'s arguments and valued options plain metavars (scripts and CI logs read help
+    without Typer's `<int range>` / `<list[str]>` type names); a metavar set by the command is kept."""
+    for param in command.params:
+        if type(param) is TyperArgument:
+            if param.metavar is None:
+                param.metavar = param.name.upper()
+            param.__class__ = PlainArgument
+        elif type(param) is TyperOption and not param.is_flag:
+            if param.metavar is None:
+                param.metavar = _plain_metavar(param)
+            param.__class__ = PlainOption
+
+
 class MeshdeformGroup(TyperGroup):
     """The app's command group: each command runs inside the signal handlers and the quiet logging.
 
@@ -38,6 +81,12 @@ class MeshdeformGroup(TyperGroup):
     imports) still ends with one line and 128 + the signal number, not Click's "Aborted!"; an
     unexpected error (a bug) ends with one line and exit 1, its traceback shown with --verbose.
     """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        plain_help(self)
+        for command in self.commands.values():
+            plain_help(command)
 
     def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
         """Click's entry point, with its usage errors (a bad option value, an unknown option, a missing
@@ -87,7 +136,8 @@ app = typer.Typer(
     cls=MeshdeformGroup,
     help="Bake mass-spring cloth and soft-body deformation of OBJ/PLY meshes without a DCC tool.",
     no_args_is_help=True,
-    add_completion=False,
+    context_settings={"help_option_names": ["-h", "--help"]},  # (inherited by every command's context)
+    add_completion=True,  # --install-completion / --show-completion (Typer's, for bash, zsh, fish, PowerShell)
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )

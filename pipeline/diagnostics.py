@@ -8,7 +8,8 @@ worker (`quiet_worker`):
 
 - Python warnings go to the `logging` module (`logging.captureWarnings`), and logging has a
   do-nothing root handler, so nothing reaches stderr by default; `--verbose` adds a stderr
-  handler for them.
+  handler for them (each Python warning as one line, `warning: Category: message (file:line)`)
+  and shows every distinct warning once, DeprecationWarnings of the libraries included.
 - VTK's global warning display and its stderr log are turned off when VTK is first imported
   (`_SilenceVtkOnImport`, a `sys.meta_path` finder; removed when the block ends).
 
@@ -32,6 +33,7 @@ import importlib.abc
 import importlib.machinery
 import logging
 import sys
+import warnings
 from collections.abc import Iterator
 from types import ModuleType
 from typing import Any
@@ -92,13 +94,26 @@ def _silence_vtk_when_imported() -> Any:
     return hook
 
 
+class _OneLineFormatter(logging.Formatter):
+    """`name: message` for library log records; a captured Python warning (whose text
+    `warnings.formatwarning` spreads over lines: location, then the source line) as
+    `warning: Category: message (file:line)`, one line in a CI log."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        if record.name != "py.warnings":
+            return f"{record.name}: {' '.join(record.getMessage().split())}"
+        first = record.getMessage().splitlines()[0] if record.getMessage() else ""
+        location, _, rest = first.partition(": ")  # "/path/x.py:12: UserWarning: text"
+        return f"warning: {rest} ({location})" if rest else f"warning: {first}"
+
+
 def _quiet_logging(verbose: bool) -> list[tuple[logging.Logger, logging.Handler]]:
     """Warnings into logging, a null root handler, a stderr handler for warnings if `verbose`."""
     logging.captureWarnings(True)
     added: list[tuple[logging.Logger, logging.Handler]] = [(logging.getLogger(), logging.NullHandler())]
     if verbose:
         loud = logging.StreamHandler(sys.stderr)
-        loud.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+        loud.setFormatter(_OneLineFormatter())
         added.append((logging.getLogger(), loud))
     for logger, handler in added:
         logger.addHandler(handler)
@@ -112,8 +127,12 @@ def quiet_libraries(verbose: bool = False) -> Iterator[None]:
     was_capturing = bool(getattr(logging, "_warnings_showwarning", None))
     added = _quiet_logging(verbose)
     hook = None if verbose else _silence_vtk_when_imported()
+    shown = warnings.catch_warnings() if verbose else contextlib.nullcontext()
     try:
-        yield
+        with shown:
+            if verbose:
+                warnings.simplefilter("default")  # each distinct warning once, deprecations too
+            yield
     finally:
         for logger, handler in added:
             logger.removeHandler(handler)

@@ -230,3 +230,232 @@ def test_kernel_cache_folder_falls_back_when_home_cannot_be_written(
     monkeypatch.setattr("tempfile.tempdir", None)  # read TMPDIR again
     folder = Path(kernel_cache_dir() or "")
     assert folder.parent == tmp_path / "tmp" and folder.name.startswith("meshdeform-numba-") and folder.is_dir()
+
+
+def test_short_h_is_help_for_the_app_and_every_command() -> None:
+    command = typer.main.get_command(app)
+    top = run("-h")
+    assert top.exit_code == 0 and "Usage: meshdeform" in top.stdout
+    for name in sorted(command.commands):
+        result = run(name, "-h")
+        assert result.exit_code == 0, (name, result.output)
+        assert f"Usage: meshdeform {name}" in result.stdout, name
+        assert result.stdout == run(name, "--help").stdout, name
+
+
+def test_help_shows_plain_metavars_not_type_names() -> None:
+    command = typer.main.get_command(app)
+    type_token = re.compile(
+        r"<(?:int|float|str|path|list|bool)[a-z_\[\]| ,]*>|\b(?:INTEGER|FLOAT|TEXT)(?: RANGE)?\b|\{[a-z_]+\}"
+    )
+    for name in ["", *sorted(command.commands)]:
+        text = run(*([name] if name else []), "-h").stdout
+        assert not type_token.findall(text), (name, type_token.findall(text))
+    batch = run("batch", "-h").stdout
+    assert "Usage: meshdeform batch [OPTIONS] ASSETS" in batch
+    assert re.search(r"-j, --jobs N\s", batch) and re.search(r"--include INCLUDE\s", batch)
+    assert re.search(r"-f, --format FORMAT\s", run("simulate", "-h").stdout)
+
+
+def test_format_takes_a_comma_list_as_well_as_repeats(tmp_path: Path) -> None:
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "-o", out, "--frames", "2", "-q", "--format", "obj, usd", "-f", "pc2")
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["formats"] == ["obj", "usd", "pc2"]
+    assert (out / "scene.usdc").is_file() and (out / "cache.pc2").is_file()
+    assert len(list((out / "frames").glob("*.obj"))) == 3
+
+
+@pytest.mark.parametrize(("value", "named"), [("obj,fbx", "'fbx'"), ("obj,obj", "twice")])
+def test_format_list_is_checked_against_the_export_registry(tmp_path: Path, value: str, named: str) -> None:
+    from meshdeform.export import EXPORTERS
+
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "-o", out, "--frames", "2", "-q", "--format", value)
+    assert result.exit_code == 2, result.output
+    assert "--format" in result.stderr and named in result.stderr
+    if named == "'fbx'":
+        assert all(name in result.stderr for name in EXPORTERS)
+    assert not out.exists()
+
+
+def test_simulate_json_prints_only_the_report(tmp_path: Path) -> None:
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    out = tmp_path / "out"
+    result = run("simulate", mesh_path, "-o", out, "--frames", "3", "--json")
+    assert result.exit_code == 0, result.output
+    printed = json.loads(result.stdout)  # the whole of stdout is one JSON document
+    assert printed == json.loads((out / "report.json").read_text())
+    assert printed["frames"] == 3 and printed["vertices"] == 16
+
+
+def test_check_json_gives_ok_errors_and_the_estimate(tmp_path: Path) -> None:
+    mesh = write_grid(tmp_path / "flag.obj", 8, 5, size=(2.0, 1.0))
+    recipe = tmp_path / "r.toml"
+    recipe.write_text(
+        "[simulation]\nframes = 10\nsubsteps = 4\niterations = 3\n"
+        "[[pins]]\nselect = { box = { min = [0, 0.99, 0], max = [1, 1, 1] }, relative = true }\n"
+    )
+    plain = json.loads(run("check", recipe, "--json").stdout)
+    assert plain["ok"] is True and plain["errors"] == [] and "mesh" not in plain
+    assert plain["estimate"]["sweeps"] == 10 * 4 * 3 and plain["estimate"]["spring_projections"] is None
+
+    result = run("check", recipe, "-m", mesh, "--json")
+    assert result.exit_code == 0, result.output
+    on_mesh = json.loads(result.stdout)
+    assert on_mesh["mesh"]["vertices"] == 40 and on_mesh["mesh"]["selections"] == {"pins[0].select": 8}
+    assert on_mesh["mesh"]["hard_pinned"] == 8
+    assert on_mesh["estimate"]["vertices"] == 40 and on_mesh["estimate"]["total_bytes"] > 0
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[simulation]\nframes = -1\n")
+    result = run("check", bad, "--json")
+    assert result.exit_code == 2
+    failed = json.loads(result.stdout)
+    assert failed["ok"] is False and len(failed["errors"]) == 1 and "simulation.frames" in failed["errors"][0]
+    assert "estimate" not in failed
+    assert result.stderr.startswith(f"error: {bad}: simulation.frames")
+
+
+def test_simulate_stdout_has_no_stray_blank_line(tmp_path: Path) -> None:
+    mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    quiet = run("simulate", mesh_path, "-o", tmp_path / "quiet", "--frames", "2", "-q")
+    assert quiet.exit_code == 0, quiet.output
+    assert quiet.stdout == "" and quiet.stderr == ""
+    loud = run("simulate", mesh_path, "-o", tmp_path / "loud", "--frames", "2")
+    assert loud.exit_code == 0, loud.output
+    lines = loud.stdout.split("\n")
+    assert lines[-1] == "" and all(line.strip() for line in lines[:-1]), loud.stdout
+    assert lines[0].startswith("cloth.obj: 2 frames")
+    assert loud.stderr == ""
+
+
+def _batch_folder(tmp_path: Path) -> tuple[Path, Path]:
+    assets = tmp_path / "assets_with_a_rather_long_folder_name_to_pass_eighty_columns"
+    write_grid(assets / "one.obj", 4, 4, plane="xz")
+    write_grid(assets / "sub" / "two.obj", 4, 4, plane="xz")
+    (assets / "bad.obj").write_text("v 0 0 0\nf 1 2 3\n")
+    recipe = tmp_path / "r.toml"
+    recipe.write_text("[simulation]\nframes = 2\n")
+    return assets, recipe
+
+
+def test_batch_in_a_ci_log_prints_one_unwrapped_line_per_finished_asset(tmp_path: Path) -> None:
+    assets, recipe = _batch_folder(tmp_path)
+    result = run("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", "0")
+    assert result.exit_code == 1, result.output
+    lines = result.stderr.splitlines()
+    assert sorted(line.split(":")[0] for line in lines) == ["failed bad.obj", "ok one.obj", "ok sub/two.obj"]
+    assert all(line.strip() for line in lines)
+    failed = next(line for line in lines if line.startswith("failed"))
+    assert len(failed) > 80 and str(assets / "bad.obj") in failed and "out of range" in failed
+    assert re.fullmatch(r"ok one\.obj: 2 frames in \d+\.\d\d s", next(x for x in lines if "one.obj" in x))
+    again = run("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", "0")
+    assert "skipped one.obj: up to date" in again.stderr.splitlines()
+
+
+def test_the_line_display_writes_each_asset_as_it_finishes(capsys: pytest.CaptureFixture[str]) -> None:
+    from pipeline.commands.batch import LineBatchProgress
+
+    display = LineBatchProgress()
+    display.finished("a.obj", {"status": "ok", "frames": 3, "seconds": 0.5})
+    assert capsys.readouterr().err == "ok a.obj: 3 frames in 0.50 s\n"
+    display.finished("b.obj", {"status": "failed", "error": "b.obj: line 2:\n  bad"})
+    assert capsys.readouterr().err == "failed b.obj: b.obj: line 2: bad\n"
+
+
+@pytest.mark.parametrize("flag", ["--quiet", "--json"])
+def test_batch_quiet_and_json_still_print_failures_on_stderr(tmp_path: Path, flag: str) -> None:
+    assets, recipe = _batch_folder(tmp_path)
+    result = run("batch", assets, "-r", recipe, "-o", tmp_path / "out", "-j", "0", flag)
+    assert result.exit_code == 1, result.output
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("failed bad.obj: ") and "out of range" in lines[0]
+    if flag == "--quiet":
+        assert result.stdout == ""
+    else:
+        assert json.loads(result.stdout)["failed"] == 1
+
+
+def test_verbose_shows_library_warnings_one_line_each(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import warnings
+
+    import meshdeform.io
+
+    real_load = meshdeform.io.load
+
+    def warning_load(path, *args, **kwargs):
+        # as if raised inside the engine: a module of meshdeform, where DeprecationWarnings are hidden by default
+        here = {"__name__": "meshdeform.io.obj"}
+        warnings.warn_explicit("coarse mesh", UserWarning, "meshdeform/io/obj.py", 7, "meshdeform.io.obj", here)
+        warnings.warn_explicit("old spelling", DeprecationWarning, "meshdeform/io/obj.py", 9, "meshdeform.io.obj", here)
+        return real_load(path, *args, **kwargs)
+
+    monkeypatch.setattr(meshdeform.io, "load", warning_load)
+    mesh = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    quiet = run("inspect", mesh)
+    assert quiet.exit_code == 0 and quiet.stderr == ""
+    loud = run("--verbose", "inspect", mesh)
+    assert loud.exit_code == 0, loud.output
+    assert loud.stdout == quiet.stdout
+    assert loud.stderr.splitlines() == [
+        "warning: UserWarning: coarse mesh (meshdeform/io/obj.py:7)",
+        "warning: DeprecationWarning: old spelling (meshdeform/io/obj.py:9)",
+    ]
+
+
+def test_shell_completion_is_on_and_completes_commands_and_options() -> None:
+    import os
+    import subprocess
+    import sys
+
+    top = run("-h").stdout
+    assert "--install-completion" in top and "--show-completion" in top
+    script = run("--show-completion", "bash")
+    assert script.exit_code == 0 and "_meshdeform_completion" in script.stdout
+
+    def complete(words: str) -> list[str]:
+        env = {**os.environ, "_MESHDEFORM_COMPLETE": "complete_bash", "COMP_WORDS": words}
+        env["COMP_CWORD"] = str(len(words.split()) - 1)
+        code = "from pipeline.cli import app; app()"
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.split()
+
+    assert complete("meshdeform sim") == ["simulate"]
+    assert complete("meshdeform batch --inc") == ["--include"]
+
+
+def test_nothing_at_run_time_needs_trimesh(tmp_path: Path) -> None:
+    import ast
+    import subprocess
+    import sys
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    for path in [*root.glob("meshdeform/**/*.py"), *root.glob("pipeline/**/*.py")]:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            names += [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            assert not any(n.split(".")[0] == "trimesh" for n in names), f"{path} imports trimesh"
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    assert not any(d.startswith("trimesh") for d in project["dependencies"])
+    assert any(d.startswith("trimesh") for d in project["optional-dependencies"]["test"])
+    # and runs with trimesh unimportable work: inspect, simulate writing every output format, check
+    from meshdeform.export import EXPORTERS
+
+    mesh = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
+    recipe = tmp_path / "r.toml"
+    recipe.write_text("[simulation]\nframes = 2\n")
+    code = "import sys; sys.modules['trimesh'] = None\nfrom pipeline.cli import app\napp()"
+    for args in (
+        ["inspect", mesh],
+        ["simulate", mesh, "-o", tmp_path / "out", "-r", recipe, "-q", "--format", ",".join(EXPORTERS)],
+        ["check", recipe, "-m", mesh],
+    ):
+        command = [sys.executable, "-c", code, *map(str, args)]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, (args, done.stderr)

@@ -181,7 +181,7 @@ def test_an_unexpected_error_is_one_line(tmp_path: Path, monkeypatch: Any) -> No
         (("simulate", SHEET, "-o", "x", "--frames", "ten"), "error: meshdeform simulate: Invalid value for '--frames'"),
         (("simulate", SHEET, "-o", "x", "--bogus"), "error: meshdeform simulate: No such option: --bogus"),
         (("simulate", SHEET), "error: meshdeform simulate: Missing option '--out'"),
-        (("check",), "error: meshdeform check: Missing argument 'recipe'"),
+        (("check",), "error: meshdeform check: Missing argument 'RECIPE'"),
         (("nosuch",), "error: meshdeform: No such command 'nosuch'"),
     ],
 )

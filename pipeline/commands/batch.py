@@ -1,14 +1,15 @@
 """`meshdeform batch ASSETS --recipe R.toml --out OUT`: every OBJ/PLY under a folder, in parallel.
 
-A thin layer over `pipeline.batch.run_batch`: options, the Rich progress display, the summary
-table and the exit code (0 all ok or skipped, 1 some failed, 2 usage error, 128 + N stopped by
-signal N: 130 Ctrl-C, 143 SIGTERM; `pipeline.interrupts`).
+A thin layer over `pipeline.batch.run_batch`: options, the progress display (Rich bars in a
+terminal, one line per finished asset elsewhere), the summary table and the exit code (0 all ok
+or skipped, 1 some failed, 2 usage error, 128 + N stopped by signal N: 130 Ctrl-C, 143 SIGTERM;
+`pipeline.interrupts`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +67,47 @@ class RichBatchProgress:
             self.progress.console.print(f"[red]failed[/red] {key}: {entry['error']}", markup=True, highlight=False)
         if self.overall is not None:
             self.progress.advance(self.overall)
+
+
+def asset_line(key: str, entry: dict[str, Any]) -> str:
+    """One line for a finished asset, unwrapped whatever its length (a CI log, grep):
+    `ok props/box.obj: 24 frames in 1.20 s`, `failed a.obj: <error>`, `skipped b.obj: <reason>`."""
+    status = entry["status"]
+    if status == "ok":
+        detail = f"{entry['frames']} frames in {entry['seconds'] or 0:.2f} s" if entry.get("frames") else "up to date"
+    elif status == "failed":
+        detail = entry.get("error") or "failed"
+    else:
+        detail = entry.get("reason") or status
+    return f"{status} {key}: {' '.join(str(detail).split())}"
+
+
+class LineBatchProgress:
+    """Where no terminal shows bars (a CI log, a pipe): one line on stderr per asset as it finishes
+    (`asset_line`), flushed at once; with `errors_only` (--quiet, --json) only the failed ones."""
+
+    def __init__(self, errors_only: bool = False) -> None:
+        self.errors_only = errors_only
+
+    def __enter__(self) -> LineBatchProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def begin(self, total: int, done: int) -> None:
+        return None
+
+    def started(self, key: str) -> None:
+        return None
+
+    def frame(self, key: str, frame: int, total: int) -> None:
+        return None
+
+    def finished(self, key: str, entry: dict[str, Any]) -> None:
+        if entry["status"] == "failed" or not self.errors_only:
+            sys.stderr.write(asset_line(key, entry) + "\n")
+            sys.stderr.flush()
 
 
 def summary_json(result: Any) -> dict[str, Any]:
@@ -152,7 +194,9 @@ def register(app: typer.Typer) -> None:
             " same-named files, files of a previous result not written again are removed, all else is kept"
             " (without it such an asset folder fails that asset alone).",
         ),
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display and no summary."),
+        quiet: bool = typer.Option(
+            False, "--quiet", "-q", help="No progress display and no summary; failed assets still go to stderr."
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print only the summary, as one JSON object on stdout."),
     ) -> None:
         """Run a recipe on every OBJ/PLY under ASSETS; resumable, failures isolated, manifest in OUT."""
@@ -162,11 +206,16 @@ def register(app: typer.Typer) -> None:
 
         stdout = Console(highlight=False)
         stderr = Console(stderr=True, highlight=False)
-        show = not (quiet or as_json)
-        display = RichBatchProgress(stderr) if show else None
+        display: RichBatchProgress | LineBatchProgress
+        if quiet or as_json:
+            display = LineBatchProgress(errors_only=True)
+        elif stderr.is_terminal:
+            display = RichBatchProgress(stderr)
+        else:  # a CI log: a line per finished asset, no bars
+            display = LineBatchProgress()
         interrupted = f"finished assets are kept, rerun the same command to resume ({out})"
         try:
-            with cli_errors(on_interrupt=interrupted), display or contextlib.nullcontext():
+            with cli_errors(on_interrupt=interrupted), display:
                 result = run_batch(
                     assets,
                     recipe,

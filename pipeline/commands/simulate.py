@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
@@ -23,6 +24,12 @@ def parse_vector(text: str, option: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
+def split_commas(values: list[str]) -> list[str]:
+    """The values of a repeatable option, each of which may itself be a comma-separated list:
+    `--format obj,usd --format ply` -> ['obj', 'usd', 'ply'] (empty items dropped)."""
+    return [item.strip() for value in values for item in value.split(",") if item.strip()]
+
+
 def registry_help() -> dict[str, str]:
     """The help of the options that list a registry, by parameter name: the solvers
     (`meshdeform.solvers.SOLVERS`) and the output formats, each with their one-line summaries
@@ -35,7 +42,8 @@ def registry_help() -> dict[str, str]:
     solvers = "; ".join(f"{name}: {cls.summary}" for name, cls in SOLVERS.items())
     return {
         "solver": f"Solver, replaces the recipe's simulation.solver: {solvers}.",
-        "output_format": f"Output format, repeatable; replaces the recipe's output.formats: {formats}."
+        "output_format": "Output formats, comma-separated or repeated (--format obj,usd); replaces the recipe's"
+        f" output.formats: {formats}."
         f" A recipe that tears or cuts cannot write {fixed} (they need a fixed vertex count).",
     }
 
@@ -76,9 +84,12 @@ def register(app: typer.Typer) -> None:
             [], "--pin", help="Hard pin: 'indices:0,5,9' or 'box:x0,y0,z0,x1,y1,z1' (box relative 0..1 to bounds)."
         ),
         output_format: list[str] = typer.Option(
-            [], "--format", "-f", help="Output format, repeatable (listed by registry_help)."
+            [], "--format", "-f", help="Output formats, comma-separated or repeated (listed by registry_help)."
         ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar, no summary."),
+        as_json: bool = typer.Option(
+            False, "--json", help="Print only the run's report (report.json), as one JSON object on stdout."
+        ),
         overwrite: bool = typer.Option(
             False,
             "--overwrite",
@@ -88,6 +99,7 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Simulate MESH with a recipe and write frames/frame_0001.obj ... and report.json into --out."""
+        from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
         from pipeline.job import run_job
@@ -111,22 +123,26 @@ def register(app: typer.Typer) -> None:
                 damping=damping,
                 gravity=parse_vector(gravity, "--gravity") if gravity else None,
                 pins=pin,
-                formats=output_format,
+                formats=split_commas(output_format),  # validated against EXPORTERS by the recipe
             )
+            stderr = Console(stderr=True)  # the bar never on stdout (which carries the summary or the JSON)
             progress = Progress(
                 TextColumn("[bold]{task.description}"),
                 BarColumn(),
                 MofNCompleteColumn(),
                 TimeRemainingColumn(),
                 transient=True,
-                disable=quiet,
+                console=stderr,
+                disable=quiet or as_json or not stderr.is_terminal,  # no bar (nor its blank line) in a CI log
             )
             with output_lock(out), progress:  # a second run on the same --out is refused at once
                 task = progress.add_task(mesh.name, total=loaded.simulation.frames)
                 result = run_job(
                     mesh, loaded, out, overwrite=overwrite, on_frame=lambda i, n: progress.update(task, completed=i)
                 )
-        if not quiet:
+        if as_json:
+            typer.echo(json.dumps(result.report, ensure_ascii=False))
+        elif not quiet:
             report = result.report
             typer.echo(
                 f"{mesh.name}: {report['frames']} frames with {report['solver']} in {report['seconds']:.2f} s "
