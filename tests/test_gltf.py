@@ -37,12 +37,12 @@ def motion(mesh: Mesh, k: int) -> np.ndarray:
     return pos
 
 
-def run(mesh: Mesh, out: Path, frames: int = FRAMES, **ctx) -> list[np.ndarray]:
+def run(mesh: Mesh, out: Path, frames: int = FRAMES, fps: float = FPS, **ctx) -> list[np.ndarray]:
     states = [motion(mesh, k) for k in range(frames)]
-    context = ExportContext(mesh=mesh, out_dir=out, fps=FPS, frame_count=frames - 1, **ctx)
+    context = ExportContext(mesh=mesh, out_dir=out, fps=fps, frame_count=frames - 1, **ctx)
     with ExportSession(["gltf"], context) as session:
         for k, pos in enumerate(states):
-            session.write(FrameData(k, k / FPS, pos))
+            session.write(FrameData(k, k / fps, pos))
     return states
 
 
@@ -169,42 +169,45 @@ def test_the_khronos_validator_finds_no_error(tmp_path: Path, kind: str) -> None
 
 
 BLENDER_SCRIPT = """
-import json, sys
+import json, math, sys
 import bpy
 import numpy as np
 bpy.ops.wm.read_factory_settings(use_empty=True)
 bpy.ops.import_scene.gltf(filepath=sys.argv[-2])
 scene = bpy.context.scene
 obj = next(o for o in scene.objects if o.type == "MESH")
-out = {"fps": scene.render.fps / scene.render.fps_base, "start": scene.frame_start, "end": scene.frame_end, "frames": {}}
-for frame in range(scene.frame_start, scene.frame_end + 1):
-    scene.frame_set(frame)
+fps = scene.render.fps / scene.render.fps_base
+out = {"fps": fps, "start": scene.frame_start, "end": scene.frame_end, "frames": []}
+for k in range(int(sys.argv[-4])):
+    frame = k / float(sys.argv[-3]) * fps  # the scene frame of glTF time k / our fps
+    scene.frame_set(math.floor(frame), subframe=frame - math.floor(frame))
     mesh = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh()
     co = np.empty(len(mesh.vertices) * 3)
     mesh.vertices.foreach_get("co", co)
-    out["frames"][frame] = co.reshape(-1, 3).tolist()
+    out["frames"].append(co.reshape(-1, 3).tolist())
 json.dump(out, open(sys.argv[-1], "w"))
 """
 
 
 @pytest.mark.skipif(not BPY_PYTHON, reason="MESHDEFORM_BPY_PYTHON names no Python with bpy")
-def test_blender_imports_every_frame_at_our_positions(tmp_path: Path) -> None:
+@pytest.mark.parametrize("fps", [24.0, 30.0])
+def test_blender_imports_every_frame_at_our_positions(tmp_path: Path, fps: float) -> None:
+    """Blender (5.0) keys glTF time t at scene frame t * its own fps (24, not changed by the import),
+    from frame 0: our frame index k is at Blender frame k * 24 / fps (a subframe when fps is not 24)."""
     mesh = grid_sheet(5, 4)
-    states = run(mesh, tmp_path)
+    states = run(mesh, tmp_path, fps=fps)
     script = tmp_path / "read.py"
     script.write_text(BLENDER_SCRIPT)
     result = tmp_path / "blender.json"
     done = subprocess.run(
-        [BPY_PYTHON, str(script), "--", str(tmp_path / "scene.glb"), str(result)], capture_output=True, text=True
+        [BPY_PYTHON, str(script), "--", str(FRAMES), str(fps), str(tmp_path / "scene.glb"), str(result)],
+        capture_output=True,
+        text=True,
     )
     assert done.returncode == 0, done.stdout + done.stderr
     got = json.loads(result.read_text())
     print("Blender scene:", {k: got[k] for k in ("fps", "start", "end")})
-    # Blender keys the glTF time t at scene frame t * fps (its fps set from nothing: its own 24 here)
-    # plus its start; we check each of our frames at the scene frame Blender puts its key at
-    frames = {int(f): np.asarray(p) for f, p in got["frames"].items()}
-    first = min(frames)
+    assert len(got["frames"]) == FRAMES
     for k, ours in enumerate(states):
-        theirs = frames[first + round(k * got["fps"] / FPS)]
         z_up = np.stack([ours[:, 0], -ours[:, 2], ours[:, 1]], axis=1)
-        np.testing.assert_allclose(theirs, z_up, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(got["frames"][k]), z_up, rtol=0, atol=1e-6)
