@@ -156,7 +156,13 @@ class GltfExporter(BaseExporter):
         if targets:
             for _ in self._spools:
                 views.append(
-                    {"buffer": 0, "byteOffset": offset, "byteLength": spool_bytes, "byteStride": 12, "target": _ARRAY_BUFFER}
+                    {
+                        "buffer": 0,
+                        "byteOffset": offset,
+                        "byteLength": spool_bytes,
+                        "byteStride": 12,
+                        "target": _ARRAY_BUFFER,
+                    }
                 )
                 offset += spool_bytes
         accessors: list[dict[str, Any]] = [
@@ -169,7 +175,10 @@ class GltfExporter(BaseExporter):
             attributes["TEXCOORD_0"] = len(accessors)
             accessors.append({"bufferView": 3, "componentType": _FLOAT, "count": w, "type": "VEC2"})
         primitive: dict[str, Any] = {"attributes": attributes, "indices": 0, "mode": 4}
-        mesh_json: dict[str, Any] = {"name": ctx.mesh.source.stem if ctx.mesh.source else "cloth", "primitives": [primitive]}
+        mesh_json: dict[str, Any] = {
+            "name": ctx.mesh.source.stem if ctx.mesh.source else "cloth",
+            "primitives": [primitive],
+        }
         extras: dict[str, Any] = {"fps": float(ctx.fps), "startFrame": int(ctx.start_frame)}
         if w > ctx.mesh.vertex_count:
             extras["seamSource"] = self._source[ctx.mesh.vertex_count :].tolist()

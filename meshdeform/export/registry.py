@@ -29,7 +29,17 @@ from meshdeform.export.xdmf import XdmfExporter
 
 EXPORTERS: dict[str, type[BaseExporter]] = {
     cls.name: cls
-    for cls in (ObjExporter, PlyExporter, Pc2Exporter, MddExporter, UsdExporter, VtkExporter, XdmfExporter, NpzExporter, GltfExporter)
+    for cls in (
+        ObjExporter,
+        PlyExporter,
+        Pc2Exporter,
+        MddExporter,
+        UsdExporter,
+        VtkExporter,
+        XdmfExporter,
+        NpzExporter,
+        GltfExporter,
+    )
 }
 
 
