@@ -22,6 +22,7 @@ from factories import grid_sheet
 
 from meshdeform.errors import ExportError
 from meshdeform.export import ExportContext, ExportSession, FrameData
+from meshdeform.export.gltf import GltfExporter
 from meshdeform.mesh import Mesh
 
 FPS = 24.0
@@ -211,3 +212,12 @@ def test_blender_imports_every_frame_at_our_positions(tmp_path: Path, fps: float
     for k, ours in enumerate(states):
         z_up = np.stack([ours[:, 0], -ours[:, 2], ours[:, 1]], axis=1)
         np.testing.assert_allclose(np.asarray(got["frames"][k]), z_up, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["grid", "seams"])
+def test_the_size_estimate_is_on_the_high_side_and_close(tmp_path: Path, kind: str) -> None:
+    mesh = seamed(grid_sheet(12, 9)) if kind == "seams" else grid_sheet(12, 9)
+    run(mesh, tmp_path, frames=30)
+    actual = (tmp_path / "scene.glb").stat().st_size
+    estimate = GltfExporter.estimated_bytes(mesh, 30)
+    assert actual <= estimate <= 1.3 * actual + 8192

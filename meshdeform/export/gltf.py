@@ -97,12 +97,12 @@ class GltfExporter(BaseExporter):
     @classmethod
     def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
         """Two float32 vec3 per vertex per frame (position and normal), uv and indices once, the weight
-        keys (frames squared floats) and about 600 bytes of JSON per frame; seam copies counted as
-        at most one vertex per corner."""
-        corners = int(mesh.face_indices.shape[0])
-        w = mesh.vertex_count + (corners if mesh.uvs is not None else 0)
+        keys (frames squared floats), at most 600 bytes of JSON per frame and 9 per listed seam copy or
+        group face; the vertex count with the seam copies."""
+        w = int(gltf_vertices(mesh)[0].size)
         triangles = int(np.maximum(mesh.face_sizes - 2, 0).sum())
-        return int(8192 + 24 * w * frames + 8 * w + 12 * triangles + 4 * frames * frames + 600 * frames)
+        listed = (w - mesh.vertex_count) + sum(int(np.size(f)) for f in mesh.groups.values())  # JSON int lists
+        return int(8192 + 24 * w * frames + 8 * w + 12 * triangles + 4 * frames * frames + 600 * frames + 9 * listed)
 
     def _open(self, ctx: ExportContext) -> None:
         self._source, self._corner_vertex, self._uv = gltf_vertices(ctx.mesh)
