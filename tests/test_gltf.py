@@ -191,12 +191,14 @@ json.dump(out, open(sys.argv[-1], "w"))
 
 
 @pytest.mark.skipif(not BPY_PYTHON, reason="MESHDEFORM_BPY_PYTHON names no Python with bpy")
-@pytest.mark.parametrize("fps", [24.0, 30.0])
-def test_blender_imports_every_frame_at_our_positions(tmp_path: Path, fps: float) -> None:
+@pytest.mark.parametrize(("fps", "kind"), [(24.0, "grid"), (30.0, "grid"), (24.0, "seams")])
+def test_blender_imports_every_frame_at_our_positions(tmp_path: Path, fps: float, kind: str) -> None:
     """Blender (5.0) keys glTF time t at scene frame t * its own fps (24, not changed by the import),
     from frame 0: our frame index k is at Blender frame k * 24 / fps (a subframe when fps is not 24)."""
-    mesh = grid_sheet(5, 4)
+    mesh = seamed(grid_sheet(5, 4)) if kind == "seams" else grid_sheet(5, 4)
     states = run(mesh, tmp_path, fps=fps)
+    extras = read_glb(tmp_path / "scene.glb")[0]["meshes"][0]["extras"]
+    source = np.concatenate([np.arange(mesh.vertex_count), extras.get("seamSource", [])]).astype(int)
     script = tmp_path / "read.py"
     script.write_text(BLENDER_SCRIPT)
     result = tmp_path / "blender.json"
@@ -210,6 +212,7 @@ def test_blender_imports_every_frame_at_our_positions(tmp_path: Path, fps: float
     print("Blender scene:", {k: got[k] for k in ("fps", "start", "end")})
     assert len(got["frames"]) == FRAMES
     for k, ours in enumerate(states):
+        ours = ours[source]  # Blender keeps the glTF vertices, seam copies included, in their order
         z_up = np.stack([ours[:, 0], -ours[:, 2], ours[:, 1]], axis=1)
         np.testing.assert_allclose(np.asarray(got["frames"][k]), z_up, rtol=0, atol=1e-6)
 
