@@ -146,11 +146,8 @@ def validator() -> Path:
     return package
 
 
-@pytest.mark.parametrize("kind", ["grid", "seams", "rest only"])
-def test_the_khronos_validator_finds_no_error(tmp_path: Path, kind: str) -> None:
-    package = validator()
-    mesh = grid_sheet(5, 4)
-    run(seamed(mesh) if kind == "seams" else mesh, tmp_path, frames=1 if kind == "rest only" else FRAMES)
+def validate(package: Path, glb: Path) -> dict:
+    """The `issues` of the validator's report on `glb` (printed: pytest -s shows them)."""
     script = textwrap.dedent(
         """
         const validator = require(process.argv[1]);
@@ -160,11 +157,18 @@ def test_the_khronos_validator_finds_no_error(tmp_path: Path, kind: str) -> None
         }, (error) => { console.error(error); process.exit(2); });
         """
     )
-    done = subprocess.run(
-        ["node", "-e", script, str(package), str(tmp_path / "scene.glb")], capture_output=True, text=True, check=True
-    )
+    done = subprocess.run(["node", "-e", script, str(package), str(glb)], capture_output=True, text=True, check=True)
     issues = json.loads(done.stdout)
     print(json.dumps(issues, indent=1))
+    return issues
+
+
+@pytest.mark.parametrize("kind", ["grid", "seams", "rest only"])
+def test_the_khronos_validator_finds_no_error(tmp_path: Path, kind: str) -> None:
+    package = validator()
+    mesh = grid_sheet(5, 4)
+    run(seamed(mesh) if kind == "seams" else mesh, tmp_path, frames=1 if kind == "rest only" else FRAMES)
+    issues = validate(package, tmp_path / "scene.glb")
     assert issues["numErrors"] == 0, issues["messages"]
     assert issues["numWarnings"] == 0, issues["messages"]
 
@@ -224,3 +228,40 @@ def test_the_size_estimate_is_on_the_high_side_and_close(tmp_path: Path, kind: s
     actual = (tmp_path / "scene.glb").stat().st_size
     estimate = GltfExporter.estimated_bytes(mesh, 30)
     assert actual <= estimate <= 1.3 * actual + 8192
+
+
+def polygons() -> Mesh:
+    """A triangle, a quad and a convex pentagon in the z = 0 plane, and a loose vertex (no face)."""
+    positions = np.array(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [3, 0, 0], [3, 1, 0], [2, 1, 0],
+         [4, 0, 0], [5, 0, 0], [5.5, 1, 0], [4.5, 2, 0], [3.8, 1, 0], [9, 9, 9]],
+        dtype=np.float64,
+    )  # fmt: skip
+    faces = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11], dtype=np.int64)
+    return Mesh(positions=positions, face_indices=faces, face_offsets=np.array([0, 3, 7, 12], dtype=np.int64))
+
+
+def test_polygons_are_fanned_into_triangles_covering_their_area(tmp_path: Path) -> None:
+    mesh = polygons()
+    run(mesh, tmp_path, frames=2)
+    doc, blob = read_glb(tmp_path / "scene.glb")
+    indices = accessor(doc, blob, doc["meshes"][0]["primitives"][0]["indices"]).reshape(-1, 3)
+    assert indices.shape == (1 + 2 + 3, 3)
+    rest = mesh.positions
+    # per polygon, the triangles' areas add up to the shoelace area of the polygon, and all face +z
+    cross = np.cross(rest[indices[:, 1]] - rest[indices[:, 0]], rest[indices[:, 2]] - rest[indices[:, 0]])
+    assert np.all(cross[:, 2] > 0)
+    shoelace = []
+    for a, b in zip(mesh.face_offsets[:-1], mesh.face_offsets[1:], strict=True):
+        x, y = rest[mesh.face_indices[a:b], 0], rest[mesh.face_indices[a:b], 1]
+        shoelace.append(0.5 * (x @ np.roll(y, -1) - y @ np.roll(x, -1)))
+    areas = 0.5 * cross[:, 2]
+    np.testing.assert_allclose([areas[:1].sum(), areas[1:3].sum(), areas[3:].sum()], shoelace, rtol=1e-12)
+    assert mesh.vertex_count - 1 not in indices  # the loose vertex stays a vertex, in no triangle
+    assert len(glb_frames(tmp_path)[0]) == mesh.vertex_count
+
+
+def test_the_khronos_validator_accepts_polygons_and_a_loose_vertex(tmp_path: Path) -> None:
+    package = validator()
+    run(polygons(), tmp_path, frames=3)
+    assert validate(package, tmp_path / "scene.glb")["numErrors"] == 0
