@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import trimesh
 from factories import grid_sheet
+from test_gltf import glb_frames
 
 from meshdeform.errors import ExportError
 from meshdeform.export import (
@@ -442,6 +443,7 @@ INDEPENDENT_READERS: dict[str, Callable[[Path], list[np.ndarray]]] = {
     "vtk": vtk_frames,
     "xdmf": xdmf_frames,
     "npz": npz_frames,
+    "gltf": glb_frames,  # frame index k at glTF time k / fps; the grid has no UV seams
 }
 
 

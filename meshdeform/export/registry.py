@@ -17,6 +17,7 @@ from typing import Any
 
 from meshdeform.errors import ExportError
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData
+from meshdeform.export.gltf import GltfExporter
 from meshdeform.export.mdd import MddExporter
 from meshdeform.export.npz import NpzExporter
 from meshdeform.export.obj import ObjExporter
@@ -28,7 +29,17 @@ from meshdeform.export.xdmf import XdmfExporter
 
 EXPORTERS: dict[str, type[BaseExporter]] = {
     cls.name: cls
-    for cls in (ObjExporter, PlyExporter, Pc2Exporter, MddExporter, UsdExporter, VtkExporter, XdmfExporter, NpzExporter)
+    for cls in (
+        ObjExporter,
+        PlyExporter,
+        Pc2Exporter,
+        MddExporter,
+        UsdExporter,
+        VtkExporter,
+        XdmfExporter,
+        NpzExporter,
+        GltfExporter,
+    )
 }
 
 
