@@ -23,12 +23,23 @@ from meshdeform.export.obj import ObjExporter
 from meshdeform.export.pc2 import Pc2Exporter
 from meshdeform.export.ply import PlyExporter
 from meshdeform.export.usd import UsdExporter
+from meshdeform.export.vat import VatExporter
 from meshdeform.export.vtk import VtkExporter
 from meshdeform.export.xdmf import XdmfExporter
 
 EXPORTERS: dict[str, type[BaseExporter]] = {
     cls.name: cls
-    for cls in (ObjExporter, PlyExporter, Pc2Exporter, MddExporter, UsdExporter, VtkExporter, XdmfExporter, NpzExporter)
+    for cls in (
+        ObjExporter,
+        PlyExporter,
+        Pc2Exporter,
+        MddExporter,
+        UsdExporter,
+        VtkExporter,
+        XdmfExporter,
+        NpzExporter,
+        VatExporter,
+    )
 }
 
 
