@@ -39,6 +39,7 @@ import json
 import struct
 import tempfile
 import zlib
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import IO, ClassVar
@@ -173,7 +174,15 @@ class VatExporter(BaseExporter):
             return np.zeros((frames, vertices, 3), dtype=dtype)
         return np.memmap(handle, dtype=dtype, mode="r", shape=(frames, vertices, 3))
 
-    def _texture(self, file_name, frames, unit, width: int, rows: int, height: int) -> Path:  # type: ignore[no-untyped-def]
+    def _texture(
+        self,
+        file_name: str,
+        frames: np.ndarray,
+        unit: Callable[[np.ndarray], np.ndarray],
+        width: int,
+        rows: int,
+        height: int,
+    ) -> Path:
         """Write one texture: `unit` maps a frame's (V, 3) values onto [0, 1] per component."""
         target = self._folder / file_name
         vertices = frames.shape[1]
@@ -196,7 +205,18 @@ class VatExporter(BaseExporter):
         self._written.append(target)
         return target
 
-    def _description(self, ctx, frames, width, rows, height, low, high, uvs) -> Path:  # type: ignore[no-untyped-def]
+    def _description(
+        self,
+        ctx: ExportContext,
+        frames: int,
+        width: int,
+        rows: int,
+        height: int,
+        low: np.ndarray,
+        high: np.ndarray,
+        uvs: np.ndarray,
+    ) -> Path:
+        """Write `vat.json`: the layout (frames, vertices, texture size), the bounds, file names, encodings."""
         description = {
             "format": "meshdeform vertex animation textures",
             "frames": int(frames),
