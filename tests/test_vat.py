@@ -55,6 +55,19 @@ def test_decoding_reproduces_every_frame_within_half_a_quantisation_step(tmp_pat
         assert np.all(np.abs(decoded - expected) <= half_step)
 
 
+def test_a_run_written_from_a_later_frame_names_its_scene_frames_and_is_byte_identical_twice(tmp_path: Path) -> None:
+    mesh = grid_sheet(8, 5)
+    frames = [FrameData(i, i / FPS, billow(mesh, i)) for i in range(3, 7)]  # [output] frames = [4, 7]
+    for out in ("a", "b"):
+        run(mesh, tmp_path / out, 4, frames)
+    info, positions, _ = decode(tmp_path / "a" / "vat")
+    assert (info["frames"], info["first_scene_frame"], info["scene_frames"]) == (4, 4, [4, 5, 6, 7])
+    half_step = (np.asarray(info["bounds_max"]) - np.asarray(info["bounds_min"])) / 65535 / 2 + 1e-12
+    assert all(np.all(np.abs(p - f.positions) <= half_step) for p, f in zip(positions, frames, strict=True))
+    for name in ("vat.json", "mesh.obj", "positions.png", "normals.png"):
+        assert (tmp_path / "a" / "vat" / name).read_bytes() == (tmp_path / "b" / "vat" / name).read_bytes()
+
+
 def test_a_large_mesh_wraps_onto_several_rows_per_frame(tmp_path: Path) -> None:
     mesh = grid_sheet(100, 90)  # 9191 vertices: wider than any one texture row allowed
     sent = run(mesh, tmp_path, 3)

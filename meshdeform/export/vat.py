@@ -6,8 +6,9 @@ mesh carries a second UV set pointing each vertex at its texel. Written into `va
 
 - `positions.png`: 16-bit RGB; texel (x, y) with x = v % width, y = f * rows_per_frame + v // width
   holds vertex v of frame f, quantised per axis over the bounds of the whole bake:
-  position = bounds_min + value / 65535 * (bounds_max - bounds_min). Frame 0 is the rest pose
-  (scene frame `start_frame`), so `frames` counts it. Row 0 is the top row of the PNG (image row
+  position = bounds_min + value / 65535 * (bounds_max - bounds_min). Texture frame f is the f-th
+  frame written, scene frame `scene_frames[f]`: frame 0 is the rest pose (scene frame
+  `start_frame`, `frames` counting it) unless `[output] frames` starts later. Row 0 is the top row of the PNG (image row
   order). Texels past the last vertex of a frame's last row are 0.
 - `normals.png`: 16-bit RGB, the same layout, unit area-weighted vertex normals of each deformed
   frame (`meshdeform.geometry.vertex_normals`) as value = (n * 0.5 + 0.5) * 65535, rounded
@@ -128,6 +129,7 @@ class VatExporter(BaseExporter):
         self._folder = self._make_dir(ctx.out_dir / FOLDER)
         self._positions: IO[bytes] = tempfile.TemporaryFile(dir=ctx.out_dir, prefix=".vat.", suffix=".spool")  # noqa: SIM115
         self._normals: IO[bytes] = tempfile.TemporaryFile(dir=ctx.out_dir, prefix=".vat.", suffix=".spool")  # noqa: SIM115
+        self._scene_frames: list[int] = []
         self._low = np.full(3, np.inf)
         self._high = np.full(3, -np.inf)
 
@@ -137,6 +139,7 @@ class VatExporter(BaseExporter):
             self._low = np.minimum(self._low, pos.min(axis=0))
             self._high = np.maximum(self._high, pos.max(axis=0))
         self._positions.write(pos.tobytes())
+        self._scene_frames.append(ctx.scene_frame(frame.index))
         self._normals.write(np.ascontiguousarray(vertex_normals(mesh, pos), dtype=np.float32).tobytes())
 
     def _close(self, ctx: ExportContext) -> list[Path]:
@@ -226,7 +229,12 @@ class VatExporter(BaseExporter):
             "rows_per_frame": int(rows),
             "fps": float(ctx.fps),
             "start_frame": int(ctx.start_frame),
-            "frame_zero": "frame 0 is the rest pose at scene frame start_frame; frame f is scene frame start_frame + f",
+            "first_scene_frame": self._scene_frames[0],
+            "scene_frames": self._scene_frames,
+            "frame_zero": (
+                "texture frame f is scene frame scene_frames[f] (first_scene_frame + f); frame 0 is the rest pose "
+                "when first_scene_frame is start_frame, as it is unless [output] frames starts later"
+            ),
             "bounds_min": [float(x) for x in low],
             "bounds_max": [float(x) for x in high],
             "bounds_widened": self._widened,
