@@ -5,12 +5,14 @@ trimesh's; the textures are truly 16-bit; a tearing run is refused and leaves no
 from __future__ import annotations
 
 import json
+import struct
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 from factories import grid_sheet
+from scipy.spatial import cKDTree
 from vat_reader import decode, png_header
 
 from meshdeform.errors import ExportError
@@ -64,8 +66,8 @@ def test_a_run_written_from_a_later_frame_names_its_scene_frames_and_is_byte_ide
     assert (info["frames"], info["first_scene_frame"], info["scene_frames"]) == (4, 4, [4, 5, 6, 7])
     half_step = (np.asarray(info["bounds_max"]) - np.asarray(info["bounds_min"])) / 65535 / 2 + 1e-12
     assert all(np.all(np.abs(p - f.positions) <= half_step) for p, f in zip(positions, frames, strict=True))
-    for name in ("vat.json", "mesh.obj", "positions.png", "normals.png"):
-        assert (tmp_path / "a" / "vat" / name).read_bytes() == (tmp_path / "b" / "vat" / name).read_bytes()
+    for path in (tmp_path / "a" / "vat").iterdir():
+        assert path.read_bytes() == (tmp_path / "b" / "vat" / path.name).read_bytes(), path.name
 
 
 def test_a_large_mesh_wraps_onto_several_rows_per_frame(tmp_path: Path) -> None:
@@ -103,7 +105,7 @@ def test_the_textures_are_16_bit_rgb_and_the_json_names_them(tmp_path: Path) -> 
         width, height, depth, colour = png_header(folder / info[key])
         assert (width, height, depth, colour) == (info["width"], 4 * info["rows_per_frame"], 16, 2)  # RGB
     assert sorted(p.name for p in folder.iterdir()) == sorted(
-        ["vat.json", "mesh.obj", info["position_texture"], info["normal_texture"]]
+        ["vat.json", info["mesh"], info["mesh_gltf"], info["position_texture"], info["normal_texture"]]
     )
 
 
@@ -155,3 +157,54 @@ def test_a_torn_frame_is_refused_and_nothing_is_left(tmp_path: Path) -> None:
     with pytest.raises(ExportError, match="vertex animation textures need a fixed vertex count"):
         run(mesh, tmp_path, 2, frames)
     assert list(tmp_path.iterdir()) == []
+
+
+def read_glb(path: Path) -> dict[str, np.ndarray]:
+    """The first primitive's attributes and indices of a binary glTF, from the published layout (12-byte
+    header, a JSON chunk, a BIN chunk; accessors of float32 VEC2/VEC3 and uint32 SCALAR)."""
+    data = path.read_bytes()
+    magic, version, total = struct.unpack("<4sII", data[:12])
+    assert (magic, version, total) == (b"glTF", 2, len(data))
+    json_length, kind = struct.unpack("<I4s", data[12:20])
+    assert kind == b"JSON"
+    document = json.loads(data[20 : 20 + json_length])
+    bin_start = 20 + json_length
+    bin_length, kind = struct.unpack("<I4s", data[bin_start : bin_start + 8])
+    assert kind == b"BIN\0"
+    blob = data[bin_start + 8 : bin_start + 8 + bin_length]
+    primitive = document["meshes"][0]["primitives"][0]
+    wanted = {**primitive["attributes"], "indices": primitive["indices"]}
+    out = {}
+    for name, index in wanted.items():
+        accessor = document["accessors"][index]
+        view = document["bufferViews"][accessor["bufferView"]]
+        dtype = {5126: "<f4", 5125: "<u4"}[accessor["componentType"]]
+        width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3}[accessor["type"]]
+        chunk = blob[view["byteOffset"] : view["byteOffset"] + view["byteLength"]]
+        out[name] = np.frombuffer(chunk, dtype=dtype).reshape(accessor["count"], width).squeeze()
+    return out
+
+
+@pytest.mark.parametrize("triangles", [False, True])
+def test_the_gltf_mesh_carries_the_input_uvs_and_the_vat_uvs_as_its_second_set(tmp_path: Path, triangles: bool) -> None:
+    mesh = grid_sheet(12, 9, triangles=triangles)
+    run(mesh, tmp_path, 3)
+    folder = tmp_path / "vat"
+    info = json.loads((folder / "vat.json").read_text())
+    glb = read_glb(folder / info["mesh_gltf"])
+    # each glTF vertex is an input vertex: found by its position
+    distance, source = cKDTree(mesh.positions).query(glb["POSITION"])
+    assert np.max(distance) < 1e-6
+    width, height = info["width"], info["height"]
+    # glTF UVs have their origin top-left: v_gltf * height - 0.5 is the image row
+    np.testing.assert_allclose(glb["TEXCOORD_1"][:, 0] * width - 0.5, source % width, atol=1e-3)
+    np.testing.assert_allclose(glb["TEXCOORD_1"][:, 1] * height - 0.5, source // width, atol=1e-3)
+    per_vertex = np.empty((mesh.vertex_count, 2))
+    per_vertex[mesh.face_indices] = mesh.uvs[mesh.face_uv_indices, :2]  # the sheet has one UV per vertex
+    np.testing.assert_allclose(
+        glb["TEXCOORD_0"], np.column_stack([per_vertex[source, 0], 1 - per_vertex[source, 1]]), atol=1e-6
+    )
+    # the triangles cover the sheet's area once, facing as the input's polygons
+    tri = glb["POSITION"][glb["indices"].reshape(-1, 3)].astype(np.float64)
+    area = 0.5 * np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    np.testing.assert_allclose(area.sum(axis=0), [0.0, 0.0, 1.0], atol=1e-6)

@@ -19,6 +19,10 @@ mesh carries a second UV set pointing each vertex at its texel. Written into `va
   reads frame f at (u, v - f * rows_per_frame / height). OBJ holds a single UV set, so the mesh is
   written for the animation and the material UVs stay in the input mesh (same vertices, same
   polygons); the UVs are also `uv2` in `vat.json`.
+- `mesh.glb`: the same mesh as binary glTF 2.0 (fan-triangulated), the one format here with a second
+  UV set: TEXCOORD_0 the input's UVs, TEXCOORD_1 the VAT UVs, in glTF's top-left UV convention
+  (v_gltf = 1 - v; importers flip it back). A seam vertex becomes one glTF vertex per input UV, each
+  with the vertex's VAT UV (`glb_bytes`).
 - `vat.json`: everything a decoder needs (`frames`, `vertices`, `width`, `height`,
   `rows_per_frame`, `bounds_min`, `bounds_max`, the texture and mesh file names, `fps`,
   `start_frame`, the encodings and conventions in words, `uv2`).
@@ -56,6 +60,7 @@ FOLDER = "vat"
 POSITION_TEXTURE = "positions.png"
 NORMAL_TEXTURE = "normals.png"
 MESH_FILE = "mesh.obj"
+GLB_FILE = "mesh.glb"
 DESCRIPTION = "vat.json"
 #: widest texture written (texels); more vertices wrap onto further rows of the same frame
 MAX_WIDTH = 8192
@@ -106,6 +111,71 @@ class _Png16Writer:
         self.handle.write(_chunk(b"IEND", b""))
 
 
+def fan_triangles(mesh: Mesh) -> np.ndarray:
+    """(T, 3) corner indices (into `mesh.face_indices`) of the polygons fan-triangulated, polygon after polygon;
+    polygons of fewer than 3 corners give none."""
+    offsets = np.asarray(mesh.face_offsets, dtype=np.int64)
+    counts = np.maximum(np.diff(offsets) - 2, 0)
+    face = np.repeat(np.arange(counts.shape[0]), counts)
+    first = np.repeat(np.cumsum(counts) - counts, counts)
+    step = np.arange(face.shape[0]) - first + 1
+    start = offsets[face]
+    return np.column_stack([start, start + step, start + step + 1])
+
+
+def glb_bytes(mesh: Mesh, vat_uv: np.ndarray) -> bytes:
+    """A binary glTF 2.0 of the rest-pose mesh, fan-triangulated, with TEXCOORD_0 the input's UVs (when it has
+    them) and TEXCOORD_1 the VAT UVs, both in glTF's convention (origin top-left: v_gltf = 1 - v).
+
+    glTF has one UV per vertex, so a vertex with several input UVs (a seam) becomes one glTF vertex per UV,
+    each with the vertex's VAT UV; glTF vertices are sorted by (input vertex, input UV index)."""
+    corners = fan_triangles(mesh).ravel()
+    vertex = np.asarray(mesh.face_indices, dtype=np.int64)[corners]
+    has_uv = mesh.uvs is not None and mesh.face_uv_indices is not None
+    uv_index = np.asarray(mesh.face_uv_indices, dtype=np.int64)[corners] if has_uv else np.zeros_like(vertex)
+    keys, inverse = np.unique(np.column_stack([vertex, uv_index]), axis=0, return_inverse=True)
+    source = keys[:, 0]
+    position = np.asarray(mesh.positions, dtype=np.float32)[source]
+    flip = np.array([0.0, 1.0])
+    columns = {"POSITION": position, "TEXCOORD_1": (flip - vat_uv[source] * [-1.0, 1.0]).astype(np.float32)}
+    if has_uv:
+        uv = np.asarray(mesh.uvs, dtype=np.float64)[keys[:, 1], :2]
+        columns["TEXCOORD_0"] = (flip - uv * [-1.0, 1.0]).astype(np.float32)
+    blob, views, accessors, attributes = b"", [], [], {}
+    for name, data in [*columns.items(), ("indices", inverse.reshape(-1).astype(np.uint32))]:
+        raw = np.ascontiguousarray(data).astype(data.dtype.newbyteorder("<")).tobytes()
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(raw)})
+        views[-1]["target"] = 34963 if name == "indices" else 34962
+        accessor = {
+            "bufferView": len(views) - 1,
+            "componentType": 5125 if name == "indices" else 5126,
+            "count": int(data.shape[0]),
+            "type": {1: "SCALAR", 2: "VEC2", 3: "VEC3"}[1 if data.ndim == 1 else data.shape[1]],
+        }
+        if name == "POSITION":
+            accessor["min"] = [float(x) for x in data.min(axis=0)] if data.size else [0.0] * 3
+            accessor["max"] = [float(x) for x in data.max(axis=0)] if data.size else [0.0] * 3
+        accessors.append(accessor)
+        if name != "indices":
+            attributes[name] = len(accessors) - 1
+        blob += raw + b"\0" * (-len(raw) % 4)
+    document = {
+        "asset": {"version": "2.0", "generator": "meshdeform vat"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "vat_mesh"}],
+        "meshes": [{"primitives": [{"attributes": attributes, "indices": len(accessors) - 1, "mode": 4}]}],
+        "buffers": [{"byteLength": len(blob)}],
+        "bufferViews": views,
+        "accessors": accessors,
+    }
+    text = json.dumps(document, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    header = struct.pack("<4sII", b"glTF", 2, total)
+    return header + struct.pack("<I4s", len(text), b"JSON") + text + struct.pack("<I4s", len(blob), b"BIN\0") + blob
+
+
 class VatExporter(BaseExporter):
     """Spools positions and normals per frame; encodes the textures, mesh and `vat.json` at close."""
 
@@ -117,13 +187,16 @@ class VatExporter(BaseExporter):
     @classmethod
     def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
         """Two textures stored at most uncompressed (6 bytes a texel, a filter byte a row, zlib's own),
-        the mesh as OBJ text and `vat.json`'s UVs (about 48 characters a vertex)."""
+        the mesh as OBJ text and as glTF (at most one glTF vertex of 28 bytes and 4 bytes of indices a
+        triangle corner: 3 (corners - 2 * polygons)), and `vat.json`'s UVs (about 48 characters a vertex)."""
         from meshdeform.export.obj import obj_frame_bytes
 
         width, _, height = texture_layout(mesh.vertex_count, frames)
         raw = height * (1 + 6 * width)
         texture = raw + raw // 1000 + 12 * frames + 1024  # deflate's stored blocks, an IDAT chunk a frame
-        return int(2 * texture + obj_frame_bytes(mesh) + 48 * mesh.vertex_count * 2 + 4096)
+        triangle_corners = 3 * max(int(mesh.face_indices.shape[0]) - 2 * mesh.face_count, 0)
+        glb = 32 * triangle_corners + 4096
+        return int(2 * texture + obj_frame_bytes(mesh) + glb + 48 * mesh.vertex_count * 2 + 4096)
 
     def _open(self, ctx: ExportContext) -> None:
         self._folder = self._make_dir(ctx.out_dir / FOLDER)
@@ -156,6 +229,11 @@ class VatExporter(BaseExporter):
         del positions, normals
         uvs = vat_uvs(vertices, width, height)
         finished.append(self._mesh_file(ctx.mesh, uvs))
+        target = self._folder / GLB_FILE
+        with atomic_open(target, "wb") as out:
+            out.write(glb_bytes(ctx.mesh, uvs))
+        self._written.append(target)
+        finished.append(target)
         finished.append(self._description(ctx, n, width, rows, height, low, high, uvs))
         self._close_spools()
         return finished
@@ -242,6 +320,7 @@ class VatExporter(BaseExporter):
             "position_texture": POSITION_TEXTURE,
             "normal_texture": NORMAL_TEXTURE,
             "mesh": MESH_FILE,
+            "mesh_gltf": GLB_FILE,
             "bit_depth": 16,
             "channels": "RGB = xyz",
             "coordinates": "the input's (Y up, as OBJ)",
