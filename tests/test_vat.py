@@ -208,3 +208,20 @@ def test_the_gltf_mesh_carries_the_input_uvs_and_the_vat_uvs_as_its_second_set(t
     tri = glb["POSITION"][glb["indices"].reshape(-1, 3)].astype(np.float64)
     area = 0.5 * np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     np.testing.assert_allclose(area.sum(axis=0), [0.0, 0.0, 1.0], atol=1e-6)
+
+
+def test_a_uv_seam_splits_the_gltf_vertex_and_both_copies_point_at_its_texel(tmp_path: Path) -> None:
+    # two quads sharing the edge of vertices 1 and 4; the right quad's UV island is apart (a seam there)
+    positions = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1, 1, 0], [2, 1, 0]], dtype=np.float64)
+    faces = np.array([0, 1, 4, 3, 1, 2, 5, 4])
+    uvs = np.array([[0, 0], [0.4, 0], [0.4, 1], [0, 1], [0.6, 0], [1, 0], [1, 1], [0.6, 1]], dtype=np.float64)
+    mesh = Mesh(positions, faces, np.array([0, 4, 8]), uvs=uvs, face_uv_indices=np.arange(8))
+    run(mesh, tmp_path, 2, [FrameData(i, i / FPS, positions + [0, 0, 0.1 * i]) for i in range(2)])
+    info = json.loads((tmp_path / "vat" / "vat.json").read_text())
+    glb = read_glb(tmp_path / "vat" / info["mesh_gltf"])
+    assert glb["POSITION"].shape == (8, 3)  # vertices 1 and 4 twice, once per UV island
+    source = cKDTree(positions).query(glb["POSITION"])[1]
+    np.testing.assert_array_equal(np.bincount(source), [1, 2, 1, 1, 2, 1])
+    np.testing.assert_allclose(glb["TEXCOORD_1"][:, 0] * info["width"] - 0.5, source, atol=1e-3)
+    expected = sorted((u, 1 - v) for u, v in uvs)
+    np.testing.assert_allclose(sorted(map(tuple, glb["TEXCOORD_0"].astype(np.float64))), expected, atol=1e-7)
