@@ -11,6 +11,7 @@
 | xdmf | `scene.xdmf` (inline XML data)             | refused: one fixed mesh |
 | npz  | `positions.npz`                            | refused: one fixed vertex count |
 | gltf | `scene.glb` (morph targets)                | refused: morph targets need a fixed topology |
+| vat  | `vat/positions.png`, `normals.png`, `mesh.obj`, `mesh.glb`, `vat.json` | refused: one fixed vertex count |
 
 Every exporter is streaming: `open(ctx)` once, `write(frame)` per frame, `close()` to finalise
 (or `abort()` to remove everything written), and files appear under their final names only

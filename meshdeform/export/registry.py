@@ -24,6 +24,7 @@ from meshdeform.export.obj import ObjExporter
 from meshdeform.export.pc2 import Pc2Exporter
 from meshdeform.export.ply import PlyExporter
 from meshdeform.export.usd import UsdExporter
+from meshdeform.export.vat import VatExporter
 from meshdeform.export.vtk import VtkExporter
 from meshdeform.export.xdmf import XdmfExporter
 
@@ -39,6 +40,7 @@ EXPORTERS: dict[str, type[BaseExporter]] = {
         XdmfExporter,
         NpzExporter,
         GltfExporter,
+        VatExporter,
     )
 }
 
