@@ -135,7 +135,8 @@ def run_job(
             out_dir=stage,
             fps=settings.fps,
             start_frame=recipe.simulation.start_frame,
-            up_axis=recipe.output.up_axis,
+            up_axis=recipe.up_axis,
+            input_up=recipe.simulation.up,
             frame_count=settings.frames,
         )
         preview = (

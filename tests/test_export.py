@@ -692,7 +692,7 @@ def test_each_reader_reads_back_its_own_files_only(mesh: Mesh, tmp_path: Path) -
     if unread:
         export(unread, mesh, tmp_path / "unread")
     for source, folder in folders.items():
-        found = source.read(folder, mesh, "y")
+        found = source.read(folder, mesh, 0)
         assert found is not None and list(folder.glob(found.source))
         # scene frames 1 .. FRAMES (the default start frame 1); a point cache also holds sample 0,
         # its copy of the first frame (sample k is scene frame k)
@@ -701,4 +701,4 @@ def test_each_reader_reads_back_its_own_files_only(mesh: Mesh, tmp_path: Path) -
         assert found.base is mesh  # the input mesh: same vertex count (and polygons for vtk)
         np.testing.assert_allclose(np.asarray(found.from_frame(1).frames[FRAMES - 1]), wave(mesh, FRAMES), atol=1e-6)
         for elsewhere in [*(f for s, f in folders.items() if s is not source), tmp_path / "none", tmp_path / "unread"]:
-            assert source.read(elsewhere, mesh, "y") is None, (kinds[source], elsewhere.name)
+            assert source.read(elsewhere, mesh, 0) is None, (kinds[source], elsewhere.name)

@@ -24,8 +24,9 @@ from meshdeform.export.base import (
     ExportContext,
     Exporter,
     FrameData,
-    convert_up_axis,
     frame_file_name,
+    quarter_turns,
+    turn_about_x,
 )
 from meshdeform.export.registry import EXPORTERS, ExportSession, make_exporter
 
@@ -37,7 +38,8 @@ __all__ = [
     "ExportSession",
     "Exporter",
     "FrameData",
-    "convert_up_axis",
     "frame_file_name",
     "make_exporter",
+    "quarter_turns",
+    "turn_about_x",
 ]

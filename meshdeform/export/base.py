@@ -40,9 +40,13 @@ class ExportContext:
     start_frame: the scene frame of the rest pose (frame index 0): frame index k is scene frame
         `start_frame + k`, the state k / fps seconds after the start (`scene_frame`), as Blender's
         own cloth cache numbers them. File names, cache samples and USD time codes use it.
-    up_axis: "y" keeps the input's coordinates (Y up, as OBJ); "z" converts point caches and USD
-        to a Z-up world as Blender's: (x, y, z) -> (x, -z, y). None for start_frame or up_axis
-        means the default.
+    input_up: the input's up axis ("y", as OBJ files are, or "z": the recipe's `simulation.up`);
+        the world the solver ran in.
+    up_axis: the world point caches and USD are written in ("y" or "z"); None: `input_up` (the
+        input's coordinates unchanged). From a Y-up input "z" turns them into Blender's Z-up
+        world, (x, y, z) -> (x, -z, y); from a Z-up input "y" turns them back. glTF and VAT are
+        always written Y up (`to_y_up`), OBJ/PLY/NPZ/VTK always in the input's coordinates.
+        None for start_frame means the default.
     frame_count: the number of simulated frames (after the rest pose), when known (file-name
         padding; otherwise 4 digits).
     """
@@ -51,22 +55,38 @@ class ExportContext:
     out_dir: Path
     fps: float
     start_frame: int = 1
-    up_axis: str = "y"
+    up_axis: str | None = None
     frame_count: int | None = None
+    input_up: str = "y"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "out_dir", Path(self.out_dir))
         # None means "the default", so callers can pass optional recipe values straight through
-        object.__setattr__(self, "up_axis", "y" if self.up_axis is None else str(self.up_axis).lower())
+        object.__setattr__(self, "input_up", "y" if self.input_up is None else str(self.input_up).lower())
+        object.__setattr__(self, "up_axis", self.input_up if self.up_axis is None else str(self.up_axis).lower())
         object.__setattr__(self, "start_frame", 1 if self.start_frame is None else int(self.start_frame))
-        if self.up_axis not in UP_AXES:
-            raise ExportError(f"up axis must be one of {', '.join(UP_AXES)}, not {self.up_axis!r}")
+        for axis in (self.input_up, self.up_axis):
+            if axis not in UP_AXES:
+                raise ExportError(f"up axis must be one of {', '.join(UP_AXES)}, not {axis!r}")
         if not (np.isfinite(self.fps) and self.fps > 0):
             raise ExportError(f"fps must be a positive number, not {self.fps!r}")
 
     def scene_frame(self, index: int) -> int:
         """The scene frame of frame index `index` (0: the rest pose)."""
         return self.start_frame + int(index)
+
+    @property
+    def output_turns(self) -> int:
+        """Quarter turns about X from the input's world to `up_axis`'s (`quarter_turns`)."""
+        return quarter_turns(self.input_up, str(self.up_axis))
+
+    def to_output_world(self, points: np.ndarray) -> np.ndarray:
+        """Points or normals (..., 3) of the run in the world of the point caches and USD."""
+        return turn_about_x(points, self.output_turns)
+
+    def to_y_up(self, points: np.ndarray) -> np.ndarray:
+        """Points or normals (..., 3) of the run in a Y-up world (glTF by specification, VAT)."""
+        return turn_about_x(points, quarter_turns(self.input_up, "y"))
 
     @property
     def last_scene_frame(self) -> int | None:
@@ -142,15 +162,26 @@ def leading_samples(ctx: ExportContext, first_index: int) -> int:
     return max(ctx.scene_frame(first_index), 0)
 
 
-def convert_up_axis(points: np.ndarray, up_axis: str) -> np.ndarray:
-    """Points (or normals) in the requested world: "y" unchanged, "z" maps (x, y, z) -> (x, -z, y)."""
-    if up_axis == "y":
+def quarter_turns(source: str, target: str) -> int:
+    """Quarter turns about X that take a `source`-up world to a `target`-up one, as `turn_about_x`
+    counts them: 0 for the same axis, +1 from Y up to Z up, -1 from Z up to Y up."""
+    return {("y", "z"): 1, ("z", "y"): -1}.get((source, target), 0)
+
+
+def turn_about_x(points: np.ndarray, turns: int) -> np.ndarray:
+    """Points or normals (..., 3) turned by `turns` quarter turns about +X: +1 maps (x, y, z) to
+    (x, -z, y) (a Y-up world into Blender's Z-up one, as its OBJ exporter's inverse), -1 back to
+    (x, z, -y); 0 returns `points` itself."""
+    turns = int(turns) % 4
+    if turns == 0:
         return points
-    out = np.empty_like(points)
-    out[:, 0] = points[:, 0]
-    out[:, 1] = -points[:, 2]
-    out[:, 2] = points[:, 1]
-    return out
+    points = np.asarray(points)
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    if turns == 1:
+        return np.stack([x, -z, y], axis=-1)
+    if turns == 3:
+        return np.stack([x, z, -y], axis=-1)
+    return np.stack([x, -y, -z], axis=-1)
 
 
 class BaseExporter:

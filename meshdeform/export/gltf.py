@@ -15,10 +15,11 @@ not follow the cloth): the normals are computed from each frame's positions. The
 listed in `meshes[0].extras.groups` (name -> input face indices) rather than split into primitives:
 one primitive keeps the vertex order importers read (Blender rebuilds its mesh per primitive).
 
-Coordinates are the input's unchanged whatever `up_axis`: glTF is Y up by specification, and every
-importer converts to its own world (Blender: (x, y, z) -> (x, -z, y)). The GLB is written at close
-from spools of float32 deltas (memory stays flat), through a temporary name. A topology change
-(tearing) is refused: morph targets need a fixed vertex count. Written with NumPy, `json` and
+Coordinates are Y up whatever `up_axis`, as glTF's specification requires: the input's unchanged
+from a Y-up input, turned from a Z-up one (`simulation.up = "z"`: (x, y, z) -> (x, z, -y),
+`ExportContext.to_y_up`); every importer converts to its own world (Blender: (x, y, z) -> (x, -z, y)).
+The GLB is written at close from spools of float32 deltas (memory stays flat), through a temporary
+name. A topology change (tearing) is refused: morph targets need a fixed vertex count. Written with NumPy, `json` and
 `struct`, no dependency (docs/recipes.md, "glTF").
 """
 
@@ -114,7 +115,7 @@ class GltfExporter(BaseExporter):
         self._bounds: list[tuple[list[float], list[float]]] = []
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
-        points = np.asarray(positions, dtype=np.float64)
+        points = ctx.to_y_up(np.asarray(positions, dtype=np.float64))  # glTF is Y up
         normals = _unit_normals(mesh, points, self._source)
         points = points[self._source]
         if self._rest is None:

@@ -24,7 +24,7 @@ from typing import ClassVar
 import numpy as np
 
 from meshdeform.atomic import atomic_open
-from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis, leading_samples
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData, leading_samples
 from meshdeform.export.results import (
     PointCacheReadBack,
     ResultFrames,
@@ -72,7 +72,7 @@ class MddExporter(BaseExporter):
         self._times: list[float] = []
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
-        data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=MDD_FLOAT)
+        data = np.ascontiguousarray(ctx.to_output_world(positions), dtype=MDD_FLOAT)
         if not self._times:  # the first frame also fills the samples of scene frames 0 .. it - 1
             lead = leading_samples(ctx, frame.index)
             for k in range(lead):
@@ -124,7 +124,7 @@ def mdd_fps(times: np.ndarray) -> float | None:
     return None
 
 
-def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
+def read_mdd_result(root: Path, input_mesh: Mesh | None, turns: int | None) -> ResultFrames | None:
     """The frames of a result folder's `cache.mdd` on the input mesh (`point_cache_frames`: every sample,
     sample k numbered the first time's scene frame (first time * fps, 0 as ours are written) + k; fps
     from its first two times), or None when there is none; MeshLoadError when there is one but no input
@@ -137,7 +137,7 @@ def read_mdd_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) ->
     fps = mdd_fps(times)
     first = float(times[0]) * fps if fps is not None else 0.0
     number = round(first) if abs(first - round(first)) < 1e-3 else 0
-    return point_cache_frames(path, positions, mesh, up_axis, fps=fps, first_number=number)
+    return point_cache_frames(path, positions, mesh, turns, fps=fps, first_number=number)
 
 
 class MddReadBack(PointCacheReadBack):

@@ -78,7 +78,7 @@ class NpzExporter(BaseExporter):
         return ResultReading(
             priority=30,
             looks_for=FILE_NAME,
-            read=lambda root, input_mesh, up_axis: read_npz_result(root, input_mesh),
+            read=lambda root, input_mesh, turns: read_npz_result(root, input_mesh),
             read_back=NpzReadBack,
         )
 

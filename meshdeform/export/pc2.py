@@ -29,7 +29,6 @@ from meshdeform.export.base import (
     ExportContext,
     FrameData,
     StreamedFile,
-    convert_up_axis,
     leading_samples,
 )
 from meshdeform.export.results import (
@@ -85,7 +84,7 @@ class Pc2Exporter(BaseExporter):
             raise ExportError(
                 f"pc2: frames must be consecutive (one sample per frame): frame {frame.index} after {self._last_index}"
             )
-        data = np.ascontiguousarray(convert_up_axis(positions, ctx.up_axis), dtype=PC2_FLOAT)
+        data = np.ascontiguousarray(ctx.to_output_world(positions), dtype=PC2_FLOAT)
         repeats = 1 + (leading_samples(ctx, frame.index) if self._samples == 0 else 0)
         for _ in range(repeats):  # the first frame also fills the samples of scene frames 0 .. it - 1
             self._file.handle.write(data.tobytes())
@@ -122,7 +121,7 @@ def read_pc2(path: str | Path) -> tuple[np.ndarray, float, float]:
     return data.reshape(samples, points, 3), float(start), float(rate)
 
 
-def read_pc2_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
+def read_pc2_result(root: Path, input_mesh: Mesh | None, turns: int | None) -> ResultFrames | None:
     """The frames of a result folder's `cache.pc2` on the input mesh (`point_cache_frames`: every sample,
     sample k numbered the header's start frame + k, scene frame k as ours are written), or None when
     there is none; MeshLoadError when there is one but no input mesh."""
@@ -132,7 +131,7 @@ def read_pc2_result(root: Path, input_mesh: Mesh | None, up_axis: str | None) ->
     mesh = require_input_mesh(root, input_mesh)
     positions, start, _ = read_pc2(path)
     first = round(start) if np.isfinite(start) else 0
-    return point_cache_frames(path, positions, mesh, up_axis, fps=None, first_number=first)
+    return point_cache_frames(path, positions, mesh, turns, fps=None, first_number=first)
 
 
 class Pc2ReadBack(PointCacheReadBack):

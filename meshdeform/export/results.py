@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from meshdeform.errors import MeshLoadError
-from meshdeform.export.base import ExportContext, FrameData, convert_up_axis
+from meshdeform.export.base import ExportContext, FrameData, quarter_turns, turn_about_x
 from meshdeform.mesh import Mesh
 
 #: a frame read back: positions (V, 3) in the base mesh's layout, or a Mesh when its topology differs
@@ -124,39 +124,48 @@ def prefer_input(base: Mesh, input_mesh: Mesh | None) -> Mesh:
     return input_mesh if input_mesh is not None and input_mesh.vertex_count == base.vertex_count else base
 
 
-def restore_up_axis(points: np.ndarray, up_axis: str) -> np.ndarray:
-    """Undo `convert_up_axis`: Blender's (x, -z, y) back to the input's (x, y, z); any leading shape."""
-    if up_axis == "y":
-        return points
-    return np.stack([points[..., 0], points[..., 2], -points[..., 1]], axis=-1)
+#: the quarter turns about X a point cache or USD stage can have been written with from the input
+#: (`ExportContext.output_turns`): none, from a Y-up input to Z up, from a Z-up input to Y up
+CACHE_TURNS = (0, 1, -1)
 
 
-def detect_up_axis(first: np.ndarray, rest: np.ndarray) -> str:
-    """The convention a point cache's first frame (V, 3) was written in: the one that puts it closest to
-    the rest pose (the first frame is close to rest)."""
-    error_y = np.abs(first - rest).mean()
-    error_z = np.abs(restore_up_axis(first, "z") - rest).mean()
-    return "z" if error_z < error_y else "y"
+def restore_input_world(points: np.ndarray, turns: int) -> np.ndarray:
+    """Undo `ExportContext.to_output_world`: points (..., 3) written with `turns` quarter turns back
+    in the input's coordinates."""
+    return turn_about_x(points, -turns)
+
+
+def detect_turns(first: np.ndarray, rest: np.ndarray) -> int:
+    """The quarter turns (`CACHE_TURNS`) a point cache's first frame (V, 3) was written with: the ones
+    whose undoing puts it closest to the rest pose (the first frame is close to rest)."""
+    errors = [float(np.abs(restore_input_world(first, t) - rest).mean()) for t in CACHE_TURNS]
+    return CACHE_TURNS[int(np.argmin(errors))]
+
+
+def turns_for(up_axis: str | None, input_up: str = "y") -> int | None:
+    """The quarter turns of outputs written in `up_axis` from a `input_up` input; None when unknown."""
+    return None if up_axis is None else quarter_turns(input_up, up_axis)
 
 
 def point_cache_frames(
     path: Path,
     positions: np.ndarray,
     input_mesh: Mesh,
-    up_axis: str | None,
+    turns: int | None,
     fps: float | None,
     first_number: int = 0,
 ) -> ResultFrames:
     """The frames of a point cache (`positions` (F, V, 3) as stored) on the input mesh's topology, every
     sample (leading copies included), numbered `first_number` + sample index (the scene frame).
 
-    `up_axis` is the convention the cache was written in; None: `detect_up_axis`.
+    `turns`: the quarter turns about X the cache was written with (`ExportContext.output_turns`);
+    None: `detect_turns`.
     """
     if positions.shape[1:] != (input_mesh.vertex_count, 3):
         raise MeshLoadError(f"{path}: {positions.shape[1]} points, the input mesh has {input_mesh.vertex_count}")
-    if up_axis is None:
-        up_axis = detect_up_axis(positions[0], input_mesh.positions)
-    frames = list(restore_up_axis(positions.astype(np.float64), up_axis))
+    if turns is None:
+        turns = detect_turns(positions[0], input_mesh.positions)
+    frames = list(restore_input_world(positions.astype(np.float64), turns))
     numbers = list(range(first_number, first_number + len(frames)))
     return ResultFrames(input_mesh, frames, numbers, path.name, fps=fps)
 
@@ -226,15 +235,15 @@ class PointCacheReadBack(ReadBack):
     detected from the first frame as the reader does (the report naming it does not exist yet)."""
 
     def keep(self, positions: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(convert_up_axis(positions, self.ctx.up_axis), dtype=np.float32)
+        return np.ascontiguousarray(self.ctx.to_output_world(positions), dtype=np.float32)
 
     def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
         self.base = self.ctx.mesh
-        self.up_axis = detect_up_axis(kept, self.base.positions)
+        self.turns = detect_turns(kept, self.base.positions)
         return self.base
 
     def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
-        return restore_up_axis(kept.astype(np.float64), self.up_axis)
+        return restore_input_world(kept.astype(np.float64), self.turns)
 
 
 @dataclass(frozen=True)
@@ -247,7 +256,8 @@ class ResultReading:
         Distinct across the registry.
     looks_for: the files `read` reads, as the error for a folder without frames names them. Formats that
         write the same files (obj and ply: `frames/`) share one reader, searched once.
-    read: (folder, input mesh or None, point-cache up axis or None) -> the frames found, or None when the
+    read: (folder, input mesh or None, the quarter turns point caches were written with or None: detect
+        them) -> the frames found, or None when the
         folder holds none of the files; MeshLoadError when they are there but cannot be read.
     read_back: the `ReadBack` of what `read` reads from the folder a run writes, on the run's context.
     folder_pinned: (folder, vertex count n) -> the (n,) pinned mask the format's files carry, used when the
@@ -257,7 +267,7 @@ class ResultReading:
 
     priority: int
     looks_for: str
-    read: Callable[[Path, Mesh | None, str | None], ResultFrames | None]
+    read: Callable[[Path, Mesh | None, int | None], ResultFrames | None]
     read_back: Callable[[ExportContext], ReadBack]
     folder_pinned: Callable[[Path, int], np.ndarray | None] | None = None
     frame_pinned: Callable[[FrameData, int], np.ndarray | None] | None = None

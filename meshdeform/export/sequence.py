@@ -145,7 +145,7 @@ class FrameFilesReadBack(ReadBack):
         return kept.astype(np.float64) if self._same[1] else self._as_read(mesh, kept)
 
 
-def _read_any_frame_files(root: Path, input_mesh: Mesh | None, up_axis: str | None) -> ResultFrames | None:
+def _read_any_frame_files(root: Path, input_mesh: Mesh | None, turns: int | None) -> ResultFrames | None:
     return read_frame_files(root, input_mesh)
 
 

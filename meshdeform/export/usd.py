@@ -6,8 +6,9 @@
 `meshdeform.geometry.normal_layout`) and `extent`, and the UVs as an indexed faceVarying primvar `st`
 when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside it.
 The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame index k (0: the
-rest pose) sits at time code `start_frame + k`, and `upAxis` is Y (or Z with `up_axis="z"`, the
-points then converted as for Blender's world). When the topology changes (tearing) the face lists and UV
+rest pose) sits at time code `start_frame + k`, and `upAxis` is `ExportContext.up_axis` (the
+input's unless `[output] up_axis` says otherwise: the points then turned into that world,
+`ExportContext.to_output_world`). When the topology changes (tearing) the face lists and UV
 indices become time-sampled too, from that frame on. States between frames (`FrameData.subframes`,
 `[output] subframes`: motion blur) are time samples at their fractional time codes
 (start_frame + time * fps).
@@ -27,8 +28,16 @@ import numpy as np
 
 from meshdeform.atomic import atomic_path
 from meshdeform.errors import ExportError, MeshLoadError
-from meshdeform.export.base import BaseExporter, ExportContext, FrameData, convert_up_axis
-from meshdeform.export.results import FrameItem, ReadBack, ResultFrames, ResultReading, prefer_input, restore_up_axis
+from meshdeform.export.base import BaseExporter, ExportContext, FrameData
+from meshdeform.export.results import (
+    FrameItem,
+    ReadBack,
+    ResultFrames,
+    ResultReading,
+    detect_turns,
+    prefer_input,
+    restore_input_world,
+)
 from meshdeform.geometry import normal_layout, surface_normals, vertex_normals
 from meshdeform.mesh import Mesh
 
@@ -91,7 +100,7 @@ class UsdExporter(BaseExporter):
         return ResultReading(
             priority=40,
             looks_for="scene.usdc",
-            read=lambda root, input_mesh, up_axis: read_usd_result(root, input_mesh),
+            read=read_usd_result,
             read_back=UsdReadBack,
         )
 
@@ -190,7 +199,7 @@ class UsdExporter(BaseExporter):
         from pxr import Usd, Vt
 
         time = Usd.TimeCode(code)
-        points = convert_up_axis(np.asarray(positions, dtype=np.float64), ctx.up_axis)
+        points = ctx.to_output_world(np.asarray(positions, dtype=np.float64))
         points32 = np.ascontiguousarray(points, dtype=np.float32)
         lo, hi = points32.min(axis=0), points32.max(axis=0)
         extent = Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32))
@@ -205,7 +214,7 @@ class UsdExporter(BaseExporter):
                 else:
                     normals = vertex_normals(mesh, positions)
                     interpolation = "vertex"
-                normals = convert_up_axis(normals, ctx.up_axis)
+                normals = ctx.to_output_world(normals)
                 self._geom.GetNormalsAttr().Set(
                     Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, dtype=np.float32)), time
                 )
@@ -237,12 +246,18 @@ class UsdExporter(BaseExporter):
         self._atomic.__exit__(type(err), err, None)
 
 
-def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
+def read_usd_frames(
+    path: Path, turns: int | None = None, rest: np.ndarray | None = None
+) -> tuple[Mesh, np.ndarray, list[int], float]:
     """A stage's first `UsdGeom.Mesh`: (mesh at its default topology and first sample, positions (F, V, 3)
-    in the input's Y-up coordinates, frame numbers: the time codes, scene frames as ours are written (a
+    in the input's coordinates, frame numbers: the time codes, scene frames as ours are written (a
     stage without time samples: its start time code, else 1), time codes per second). Samples between
     whole time codes (motion-blur subframes) are not frames, unless the stage has no others.
-    MeshLoadError when it cannot be opened, has no mesh or its vertex count changes over time."""
+    MeshLoadError when it cannot be opened, has no mesh or its vertex count changes over time.
+
+    The points are turned back by `turns` quarter turns (`ExportContext.output_turns`); None: the
+    ones that bring the first sample closest to `rest` (V, 3), the input's rest pose, when given
+    with the stage's vertex count, else those of a Y-up input (a Z-up stage turned back to Y up)."""
     start_usd()
     from pxr import Usd, UsdGeom
 
@@ -260,10 +275,11 @@ def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     frames = [c for c in samples if abs(c - round(c)) < 1e-6]  # whole time codes: frames (others: subframes)
     codes = frames or samples or [Usd.TimeCode.Default()]
     z_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
-    positions = []
-    for code in codes:
-        p = np.asarray(points_attr.Get(code), dtype=np.float64)
-        positions.append(restore_up_axis(p, "z" if z_up else "y"))
+    stored = [np.asarray(points_attr.Get(code), dtype=np.float64) for code in codes]
+    if turns is None:
+        matches = rest is not None and stored[0].shape == np.shape(rest)
+        turns = detect_turns(stored[0], np.asarray(rest)) if matches else (1 if z_up else 0)
+    positions = [restore_input_world(p, turns) for p in stored]
     if len({p.shape for p in positions}) != 1:
         raise MeshLoadError(f"{path}: the topology changes over time; preview the frames/ files instead")
     offsets = np.concatenate([[0], np.cumsum(counts)])
@@ -275,12 +291,14 @@ def read_usd_frames(path: Path) -> tuple[Mesh, np.ndarray, list[int], float]:
     return mesh, np.stack(positions), numbers, float(stage.GetTimeCodesPerSecond() or 24.0)
 
 
-def read_usd_result(root: Path, input_mesh: Mesh | None) -> ResultFrames | None:
-    """The frames of a result folder's `scene.usdc` (or `.usda`, `.usd`), or None when there is none."""
+def read_usd_result(root: Path, input_mesh: Mesh | None, turns: int | None = None) -> ResultFrames | None:
+    """The frames of a result folder's `scene.usdc` (or `.usda`, `.usd`), or None when there is none;
+    `turns` as `read_usd_frames` (None: detected against the input mesh's rest pose)."""
     usd = next((root / n for n in ("scene.usdc", "scene.usda", "scene.usd") if (root / n).is_file()), None)
     if usd is None:
         return None
-    base, stacked, numbers, fps = read_usd_frames(usd)
+    rest = None if input_mesh is None else input_mesh.positions
+    base, stacked, numbers, fps = read_usd_frames(usd, turns, rest)
     return ResultFrames(prefer_input(base, input_mesh), list(stacked), numbers, usd.name, fps=fps)
 
 
@@ -297,11 +315,11 @@ class UsdReadBack(ReadBack):
         self._error: MeshLoadError | None = None
 
     def keep(self, positions: np.ndarray) -> np.ndarray:
-        points = convert_up_axis(np.asarray(positions, dtype=np.float64), self.ctx.up_axis)
+        points = self.ctx.to_output_world(np.asarray(positions, dtype=np.float64))
         return np.ascontiguousarray(points, dtype=np.float32)
 
     def item(self, mesh: Mesh, kept: np.ndarray) -> FrameItem:
-        return restore_up_axis(kept.astype(np.float64), self.ctx.up_axis)
+        return restore_input_world(kept.astype(np.float64), self.ctx.output_turns)
 
     def start(self, frame: FrameData, mesh: Mesh, kept: np.ndarray) -> Mesh:
         self.fps = float(self.ctx.fps)  # the stage's timeCodesPerSecond

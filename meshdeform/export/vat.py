@@ -27,7 +27,9 @@ mesh carries a second UV set pointing each vertex at its texel. Written into `va
   `rows_per_frame`, `bounds_min`, `bounds_max`, the texture and mesh file names, `fps`,
   `start_frame`, the encodings and conventions in words, `uv2`).
 
-The coordinates are the input's (Y up, as the OBJ), whatever `up_axis` says. An axis on which
+The coordinates are Y up whatever `up_axis` says, as the mesh.glb's must be and engines import
+meshes: the input's from a Y-up input, turned from a Z-up one (`ExportContext.to_y_up`); the
+textures, mesh.obj and mesh.glb agree. An axis on which
 nothing moves or extends (a flat sheet's z at rest) would have a zero range: its bounds are
 widened by `ZERO_RANGE_PAD` each side and `vat.json`'s `bounds_widened` names it. Positions and
 normals are spooled to anonymous temporary files as the frames come (float64 / float32) and
@@ -207,7 +209,7 @@ class VatExporter(BaseExporter):
         self._high = np.full(3, -np.inf)
 
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
-        pos = np.ascontiguousarray(positions, dtype=np.float64)
+        pos = np.ascontiguousarray(ctx.to_y_up(np.asarray(positions, dtype=np.float64)))
         if pos.shape[0]:
             self._low = np.minimum(self._low, pos.min(axis=0))
             self._high = np.maximum(self._high, pos.max(axis=0))
@@ -228,10 +230,12 @@ class VatExporter(BaseExporter):
         ]
         del positions, normals
         uvs = vat_uvs(vertices, width, height)
-        finished.append(self._mesh_file(ctx.mesh, uvs))
+        normals = None if ctx.mesh.normals is None else ctx.to_y_up(np.asarray(ctx.mesh.normals))
+        y_up = replace(ctx.mesh, positions=ctx.to_y_up(np.asarray(ctx.mesh.positions)), normals=normals)
+        finished.append(self._mesh_file(y_up, uvs))
         target = self._folder / GLB_FILE
         with atomic_open(target, "wb") as out:
-            out.write(glb_bytes(ctx.mesh, uvs))
+            out.write(glb_bytes(y_up, uvs))
         self._written.append(target)
         finished.append(target)
         finished.append(self._description(ctx, n, width, rows, height, low, high, uvs))
@@ -323,7 +327,7 @@ class VatExporter(BaseExporter):
             "mesh_gltf": GLB_FILE,
             "bit_depth": 16,
             "channels": "RGB = xyz",
-            "coordinates": "the input's (Y up, as OBJ)",
+            "coordinates": "Y up, right-handed (as glTF): the input's, turned from a Z-up input",
             "texel": "vertex v of frame f is texel x = v % width, y = f * rows_per_frame + v // width",
             "row_order": "row 0 is the top row of the PNG (image row order)",
             "position_encoding": "position = bounds_min + value / 65535 * (bounds_max - bounds_min)",

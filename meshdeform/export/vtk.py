@@ -129,7 +129,7 @@ class VtkExporter(BaseExporter):
         return ResultReading(
             priority=50,
             looks_for=f"{FOLDER}/*.vtp",
-            read=lambda root, input_mesh, up_axis: read_vtk_result(root, input_mesh),
+            read=lambda root, input_mesh, turns: read_vtk_result(root, input_mesh),
             read_back=VtkReadBack,
             folder_pinned=vtp_pinned,
             frame_pinned=first_frame_pinned,

@@ -20,7 +20,7 @@ import numpy as np
 from meshdeform.errors import MeshLoadError
 from meshdeform.export.base import ExportContext, FrameData
 from meshdeform.export.registry import EXPORTERS
-from meshdeform.export.results import FrameItem, ReadBack, ResultReading
+from meshdeform.export.results import FrameItem, ReadBack, ResultReading, turns_for
 from meshdeform.mesh import Mesh
 from meshdeform.preview.options import PreviewOptions, PreviewResult
 from meshdeform.preview.render import as_pinned_mask
@@ -151,8 +151,9 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
 
     The rest pose is `mesh` if given, else the input mesh named by `report.json` (key `input`)
     when it still exists, else the first frame. Point caches need that mesh for the topology;
-    their axis convention is `up_axis`, the report's `up_axis`, or whichever makes the first
-    frame closest to the rest pose. Pinned vertices come from the files read (`ResultFrames.pinned`),
+    their axis convention is `up_axis` (the world they were written in from a Y-up input), or
+    whichever turn makes the first frame closest to the rest pose (`detect_turns`). Pinned vertices
+    come from the files read (`ResultFrames.pinned`),
     else the report (`pinned`: vertex indices), else another format's files in the folder
     (`folder_pinned`); fps from the report, else the files read. Frame numbers are scene frames; the
     frames before the first one the run wrote (the report's `output_frames`, else `start_frame`: a point
@@ -170,10 +171,9 @@ def open_result(result_dir: str | Path, mesh: Mesh | None = None, up_axis: str |
     if input_mesh is None and (candidate := report_input(root, report)) is not None:
         with contextlib.suppress(MeshLoadError):
             input_mesh = load(candidate)
-    if up_axis is None and report.get("up_axis") in ("y", "z"):
-        up_axis = str(report["up_axis"])
+    turns = turns_for(up_axis)
     # the first reader that finds its files wins
-    found = next((f for f in (r.read(root, input_mesh, up_axis) for r in search_order()) if f is not None), None)
+    found = next((f for f in (r.read(root, input_mesh, turns) for r in search_order()) if f is not None), None)
     if found is None:
         raise no_frames_found(root)
     start_frame, first_written = report_frames(report)
