@@ -19,7 +19,7 @@ from typer.testing import CliRunner  # noqa: E402
 
 from meshdeform.io import save  # noqa: E402
 from meshdeform.mesh import Mesh  # noqa: E402
-from meshdeform.preview import FrameRenderer, PreviewOptions, frame_camera, render_previews  # noqa: E402
+from meshdeform.preview import EdgeStrain, FrameRenderer, PreviewOptions, frame_camera, render_previews  # noqa: E402
 from meshdeform.preview.camera import CameraSetup  # noqa: E402
 from meshdeform.preview.colliders import ColliderSurfaces, Surface  # noqa: E402
 from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Sphere, TriangleMesh  # noqa: E402
@@ -138,6 +138,33 @@ def test_the_ground_is_a_floor_under_the_cloth() -> None:
         assert grey_mask(pixel(image, project(camera, point, SIZE)[0])[None, None])[0, 0], point
     for point in ([-0.6, 0.0, -0.6], [0.0, 0.4, 0.0]):
         assert blue_mask(pixel(image, project(camera, point, SIZE)[0])[None, None])[0, 0], point
+
+
+def test_a_strain_coloured_rope_shows_over_the_floor() -> None:
+    """A polyline (tubes) coloured by strain in front of the ground: drawn along its whole length, in the
+    colour map's colours (with 4x MSAA, tubes with texture-mapped scalars vanished behind the floor)."""
+    t = np.linspace(0.0, 1.0, 30)
+    points = np.stack([t - 0.5, 0.3 + 0.2 * np.sin(3 * t), 0.2 * t], axis=1)
+    rope = Mesh(
+        positions=points,
+        face_indices=np.zeros(0, np.int64),
+        face_offsets=np.zeros(1, np.int64),
+        line_indices=np.arange(30, dtype=np.int64),
+        line_offsets=np.array([0, 30], dtype=np.int64),
+    )
+    stretched = points.copy()
+    stretched[:, 0] *= 1.1  # stretched by 1.1 along x: reddish
+    ground = Collider(Plane([0.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    opts = PreviewOptions(**{**OPTIONS, "color": "strain", "view": "iso", "anti_aliasing": True})
+    bounds = np.stack([stretched.min(axis=0), stretched.max(axis=0)])
+    with FrameRenderer(rope, opts, bounds, (1.0, 1.2), None, ColliderSurfaces([ground], bounds)) as renderer:
+        image = renderer.render(stretched, EdgeStrain(rope, points)(stretched)).astype(int)
+        camera = renderer.camera
+    reddish = (image[..., 0] - image[..., 2] > 25) & (image[..., 0] > 90)
+    assert reddish.sum() > 100
+    columns = np.flatnonzero(reddish.any(axis=0))
+    ends = project(camera, stretched[[0, -1]], SIZE)[:, 0]
+    assert columns.max() - columns.min() > 0.8 * abs(ends[1] - ends[0])  # end to end, not in bits
 
 
 @pytest.mark.parametrize(

@@ -106,7 +106,7 @@ class FrameRenderer:
         kwargs: dict[str, Any] = {
             "show_edges": options.wireframe,
             "edge_color": "#303030",
-            "line_width": 1 if not lines_only else max(2, options.size[1] // 150),
+            "line_width": 1 if not lines_only else max(3, options.size[1] // 80),
             "render_lines_as_tubes": lines_only,
             "ambient": 0.4,
             "diffuse": 0.65,
@@ -114,6 +114,7 @@ class FrameRenderer:
             "specular_power": 20,
             "smooth_shading": False,
             "interpolation": "gouraud",
+            "interpolate_before_map": not lines_only,  # texture-mapped tubes vanish with MSAA and a floor
         }
         if colored:
             kwargs.update(

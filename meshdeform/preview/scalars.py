@@ -1,8 +1,7 @@
-"""The colouring values of a preview frame: per-vertex strain or displacement, and colour-bar ends."""
+"""The colouring values of a preview frame: per-vertex strain or displacement."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
@@ -94,13 +93,3 @@ class FrameScalars:
         assert self._edge_strain is not None
         return self._edge_strain(positions)
 
-
-def nice_ceiling(value: float) -> float:
-    """Round up to a readable colour-bar end: 1, 1.5, 2, 2.5, 3, 4, 5, 6 or 8 times a power of ten."""
-    if value <= 0:
-        return 1.0
-    exp = math.floor(math.log10(value))
-    for step in (1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0):
-        if step * 10.0**exp >= value * (1 - 1e-12):
-            return step * 10.0**exp
-    return 10.0 ** (exp + 1)

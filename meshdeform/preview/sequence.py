@@ -1,4 +1,4 @@
-"""Previews of a whole sequence: one pass for the bounds and colour range, then the frames rendered."""
+"""Previews of a whole sequence: one pass for the bounds and colour range of every frame, then the frames rendered."""
 
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ def _one_render_at_a_time(function: Callable[..., Any]) -> Callable[..., Any]:
 class SequencePreview:
     """The previews of one sequence in their two passes, so camera and colours are fixed before the first image.
 
-    `measure` takes every frame in order (the bounds of all of them, the colour range of those to render);
+    `measure` takes every frame in order (the bounds of what is framed in each, the colour range of all);
     `render` then renders the frames it `wants` (PNG and contact-sheet frames, or every frame for a video).
     `render_previews` runs both over a sequence; a run measures its frames as they are simulated and keeps
     only the wanted ones (`meshdeform.preview.live`). Arguments as `render_previews`'s; `strain` frames are
