@@ -22,7 +22,8 @@ positive definite (mass > 0 on every free vertex, weights > 0), so it is factori
 Cholesky (CHOLMOD through cholespy, with its fill-reducing ordering): one triangle L instead of
 SuperLU's L and U, less memory and a faster back-substitution. Only the lower triangle of the
 matrix is passed (CSC, duplicates summed by SciPy, which leaves CHOLMOD less to convert), and
-nothing but the factor (and one (n, 3) solution buffer) is kept; docs/performance.md has the
+nothing but the factor and (n, 3) buffers is kept (one for local/global, 2 HISTORY + 5 for
+L-BFGS: 15 MB at 65k vertices); docs/performance.md has the
 sizes. Pinned vertices are eliminated (their current positions go to the right-hand side). Then
 v' = 3 / (2 dt) (x' - 4/3 x_n + 1/3 x_n-1).
 
