@@ -353,6 +353,27 @@ def test_a_torn_mesh_time_samples_its_topology_in_the_animation_layer(tmp_path: 
     assert validation_errors(tmp_path / "out" / "scene.usdc") == []
 
 
+def test_a_split_set_torn_before_its_first_frame_reads_back_torn(tmp_path: Path) -> None:
+    """The rest layer keeps the input's topology; the animation layer's face lists from the first frame
+    on are the torn ones, and the reader takes the topology of the first frame."""
+    from dataclasses import replace
+
+    path, _ = write_obj(tmp_path, "flag.obj", ONE_OBJECT)
+    mesh = load(path)
+    torn_indices = mesh.face_indices.copy()
+    torn_indices[0] = mesh.vertex_count
+    torn = replace(mesh, positions=np.vstack([mesh.positions, mesh.positions[:1]]), face_indices=torn_indices)
+    ctx = ExportContext(mesh=mesh, out_dir=tmp_path / "out", fps=FPS, frame_count=2)
+    with ExportSession(["usd"], ctx, {"usd": {"layers": "split"}}) as session:
+        session.write(FrameData(index=1, time=1 / FPS, positions=torn.positions, mesh=torn))
+        session.write(FrameData(index=2, time=2 / FPS, positions=torn.positions + 0.1))
+    result = read_usd_result(tmp_path / "out", None)
+    assert result.numbers == [2, 3]
+    assert result.base.face_indices.tolist() == torn_indices.tolist()
+    np.testing.assert_allclose(result.frames[1], torn.positions + 0.1, atol=1e-6)
+    assert list(the_mesh(tmp_path / "out" / "rest.usdc").GetFaceVertexIndicesAttr().Get()) == mesh.face_indices.tolist()
+
+
 def test_the_estimate_is_on_the_high_side_for_every_layout(tmp_path: Path) -> None:
     path, _ = write_obj(tmp_path, "flag.obj", OVERLAPPING)
     mesh = load(path)

@@ -214,12 +214,13 @@ class UsdExporter(BaseExporter):
                 self._curves = UsdGeom.BasisCurves.Define(stage, f"{ROOT}/{name}_lines")
                 self._curves.GetPrim().SetDisplayName(f"{display} lines")
                 self._curves.CreateTypeAttr(UsdGeom.Tokens.linear)
-            self._author_topology(mesh, Usd.TimeCode.Default())
             if self._geom is not None:
                 author_face_sets(stage, self._geom, ROOT, sets, mesh.face_count)
-            if self.layers == "split":  # the rest asset: the input's rest pose as the points' defaults
+            if self.layers == "split":  # the rest asset: the input's topology and rest pose as defaults
+                self._author_topology(mesh, Usd.TimeCode.Default())
                 self._author_points(ctx, mesh, np.asarray(mesh.positions, dtype=np.float64), Usd.TimeCode.Default())
-        self._topology_mesh: Mesh = mesh
+        # one layer: the face lists of the first frame written (torn ones when a run tore before it)
+        self._topology_mesh: Mesh | None = mesh if self.layers == "split" else None
 
     def _author_topology(self, mesh: Mesh, code: Any) -> None:
         """Face lists, UV primvar and curve counts, as defaults or (after tearing) time samples."""
@@ -253,9 +254,12 @@ class UsdExporter(BaseExporter):
         from pxr import Usd
 
         code = float(ctx.scene_frame(frame.index))
+        if self._topology_mesh is None:
+            self._author_topology(mesh, Usd.TimeCode.Default())
+            self._topology_mesh = mesh
         with Usd.EditContext(self._stage, self._animation_target):
             if mesh is not self._topology_mesh:  # tearing: the face lists become time samples
-                if not self._topology_sampled and self._first_code is not None:  # the input's up to this frame
+                if not self._topology_sampled and self._first_code is not None:  # the first up to this frame
                     self._author_topology(self._topology_mesh, Usd.TimeCode(self._first_code))
                 self._topology_sampled = True
                 self._author_topology(mesh, Usd.TimeCode(code))
@@ -373,7 +377,7 @@ class UsdExporter(BaseExporter):
 def read_usd_frames(
     path: Path, turns: int | None = None, rest: np.ndarray | None = None
 ) -> tuple[Mesh, np.ndarray, list[int], float]:
-    """A stage's first `UsdGeom.Mesh`: (mesh at its default topology and first sample, positions (F, V, 3)
+    """A stage's first `UsdGeom.Mesh`: (mesh at its first frame's topology and points, positions (F, V, 3)
     in the input's coordinates, frame numbers: the time codes, scene frames as ours are written (a
     stage without time samples: its start time code, else 1), time codes per second). Samples between
     whole time codes (motion-blur subframes) are not frames, unless the stage has no others.
@@ -392,12 +396,13 @@ def read_usd_frames(
     if prim is None:
         raise MeshLoadError(f"{path}: no UsdGeom.Mesh in the stage")
     geom = UsdGeom.Mesh(prim)
-    counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
-    indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
     points_attr = geom.GetPointsAttr()
     samples = list(points_attr.GetTimeSamples())
     frames = [c for c in samples if abs(c - round(c)) < 1e-6]  # whole time codes: frames (others: subframes)
     codes = frames or samples or [Usd.TimeCode.Default()]
+    # the face lists at the first frame: their default, or their sample there when they are time-sampled
+    counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(codes[0]), dtype=np.int64)
+    indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get(codes[0]), dtype=np.int64)
     z_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
     stored = [np.asarray(points_attr.Get(code), dtype=np.float64) for code in codes]
     if turns is None:
