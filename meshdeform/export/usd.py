@@ -1,10 +1,13 @@
-"""USD export (usd-core): one stage `scene.usdc` (or `scene.usda`) for Blender, Houdini, Maya, Omniverse.
+"""USD export (usd-core): a stage `scene.usdc` (or `scene.usda`) for Blender, Houdini, Maya, Omniverse.
 
-`/Root` (default prim, Xform) holds a `UsdGeom.Mesh` with the topology authored once
+`/Root` (default prim, Xform, kind "component") holds a `UsdGeom.Mesh` with the topology authored once
 (faceVertexCounts / faceVertexIndices, quads stay quads, subdivisionScheme "none"), time-sampled
 `points`, `normals` (per vertex; per corner, faceVarying, when the input's normals have hard edges:
-`meshdeform.geometry.normal_layout`) and `extent`, and the UVs as an indexed faceVarying primvar `st`
-when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside it.
+`meshdeform.geometry.normal_layout`) and `extent`, and the UVs as an indexed faceVarying primvar named
+`uv_set` ("st") when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside
+it. The mesh is named as Blender's OBJ importer names the object (the one OBJ object holding every face,
+else the file's stem), made a valid prim name with the name itself as `displayName`; OBJ groups, objects
+and materials become GeomSubsets and placeholder materials bound to the faces (`usd_faces`).
 The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame index k (0: the
 rest pose) sits at time code `start_frame + k`, and `upAxis` is `ExportContext.up_axis` (the
 input's unless `[output] up_axis` says otherwise: the points then turned into that world,
@@ -13,8 +16,15 @@ indices become time-sampled too, from that frame on. States between frames (`Fra
 `[output] subframes`: motion blur) are time samples at their fractional time codes
 (start_frame + time * fps).
 
-Samples are authored as the frames come; the layer lives in memory until it is saved at close.
-`read_usd_result` reads the frames back (`meshdeform.export.results`).
+`layers = "split"` writes the same stage as three layers with the same prim paths: `rest.usdc`, the
+asset (everything but time samples: topology, UVs, subsets, materials, and the input's rest pose as the
+points', normals' and extent's defaults), `animation.usdc` (`over`s holding only the time samples, and
+the face lists' after a tear; it sublayers `./rest.usdc`) and `scene.usdc`, the stage to open, which
+sublayers `./animation.usdc`. Each layer carries the stage metadata, so each opens as a stage of its own.
+
+Samples are authored as the frames come, through an edit target on the layer they belong to; the layers
+live in memory until they are saved at close and renamed into place (`meshdeform.atomic`), rest first.
+`read_usd_result` reads the frames back from `scene.usdc`, composed (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
@@ -118,22 +128,33 @@ class UsdExporter(BaseExporter):
 
     @classmethod
     def estimated_bytes(
-        cls, mesh: Mesh, frames: int, *, ascii: bool = False, layers: str = "single", **options: Any
+        cls,
+        mesh: Mesh,
+        frames: int,
+        *,
+        ascii: bool = False,
+        layers: str = "single",
+        normals: bool = True,
+        **options: Any,
     ) -> int | None:
-        """float32 points (and normals) per frame, int32 topology once, UVs once, and the stage's own; with
-        `layers = "split"` the rest pose once more (rest.usdc) and two more layers' own; text layers
-        (`ascii`) at `_ASCII_FACTOR` times the crate's bytes."""
+        """float32 points and normals (per corner at hard edges, else per vertex) per frame, int32 topology
+        once, UVs once, subsets, and the stage's own; with `layers = "split"` the rest pose once more
+        (rest.usdc) and two more layers' own; the data of text layers (`ascii`) at `_ASCII_FACTOR` times the
+        crate's."""
         corners = int(mesh.face_indices.shape[0])
         uvs = 0 if mesh.uvs is None else 8 * int(mesh.uvs.shape[0]) + 4 * corners
         layout = normal_layout(mesh)
-        normals = 0 if layout is None else 12 * (corners if layout.hard_edges else mesh.vertex_count)
-        per_frame = 12 * mesh.vertex_count + normals + 64
+        per_corner = layout is not None and layout.hard_edges
+        normal_bytes = 0 if not normals else 12 * (corners if per_corner else mesh.vertex_count)
+        per_frame = 12 * mesh.vertex_count + normal_bytes + 24 + 64  # points, normals, extent, sample records
         listed = sum(int(np.size(f)) for f in mesh.groups.values()) + mesh.face_count  # groups, objects, materials
-        subsets = 4 * listed + 256 * len(mesh.statements)
-        size = 8192 + per_frame * frames + 4 * (corners + mesh.face_count) + uvs + subsets
+        subsets = 4 * listed + 512 * len(mesh.statements)
+        data = per_frame * frames + 4 * (corners + mesh.face_count) + uvs + subsets
+        own = 8192  # each layer's header, metadata and prim specs
         if layers == "split":
-            size += per_frame + 2 * 8192
-        return int(size * (_ASCII_FACTOR if ascii else 1))
+            data += per_frame
+            own *= 3
+        return int(own + data * (_ASCII_FACTOR if ascii else 1))
 
     @classmethod
     def reading(cls) -> ResultReading | None:
