@@ -45,12 +45,12 @@ def per_frame(mesh: Mesh, frames: list[np.ndarray], pinned: np.ndarray, options:
     strain = EdgeStrain(mesh, mesh.positions)
     started = time.perf_counter()
     renderer = FrameRenderer(mesh, options, bounds, (0.7, 1.3), pinned)
-    renderer.render(frames[0], 1, strain(frames[0]))  # the first frame also compiles shaders
+    renderer.overlay.decorate(renderer.render(frames[0], strain(frames[0])), 1)  # the first frame compiles shaders
     setup = time.perf_counter() - started
     count = min(40, len(frames))
     started, cpu = time.perf_counter(), time.process_time()
     for k in range(count):
-        renderer.render(frames[k], k + 1, strain(frames[k]))
+        renderer.overlay.decorate(renderer.render(frames[k], strain(frames[k])), k + 1)
     wall = (time.perf_counter() - started) / count
     cpu_time = (time.process_time() - cpu) / count
     renderer.close()

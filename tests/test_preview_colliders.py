@@ -88,7 +88,7 @@ def render_frame(mesh: Mesh, positions: np.ndarray, scene: list[Collider], view:
     bounds = np.stack([positions.min(axis=0), positions.max(axis=0)])
     surfaces = ColliderSurfaces(scene, bounds)
     with FrameRenderer(mesh, opts, bounds, None, None, surfaces) as renderer:
-        return renderer.render(positions, 1), renderer.camera
+        return renderer.render(positions), renderer.camera
 
 
 # ---------------------------------------------------------------------------------------------

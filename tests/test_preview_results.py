@@ -319,6 +319,24 @@ def test_a_runs_previews_from_memory_at_any_start_frame_and_frame_range_are_thos
     ]
 
 
+@pytest.mark.parametrize(
+    ("formats", "tear_at", "options"),
+    [
+        (["obj"], None, LIVE_OPTIONS),
+        (["obj"], 4, LIVE_OPTIONS),  # torn: the meshes stay in memory, the positions go to the file
+        (["vtk"], 4, {**LIVE_OPTIONS, "video": "mp4"}),  # the files' strain goes to the file too
+        (["pc2"], None, LIVE_OPTIONS),
+    ],
+)
+@pytest.mark.parametrize("memory_budget", [0, 3000])
+def test_a_runs_previews_past_their_memory_budget_are_still_those_read_back(
+    tmp_path: Path, formats: list[str], tear_at: int | None, options: dict, memory_budget: int
+) -> None:
+    """Frames kept past `memory_budget` bytes (none, or the first few frames, in memory) wait in a scratch
+    file in the run's folder: the same files, and the scratch file gone once they are rendered."""
+    assert_live_previews_are_read_back(tmp_path, formats, "y", tear_at, options, memory_budget=memory_budget)
+
+
 def assert_live_previews_are_read_back(
     tmp_path: Path,
     formats: list[str],
@@ -327,12 +345,14 @@ def assert_live_previews_are_read_back(
     options: dict,
     start_frame: int = 1,
     indices: tuple[int, int] = (0, FRAMES),
+    memory_budget: int | None = None,
 ) -> dict[str, bytes] | str:
     """A run of `run_frames` written in `formats` from frame index indices[0] to indices[1], its previews
     from memory (`RunPreview`) against those of its folder read back with the report's frame range
-    (`start_frame`, `output_frames`: the keys run_job writes that `open_result` reads the frames by; the
+    (`fps`, `start_frame`, `output_frames`: the keys run_job writes that `open_result` reads the frames by; the
     run's report.json is written after its previews, so it is written here by hand). Returns the files
-    read back (relative name -> bytes), or the error both raised."""
+    read back (relative name -> bytes), or the error both raised. memory_budget: the bytes of kept frames
+    `RunPreview` holds in memory (the rest in its scratch file; default its own)."""
     from meshdeform.preview.live import RunPreview
 
     mesh, model, _ = grid_cloth(10, pins=("top",))
@@ -344,13 +364,14 @@ def assert_live_previews_are_read_back(
         up_axis=up_axis,
         start_frame=start_frame,
     )
-    live = RunPreview(options, ctx, formats, model)
+    budget = {} if memory_budget is None else {"memory_budget": memory_budget}
+    live = RunPreview(options, ctx, formats, model, **budget)
     with ExportSession(formats, ctx) as session:
         for frame in run_frames(mesh, tear_at)[indices[0] : indices[1] + 1]:
             session.write(frame)
             live.add(frame)
     written = [ctx.scene_frame(indices[0]), ctx.scene_frame(indices[1])]
-    report = {"start_frame": start_frame, "output_frames": written}
+    report = {"fps": ctx.fps, "start_frame": start_frame, "output_frames": written}
     (ctx.out_dir / "report.json").write_text(json.dumps(report))
 
     def outcome(render) -> dict[str, bytes] | str:
@@ -364,7 +385,11 @@ def assert_live_previews_are_read_back(
     read_back = outcome(
         lambda: render_result_previews(ctx.out_dir, options, mesh=mesh, model=model, out_dir=tmp_path / "read")
     )
+    if memory_budget is not None:
+        assert live.spool.path is not None and live.spool.path.parent == ctx.out_dir
+        assert live.spool.file_bytes > 0 and live.spool.memory_bytes <= memory_budget
     in_memory = outcome(lambda: live.render(tmp_path / "live").files)
+    assert not list(ctx.out_dir.glob(".preview-spool-*"))  # the scratch file is gone
     if isinstance(read_back, dict):
         assert sorted(read_back) == sorted(in_memory)
         assert [n for n in read_back if read_back[n] != in_memory[n]] == []

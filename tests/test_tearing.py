@@ -217,7 +217,7 @@ def test_a_torn_frame_renders_with_a_gap_between_the_pieces(pulled: Path) -> Non
 
     def occupied_runs(mesh) -> int:
         with FrameRenderer(first, options, bounds, None) as renderer:
-            image = renderer.render(mesh.positions, 1, None, mesh).astype(int)
+            image = renderer.render(mesh.positions, None, mesh).astype(int)
         filled = (np.abs(image - 255).sum(axis=2) > 30).any(axis=0)  # columns with any non-white pixel
         edges = np.diff(filled.astype(int))
         return int((edges == 1).sum() + filled[0])

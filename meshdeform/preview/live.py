@@ -10,15 +10,19 @@ before the first frame are not shown), and the run's model for the pinned vertic
 the base has the input's vertex count. The run's colliders are drawn at each frame's time since the
 rest pose by the run's fps (`ctx.fps`), as `render_result` given them draws them by the report's.
 
+The video runs at the run's fps (`ctx.fps`, which its report.json records and `render_result` reads).
+
 Memory: each frame is measured (bounds, colour range) as it comes; only the frames to render are
-kept (every frame with a video), at the files' precision (float32 for all but OBJ). Errors are kept
-until `render`, as they came when the previews were rendered after the run.
+kept (every frame with a video), at the files' precision (float32 for all but OBJ), in memory up to
+`memory_budget` bytes and past it in a scratch file in `ctx.out_dir` (`spool.ArraySpool`), deleted
+once they are rendered. Errors are kept until `render`, as they came when the previews were rendered
+after the run.
 """
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +33,28 @@ from meshdeform.mesh import Mesh
 from meshdeform.preview.options import PreviewOptions, PreviewResult
 from meshdeform.preview.results import frame_pinned, no_frames_found, read_back_for, welded_strain
 from meshdeform.preview.sequence import SequencePreview
+from meshdeform.preview.spool import MEMORY_BUDGET, ArraySpool
 from meshdeform.scene.colliders import Collider
+
+
+class _KeptStrain(Mapping[int, np.ndarray]):
+    """The files' strain of the frames measured, by position k: the frame being measured, then the kept ones."""
+
+    def __init__(self, spool: ArraySpool) -> None:
+        self.spool = spool
+        self.current: dict[int, np.ndarray] = {}
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        if k in self.current:
+            return self.current[k]
+        return self.spool[(k, "strain")]
+
+    def __iter__(self) -> Iterator[int]:
+        yield from self.current
+        yield from (key[0] for key in self.spool if key[1] == "strain")
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
 
 
 class RunPreview:
@@ -38,6 +63,7 @@ class RunPreview:
     options: as `render_previews` takes them (a recipe's `[output] preview` table). model: the run's
     SpringModel (its `vertex_map`, `pinned` and springs for the strain). colliders: the run's scene's
     colliders, drawn at each frame's time ((scene frame - `ctx.start_frame`) / `ctx.fps`).
+    memory_budget: bytes of kept frames held in memory (module docstring).
     """
 
     def __init__(
@@ -47,6 +73,7 @@ class RunPreview:
         formats: Sequence[str],
         model: Any,
         colliders: Sequence[Collider] = (),
+        memory_budget: int = MEMORY_BUDGET,
     ) -> None:
         self.ctx = ctx
         self.colliders = list(colliders)
@@ -57,8 +84,9 @@ class RunPreview:
         self._mesh: Mesh = ctx.mesh  # the mesh in force
         self._base: Mesh | None = None
         self._preview: SequencePreview | None = None
-        self._kept: dict[int, tuple[Mesh, np.ndarray]] = {}
-        self._strain: dict[int, np.ndarray] = {}
+        self._spool = ArraySpool(ctx.out_dir, memory_budget)
+        self._kept: dict[int, Mesh] = {}  # the mesh of each kept frame; its positions: spool (k, "positions")
+        self._strain = _KeptStrain(self._spool)
         self._read_error: Exception | None = None  # reading the files back would fail
         self._error: Exception | None = None  # rendering what was read would fail
 
@@ -89,19 +117,27 @@ class RunPreview:
             strain = read_back.strain(frame)
             k = len(self._preview.numbers)
             if strain is not None:
-                self._strain[k] = strain
+                self._strain.current = {k: strain}
             self._preview.measure(number, read_back.item(mesh, kept))
+            self._strain.current = {}
             if self._preview.wants(number):
-                self._kept[k] = (mesh, kept)
-            else:
-                self._strain.pop(k, None)
+                self._kept[k] = mesh
+                self._spool.put((k, "positions"), kept)
+                if strain is not None:
+                    self._spool.put((k, "strain"), strain)
         except Exception as exc:
             self._error = exc
             self._drop()
 
     def _drop(self) -> None:
         self._kept.clear()
-        self._strain.clear()
+        self._strain.current = {}
+        self._spool.close()
+
+    @property
+    def spool(self) -> ArraySpool:
+        """Where the kept frames are (memory and scratch-file bytes)."""
+        return self._spool
 
     def _start(self, first: FrameData, base: Mesh, number: int) -> SequencePreview:
         """The sequence preview on the base mesh the reader found, with what `render_result` adds
@@ -131,18 +167,22 @@ class RunPreview:
         )
 
     def render(self, out_dir: str | Path | None = None) -> PreviewResult:
-        """Render the kept frames into `out_dir` (default: `ctx.out_dir`); raises what rendering the
-        written result would have raised."""
-        if self._read_back is None:
-            raise no_frames_found(self.ctx.out_dir)
-        if self._read_error is not None:
-            raise self._read_error
-        if self._base is None:  # no frame: nothing written to read back
-            raise no_frames_found(self.ctx.out_dir)
-        if self._error is not None:
-            raise self._error
-        assert self._preview is not None
-        read_back = self._read_back
-        self._preview.fps = read_back.fps or 24.0  # known once every frame is in (MDD: from two frames)
-        frames = ((k, read_back.item(mesh, kept)) for k, (mesh, kept) in sorted(self._kept.items()))
-        return self._preview.render(self.ctx.out_dir if out_dir is None else out_dir, frames)
+        """Render the kept frames into `out_dir` (default: `ctx.out_dir`), once; raises what rendering the
+        written result would have raised. The kept frames and the scratch file are gone afterwards."""
+        try:
+            if self._read_back is None:
+                raise no_frames_found(self.ctx.out_dir)
+            if self._read_error is not None:
+                raise self._read_error
+            if self._base is None:  # no frame: nothing written to read back
+                raise no_frames_found(self.ctx.out_dir)
+            if self._error is not None:
+                raise self._error
+            assert self._preview is not None
+            read_back = self._read_back
+            self._preview.fps = self.ctx.fps  # the run's, as its report.json says it to `render_result`
+            spool = self._spool
+            frames = ((k, read_back.item(mesh, spool[(k, "positions")])) for k, mesh in sorted(self._kept.items()))
+            return self._preview.render(self.ctx.out_dir if out_dir is None else out_dir, frames)
+        finally:
+            self._drop()

@@ -23,10 +23,21 @@ def write_png(path: Path, image: np.ndarray) -> Path:
 
 
 def contact_sheet(
-    images: Sequence[np.ndarray], numbers: Sequence[int], columns: int | None = None, tile_width: int = 320
+    images: Sequence[np.ndarray],
+    numbers: Sequence[int],
+    columns: int | None = None,
+    tile_width: int = 320,
+    *,
+    color: str = "flat",
+    clim: tuple[float, float] | None = None,
+    background: str = "white",
 ) -> np.ndarray:
-    """A grid of downscaled images, each labelled with its frame number: (rows * th, cols * tw, 3)."""
-    from PIL import Image, ImageDraw, ImageFont
+    """A grid of the views `images` at `tile_width` pixels wide, each under a band with its label ("frame
+    12", at a size legible at the tile's), and one colour bar for the whole sheet on its right (`color`,
+    `clim`; none for flat colour): (rows * (band + tile height), columns * tile_width + bar panel, 3)."""
+    from PIL import Image, ImageDraw
+
+    from meshdeform.preview.overlay import ColorBar, background_rgb, font, text_rgb, text_size
 
     n = len(images)
     if n == 0:
@@ -37,23 +48,30 @@ def contact_sheet(
     h, w = images[0].shape[:2]
     tw = int(tile_width)
     th = max(1, round(tw * h / w))
-    sheet = Image.new("RGB", (cols * tw, rows * th), (255, 255, 255))
+    fill, ink = background_rgb(background), text_rgb(background)
+    pad = max(2, tw // 64)
+    labels = [f"frame {number}" for number in numbers]
+    size = max(11, round(tw / 18))
+    widest = max(labels, key=lambda t: text_size(t, size)[0])
+    while size > 6 and text_size(widest, size)[0] > tw - 2 * pad:  # a narrow tile: smaller text
+        size -= 1
+    band = text_size("frame 0", size)[1] + 2 * pad
+    bar = None
+    if clim is not None and color != "flat":
+        bar = ColorBar(color, clim, font_size=max(11, size), bar_width=max(10, size), text=ink, fill=fill)
+    panel = bar.width() + 2 * bar.margin if bar is not None else 0
+    cell = band + th
+    sheet = Image.new("RGB", (cols * tw + panel, rows * cell), fill)
     draw = ImageDraw.Draw(sheet)
-    try:
-        font = ImageFont.load_default(size=max(10, th // 9))
-    except TypeError:  # Pillow < 10.1
-        font = ImageFont.load_default()
-    for k, (image, number) in enumerate(zip(images, numbers, strict=True)):
-        x, y = (k % cols) * tw, (k // cols) * th
+    for k, (image, label) in enumerate(zip(images, labels, strict=True)):
+        x, y = (k % cols) * tw, (k // cols) * cell
         tile = Image.fromarray(np.asarray(image, dtype=np.uint8)).resize((tw, th), Image.Resampling.LANCZOS)
-        sheet.paste(tile, (x, y))
-        draw.rectangle([x, y, x + tw - 1, y + th - 1], outline=(160, 160, 160))
-        text = str(number)  # bottom left, clear of the rendered frame label at the top
-        box = draw.textbbox((0, 0), text, font=font)
-        origin = (x + 6 - box[0], y + th - 6 - box[3])
-        box = draw.textbbox(origin, text, font=font)
-        draw.rectangle([box[0] - 3, box[1] - 3, box[2] + 3, box[3] + 3], fill=(0, 0, 0))
-        draw.text(origin, text, fill=(255, 255, 255), font=font)
+        sheet.paste(tile, (x, y + band))
+        draw.text((x + pad, y + pad), label, fill=ink, font=font(size))
+        draw.rectangle([x, y, x + tw - 1, y + cell - 1], outline=(160, 160, 160))
+    if bar is not None:
+        top = bar.margin + min(band, cell // 4)
+        bar.draw(sheet, cols * tw + bar.margin, top, max(rows * cell - bar.margin - bar.font_size, top))
     return np.asarray(sheet)
 
 

@@ -12,6 +12,7 @@ from meshdeform.errors import ExportError
 VIEWS = ("iso", "front", "side", "top")
 COLORS = ("strain", "flat", "displacement")
 VIDEOS = ("mp4", "gif")
+FRAMINGS = ("main", "all")
 PREVIEW_FOLDER = "preview"
 CONTACT_SHEET_NAME = "contact_sheet.png"
 
@@ -32,9 +33,13 @@ class PreviewOptions:
     fps: video frame rate (default: the sequence's). label: frame number in each image.
     anti_aliasing: 4x MSAA (most of the render cost with software OpenGL: docs/performance.md).
     sheet_columns: contact sheet columns (default about square); sheet_tile_width: tile width in px.
-    clim: fixed colour range (default: from the whole sequence).
+    clim: fixed colour range (default: from every frame of the sequence, the same in every image: strain
+        from 1, no stretch, to the largest stretch of any frame; displacement from 0 to the largest).
     colliders: draw the scene's colliders, when the previewer is given them (grey solids, planes as a
         floor under the cloth; `meshdeform.preview.colliders`).
+    framing: what the fixed camera frames over the sequence: "main", the main pieces of a torn mesh (the
+        largest piece and any at least half its size: pieces that fall away are left to leave the view;
+        `meshdeform.preview.framing`), or "all", every vertex of every frame.
     """
 
     every: int = 1
@@ -58,6 +63,7 @@ class PreviewOptions:
     sheet_tile_width: int = 320
     clim: tuple[float, float] | None = None
     colliders: bool = True
+    framing: str = "main"
 
     def __post_init__(self) -> None:
         def bad(what: str) -> ExportError:
@@ -90,6 +96,8 @@ class PreviewOptions:
             raise bad("sheet_tile_width must be at least 16 pixels")
         if self.sheet_columns is not None and int(self.sheet_columns) < 1:
             raise bad("sheet_columns must be at least 1")
+        if self.framing not in FRAMINGS:
+            raise bad(f"framing must be one of {', '.join(FRAMINGS)}, not {self.framing!r}")
         if not isinstance(self.colliders, bool):
             raise bad(f"colliders must be true or false, not {self.colliders!r}")
         if self.clim is not None:
@@ -143,6 +151,8 @@ class PreviewResult:
     video: Path | None = None
     frames_rendered: int = 0
     seconds: float = 0.0
+    #: the colour range of every image (None: flat colour)
+    clim: tuple[float, float] | None = None
 
     @property
     def files(self) -> list[Path]:

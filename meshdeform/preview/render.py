@@ -1,5 +1,9 @@
 """One off-screen PyVista Plotter that renders frame after frame (`FrameRenderer`), and what it highlights.
 
+It draws the scene only, coloured by `overlay.COLORMAPS` through a `overlay.LUT_COLORS`-colour table over
+the fixed colour range; the frame label and the colour bar are the overlay's (`overlay.Overlay`), in the
+room the camera keeps free for them.
+
 Colliders (`meshdeform.preview.colliders`) are drawn opaque and lit in neutral greys (`SOLID_COLOR`,
 planes as a floor in `FLOOR_COLOR`), pushed slightly back in depth so the cloth resting on them wins
 ties; the camera stays framed on the cloth (colliders may be cropped), only its clipping range grows
@@ -9,7 +13,6 @@ to take them in.
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -21,6 +24,7 @@ from meshdeform.mesh import Mesh
 from meshdeform.preview.camera import frame_camera
 from meshdeform.preview.colliders import ColliderSurfaces, Surface
 from meshdeform.preview.options import PreviewOptions
+from meshdeform.preview.overlay import COLORMAPS, LUT_COLORS, Overlay
 from meshdeform.topology import boundary_edges as topology_boundary_edges
 
 #: colliders: a mid grey for solids, a lighter grey for floors (planes), apart from the cloth's colours
@@ -53,26 +57,6 @@ def as_pinned_mask(pinned: np.ndarray | Sequence[int] | None, n: int) -> np.ndar
         raise ExportError(f"preview: pinned vertex index out of range 0..{n - 1}")
     mask[idx] = True
     return mask
-
-
-def _label_format(clim: tuple[float, float] | None, labels: int) -> str:
-    """A printf format with just enough decimals to tell the colour-bar labels apart."""
-    if clim is None:
-        return "%.3g"
-    step = (clim[1] - clim[0]) / max(labels - 1, 1)
-    if step <= 0:
-        return "%.3g"
-    decimals = max(0, math.ceil(-math.log10(step) - 1e-9))
-    while decimals < 6 and abs(step * 10**decimals - round(step * 10**decimals)) > 1e-6 * 10**decimals * step:
-        decimals += 1
-    return f"%.{decimals}f"
-
-
-def _text_color(background: str) -> str:
-    import pyvista as pv
-
-    rgb = np.asarray(pv.Color(background).float_rgb)
-    return "black" if float(rgb @ np.array([0.299, 0.587, 0.114])) > 0.5 else "white"
 
 
 class FrameRenderer:
@@ -108,7 +92,7 @@ class FrameRenderer:
         p = self.plotter
         try:
             p.set_background(options.background)
-            text_color = _text_color(options.background)
+            self.overlay = Overlay(options, clim)
             pv.Color(options.flat_color)
         except ValueError as exc:
             p.close()
@@ -132,24 +116,12 @@ class FrameRenderer:
             "interpolation": "gouraud",
         }
         if colored:
-            title = "stretch ratio" if options.color == "strain" else "displacement"
             kwargs.update(
                 scalars="scalars",
-                cmap="coolwarm" if options.color == "strain" else "viridis",
+                cmap=COLORMAPS[options.color],
+                n_colors=LUT_COLORS,
                 clim=list(clim) if clim is not None else None,
-                scalar_bar_args={
-                    "title": title,
-                    "vertical": True,
-                    "position_x": 0.86,
-                    "position_y": 0.12,
-                    "width": 0.07,
-                    "height": 0.74,
-                    "color": text_color,
-                    "fmt": _label_format(clim, 5),
-                    "n_labels": 5,
-                    "title_font_size": max(10, options.size[1] // 40),
-                    "label_font_size": max(9, options.size[1] // 50),
-                },
+                show_scalar_bar=False,
             )
         else:
             kwargs.update(color=options.flat_color, show_scalar_bar=False)
@@ -180,18 +152,13 @@ class FrameRenderer:
                 show_scalar_bar=False,
             )
             self._tear_actor.mapper.SetInputData(self.tears)
-        self.label: Any = None
-        if options.label:
-            self.label = p.add_text(
-                "", position="upper_left", font_size=max(8, options.size[1] // 60), color=text_color, name="label"
-            )
         camera = frame_camera(
             bounds,
             options.view,
             options.size,
             options.up_axis,
-            reserve_right=0.16 if colored else 0.0,
-            reserve_top=0.07 if options.label else 0.0,
+            reserve_right=self.overlay.reserve[0],
+            reserve_top=self.overlay.reserve[1],
         )
         cam = p.camera
         cam.position = camera.position
@@ -278,12 +245,12 @@ class FrameRenderer:
     def render(
         self,
         positions: np.ndarray,
-        number: int,
         scalars: np.ndarray | None = None,
         mesh: Mesh | None = None,
         time: float = 0.0,
     ) -> np.ndarray:
-        """Update the scene in place to this frame (colliders at `time` seconds) and return the image."""
+        """Update the scene in place to this frame (colliders at `time` seconds) and return the bare view
+        (H, W, 3) uint8, without label or colour bar (`self.overlay.decorate` draws them)."""
         self._update_colliders(time)
         if mesh is not None and mesh is not self._mesh:
             self._set_topology(mesh, positions)
@@ -308,8 +275,6 @@ class FrameRenderer:
             self.tears.points = np.asarray(positions, dtype=np.float32)
             self.tears.lines = lines if torn.size else np.zeros(0, dtype=np.int64)
             self.tears.Modified()
-        if self.label is not None:
-            self.label.set_text("upper_left", f"frame {number}")
         return self._draw()
 
     def _draw(self) -> np.ndarray:

@@ -17,10 +17,11 @@ from meshdeform.export.base import frame_file_name
 from meshdeform.export.results import FrameItem
 from meshdeform.mesh import Mesh
 from meshdeform.preview.colliders import ColliderSurfaces
+from meshdeform.preview.framing import main_pieces
 from meshdeform.preview.media import VideoWriter, contact_sheet, downscale, write_png
 from meshdeform.preview.options import CONTACT_SHEET_NAME, PREVIEW_FOLDER, PreviewOptions, PreviewResult
 from meshdeform.preview.render import FrameRenderer, as_pinned_mask
-from meshdeform.preview.scalars import FrameScalars, nice_ceiling
+from meshdeform.preview.scalars import FrameScalars
 from meshdeform.scene.colliders import Collider
 
 
@@ -39,6 +40,10 @@ def _positions_and_mesh(item: FrameItem, base: Mesh) -> tuple[np.ndarray, Mesh]:
 #: drive from two threads at once (two jobs in one Dask worker); re-entrant, as `render_previews`
 #: holds it over both passes (a lazy loader may read VTK files) and the render pass takes it too
 _RENDERING = threading.RLock()
+
+
+#: the smallest span of a measured colour range (a sequence that never stretches)
+MIN_SPAN = 1e-3
 
 
 def _one_render_at_a_time(function: Callable[..., Any]) -> Callable[..., Any]:
@@ -108,18 +113,23 @@ class SequencePreview:
         return self.options.video is not None or self.options.is_png_frame(number, self._first(number))
 
     def measure(self, number: int, item: FrameItem) -> int:
-        """Pass 1 for the next frame: its bounds and, if it is rendered, its colour range. Returns its
-        position k (from 0), by which `render` and the strain frames know it."""
+        """Pass 1 for the next frame: the bounds of what the camera frames in it (`options.framing`: a torn
+        frame's main pieces, `framing.main_pieces`, or everything) and its colour range (every frame's, so
+        that the range is the whole sequence's). Returns its position k (from 0), by which `render` and
+        the strain frames know it."""
         tick = time.perf_counter()
         options = self.options
         k = len(self.numbers)
         positions, frame_mesh = _positions_and_mesh(item, self.mesh)
         if not np.isfinite(positions).all():
             raise ExportError(f"preview: frame {number} has non-finite positions")
-        if positions.shape[0]:
-            self._lo = np.minimum(self._lo, positions.min(axis=0))
-            self._hi = np.maximum(self._hi, positions.max(axis=0))
-        if options.clim is None and options.color != "flat" and self.wants(number):
+        framed = positions
+        if options.framing == "main" and frame_mesh is not self.mesh and positions.shape[0]:
+            framed = positions[main_pieces(frame_mesh, positions)]
+        if framed.shape[0]:
+            self._lo = np.minimum(self._lo, framed.min(axis=0))
+            self._hi = np.maximum(self._hi, framed.max(axis=0))
+        if options.clim is None and options.color != "flat":
             values = self.scalars(k, frame_mesh, positions)
             if values is not None and values.size:
                 self._smin, self._smax = min(self._smin, float(values.min())), max(self._smax, float(values.max()))
@@ -132,17 +142,17 @@ class SequencePreview:
         if not any(self.wants(n) for n in self.numbers):
             raise ExportError("preview: none of the requested frames is in the sequence")
 
-    def _clim(self) -> tuple[float, float] | None:
-        """The colour range: the option, else from the measured frames (strain centred on 1)."""
-        clim = self.options.clim
-        smin, smax = self._smin, self._smax
-        if clim is None and self.options.color == "strain":
-            spread = max(abs(smax - 1.0), abs(1.0 - smin), 0.0) if np.isfinite(smin) else 0.0
-            spread = nice_ceiling(max(spread, 0.01))
-            clim = (1.0 - spread, 1.0 + spread)
-        elif clim is None and self.options.color == "displacement":
-            clim = (0.0, nice_ceiling(max(smax if np.isfinite(smax) else 0.0, 1e-6)))
-        return clim
+    def clim(self) -> tuple[float, float] | None:
+        """The colour range of every image: the option, else from every frame measured: strain from 1 (no
+        stretch; compression shows as none) to the largest stretch, displacement from 0 to the largest
+        (each at least `MIN_SPAN` above the low end); None for flat colour."""
+        if self.options.color == "flat":
+            return None
+        if self.options.clim is not None:
+            return self.options.clim
+        low = 1.0 if self.options.color == "strain" else 0.0
+        high = self._smax if np.isfinite(self._smax) else low
+        return low, max(high, low + MIN_SPAN)
 
     @_one_render_at_a_time
     def render(self, out_dir: str | Path, frames: Iterable[tuple[int, FrameItem]]) -> PreviewResult:
@@ -170,24 +180,37 @@ class SequencePreview:
             scene_fps = self.scene_fps or self.fps
             first = self._first(numbers[0])
             start = self.start_frame if self.start_frame is not None else first
-            with FrameRenderer(mesh, options, bounds, self._clim(), self.pinned, surfaces) as renderer:
+            result.clim = self.clim()
+            with FrameRenderer(mesh, options, bounds, result.clim, self.pinned, surfaces) as renderer:
+                overlay = renderer.overlay
                 for k, item in frames:
                     positions, frame_mesh = _positions_and_mesh(item, mesh)
                     values = self.scalars(k, frame_mesh, positions)
                     time_k = (numbers[k] - start) / scene_fps  # seconds since the rest pose
-                    image = renderer.render(positions, numbers[k], values, frame_mesh, time_k)
+                    view = renderer.render(positions, values, frame_mesh, time_k)
+                    png = options.is_png_frame(numbers[k], first)
+                    if video is not None or (png and options.pngs):
+                        image = overlay.decorate(view, numbers[k])
                     result.frames_rendered += 1
                     if video is not None:
                         video.append(image)
-                    if options.is_png_frame(numbers[k], first):
+                    if png:
                         if options.pngs:
                             name = frame_file_name(numbers[k], frame_count, ".png", stem="")
                             result.images.append(write_png(preview_dir / name, image))
                         if options.contact_sheet:
-                            tiles.append(downscale(image, options.sheet_tile_width))
+                            tiles.append(downscale(overlay.content(view), options.sheet_tile_width))
                             tile_numbers.append(numbers[k])
             if options.contact_sheet:
-                sheet = contact_sheet(tiles, tile_numbers, options.sheet_columns, options.sheet_tile_width)
+                sheet = contact_sheet(
+                    tiles,
+                    tile_numbers,
+                    options.sheet_columns,
+                    options.sheet_tile_width,
+                    color=options.color,
+                    clim=result.clim,
+                    background=options.background,
+                )
                 result.contact_sheet = write_png(preview_dir / CONTACT_SHEET_NAME, sheet)
             if video is not None:
                 result.video = video.finish()
