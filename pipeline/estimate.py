@@ -8,7 +8,9 @@ run whose outputs would not fit on the disk before anything is simulated or writ
 The bytes of each format are its exporter's own estimate (`BaseExporter.estimated_bytes` in
 `meshdeform.export`): exact for the point caches (a header plus 12 bytes per vertex per frame) and
 approximate, on the high side, for the text and container formats. A run that tears
-adds vertices as it goes; its estimate counts the input's vertices.
+adds vertices as it goes; its estimate counts the input's vertices. A run whose previews keep more
+frames than fit in their memory budget (a video of a big mesh) also needs room for their scratch file
+while it runs ("preview scratch").
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ class RunEstimate:
     substeps / iterations: per frame and per substep in force (the solver's defaults when the
     recipe gives none; iterations 1 for solvers without sweeps).
     springs / vertices: of the built model / the input mesh (None without a mesh).
-    output_bytes: estimated bytes per output format, plus "preview" (None without a mesh).
+    output_bytes: estimated bytes per output format, plus "preview" and "preview scratch" (the previews'
+        scratch file while the run lasts, when there is one) (None without a mesh).
     """
 
     frames: int
@@ -102,7 +105,8 @@ def human_bytes(n: float) -> str:
 
 
 def output_bytes(recipe: Recipe, mesh: Mesh) -> dict[str, int]:
-    """Estimated bytes each of the recipe's output formats writes for `mesh`, plus "preview"."""
+    """Estimated bytes each of the recipe's output formats writes for `mesh`, plus "preview" (and "preview
+    scratch" when the previews' frames overflow their memory budget)."""
     written = scene_frames_written(recipe)  # the rest pose, then every simulated frame
     frames = len(written)
     sizes: dict[str, int] = {}
@@ -118,7 +122,26 @@ def output_bytes(recipe: Recipe, mesh: Mesh) -> dict[str, int]:
     preview = _preview_bytes(recipe)
     if preview:
         sizes["preview"] = preview
+    scratch = _preview_scratch_bytes(recipe, mesh)
+    if scratch:
+        sizes["preview scratch"] = scratch
     return sizes
+
+
+def _preview_scratch_bytes(recipe: Recipe, mesh: Mesh) -> int:
+    """Bytes a run's previews keep past their memory budget in a scratch file in the staging folder until
+    they are rendered (`meshdeform.preview.spool`, deleted then): the frames to render (every frame with a
+    video) at 8 bytes a coordinate (OBJ's precision, the most any format keeps) and 4 of strain a vertex."""
+    table = recipe.output.preview_options
+    if table is None:
+        return 0
+    from meshdeform.preview import PreviewOptions
+    from meshdeform.preview.spool import MEMORY_BUDGET
+
+    options = PreviewOptions.from_mapping(table)  # checked by _preview_bytes
+    written = scene_frames_written(recipe)
+    kept = len(written) if options.video is not None else len(options.png_frames(written))
+    return max(0, kept * mesh.vertex_count * (3 * 8 + 4) - MEMORY_BUDGET)
 
 
 def _preview_bytes(recipe: Recipe) -> int:

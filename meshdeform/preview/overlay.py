@@ -81,7 +81,7 @@ def label_decimals(clim: tuple[float, float]) -> int:
     span = clim[1] - clim[0]
     if not span > 0:
         return 3
-    return min(6, max(0, 2 - math.floor(math.log10(span))))
+    return min(6, max(0, 2 - math.floor(math.log10(span) + 1e-9)))
 
 
 def nice_step(span: float, intervals: int = 4) -> float:
@@ -118,8 +118,15 @@ class ColorBar:
         """Between the strip and its labels (tick marks in it)."""
         return max(4, self.font_size // 3)
 
-    def format(self, value: float) -> str:
-        return f"{value:.{label_decimals(self.clim)}f}"
+    def format(self, value: float, step: float | None = None) -> str:
+        """A label: the range's ends with `label_decimals`, a round value between them (`step` apart) with
+        just the decimals of the step."""
+        decimals = label_decimals(self.clim)
+        if step is not None:
+            decimals = min(decimals, max(0, -math.floor(math.log10(step) + 1e-9)))
+            if abs(round(step * 10**decimals) - step * 10**decimals) > 1e-6:  # 2.5 x 10^k
+                decimals += 1
+        return f"{value:.{decimals}f}"
 
     @property
     def title(self) -> str:
@@ -169,7 +176,9 @@ class ColorBar:
         strip_bottom = max(bottom, strip_top + 2 * size)
         height = strip_bottom - strip_top + 1
         ticks = self.ticks(height)
-        labels = [(self.format(v), strip_top + r) for v, r in ticks]
+        step = nice_step(self.clim[1] - self.clim[0])
+        ends = (0, len(ticks) - 1)
+        labels = [(self.format(v, None if i in ends else step), strip_top + r) for i, (v, r) in enumerate(ticks)]
         right = x + self.bar_width + self.gap + max(text_size(t, size)[0] for t, _ in labels)
         right = max(right, x + text_size(self.title, size)[0])
         draw.rectangle([left, top - margin, right + margin, strip_bottom + size // 2 + margin], fill=self.fill)

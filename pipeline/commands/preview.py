@@ -142,6 +142,9 @@ def register(app: typer.Typer) -> None:
         colliders: bool = typer.Option(
             True, "--colliders/--no-colliders", help="Draw the run's colliders (rebuilt from its recipe)."
         ),
+        framing: str = typer.Option(
+            "main", help="What the camera frames: main (a torn mesh's main pieces; pieces that fall away leave) | all."
+        ),
     ) -> None:
         """Render preview PNGs, a contact sheet and an MP4/GIF of a result folder without re-simulating."""
         from meshdeform.preview import PreviewOptions, render_result
@@ -166,6 +169,7 @@ def register(app: typer.Typer) -> None:
                 fps=fps,
                 up_axis=up.lower(),
                 colliders=colliders,
+                framing=framing.lower(),
             )
             if not (pngs or contact_sheet or options.video):
                 raise fail("nothing to render: --no-png without --contact-sheet or --video")
