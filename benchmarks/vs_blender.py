@@ -203,7 +203,7 @@ def run_blender(python: str, n: int, frames: int, scene: str, spec: str) -> tupl
 
 def parse_config(spec: str) -> tuple[str, int | None, dict[str, object]]:
     """'solver[:key=value...]' -> (solver, substeps or None, options fields). Values are numbers,
-    true/false or none."""
+    true/false, none or else strings."""
     solver, *pairs = spec.split(":")
     substeps: int | None = None
     options: dict[str, object] = {}
@@ -216,7 +216,10 @@ def parse_config(spec: str) -> tuple[str, int | None, dict[str, object]]:
         elif lowered == "none":
             value = None
         else:
-            value = float(text) if any(c in text for c in ".e") else int(text)
+            try:
+                value = float(text) if any(c in text for c in ".e") else int(text)
+            except ValueError:  # a word: a string option such as implicit's method=local_global
+                value = text
         if key == "substeps":
             substeps = int(text)
         else:

@@ -106,7 +106,8 @@ def run_job(
         settings = replace(settings, frames=last)
     require_disk_space(estimate_run(recipe, mesh, model).total_bytes, Path(out_dir))  # before any frame is run
     formats = list(dict.fromkeys(recipe.output.formats or ["obj"]))
-    session = ExportSession(formats)  # made now: opened on the staging folder once it exists
+    # made now: opened on the staging folder once it exists
+    session = ExportSession(formats, options=recipe.output.exporter_options)
     strain = VertexStrain(model)
     setup_seconds = time.perf_counter() - started
 

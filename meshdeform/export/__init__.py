@@ -6,7 +6,7 @@
 | ply  | `frames/frame_0001.ply` ...                | follows it |
 | pc2  | `cache.pc2`                                | refused: point caches need a fixed vertex count |
 | mdd  | `cache.mdd`                                | refused: point caches need a fixed vertex count |
-| usd  | `scene.usdc` (`scene.usda` with ascii=True) | topology time samples |
+| usd  | `scene.usdc` (ascii: `.usda`; layers="split": + `rest.usdc`, `animation.usdc`) | topology time samples |
 | vtk  | `vtk/frame_0001.vtp` ... + `scene.pvd`     | follows it |
 | xdmf | `scene.xdmf` (inline XML data)             | refused: one fixed mesh |
 | npz  | `positions.npz`                            | refused: one fixed vertex count |

@@ -216,7 +216,9 @@ class BaseExporter:
     def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
         """About how many bytes this format writes for `frames` frames of `mesh` (exact or on the high
         side; `meshdeform check` prints it and a run whose outputs would not fit on the disk is refused
-        before it starts), or None when the format cannot tell (it is then left out of the estimate)."""
+        before it starts), or None when the format cannot tell (it is then left out of the estimate).
+        A format with recipe options (`[output.<format>]`, `OutputSpec.exporter_options`) also takes
+        them, as keyword arguments (usd)."""
         return None
 
     @classmethod

@@ -55,7 +55,8 @@ def topology_following() -> str:
 def make_exporter(name: str, **options: Any) -> BaseExporter:
     """A new exporter for a format name (case-insensitive); `options` go to its constructor.
 
-    Options: usd `ascii` (write scene.usda) and `normals`; vtk `compress`. Unknown names or
+    Options: usd `ascii` (write .usda layers), `normals`, `layers` ("single" or "split") and `uv_set`;
+    vtk `compress`. Unknown names or
     options raise ExportError listing what is known.
     """
     cls = EXPORTERS.get(str(name).strip().lower())

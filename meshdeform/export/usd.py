@@ -1,10 +1,13 @@
-"""USD export (usd-core): one stage `scene.usdc` (or `scene.usda`) for Blender, Houdini, Maya, Omniverse.
+"""USD export (usd-core): a stage `scene.usdc` (or `scene.usda`) for Blender, Houdini, Maya, Omniverse.
 
-`/Root` (default prim, Xform) holds a `UsdGeom.Mesh` with the topology authored once
+`/Root` (default prim, Xform, kind "component") holds a `UsdGeom.Mesh` with the topology authored once
 (faceVertexCounts / faceVertexIndices, quads stay quads, subdivisionScheme "none"), time-sampled
 `points`, `normals` (per vertex; per corner, faceVarying, when the input's normals have hard edges:
-`meshdeform.geometry.normal_layout`) and `extent`, and the UVs as an indexed faceVarying primvar `st`
-when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside it.
+`meshdeform.geometry.normal_layout`) and `extent`, and the UVs as an indexed faceVarying primvar named
+`uv_set` ("st") when the input has them. Polylines (OBJ `l`) go to a linear `UsdGeom.BasisCurves` beside
+it. The mesh is named as Blender's OBJ importer names the object (the one OBJ object holding every face,
+else the file's stem), made a valid prim name with the name itself as `displayName`; OBJ groups, objects
+and materials become GeomSubsets and placeholder materials bound to the faces (`usd_faces`).
 The stage's `timeCodesPerSecond` and `framesPerSecond` are the fps, frame index k (0: the
 rest pose) sits at time code `start_frame + k`, and `upAxis` is `ExportContext.up_axis` (the
 input's unless `[output] up_axis` says otherwise: the points then turned into that world,
@@ -13,12 +16,20 @@ indices become time-sampled too, from that frame on. States between frames (`Fra
 `[output] subframes`: motion blur) are time samples at their fractional time codes
 (start_frame + time * fps).
 
-Samples are authored as the frames come; the layer lives in memory until it is saved at close.
-`read_usd_result` reads the frames back (`meshdeform.export.results`).
+`layers = "split"` writes the same stage as three layers with the same prim paths: `rest.usdc`, the
+asset (everything but time samples: topology, UVs, subsets, materials, and the input's rest pose as the
+points', normals' and extent's defaults), `animation.usdc` (`over`s holding only the time samples, and
+the face lists' after a tear; it sublayers `./rest.usdc`) and `scene.usdc`, the stage to open, which
+sublayers `./animation.usdc`. Each layer carries the stage metadata, so each opens as a stage of its own.
+
+Samples are authored as the frames come, through an edit target on the layer they belong to; the layers
+live in memory until they are saved at close and renamed into place (`meshdeform.atomic`), rest first.
+`read_usd_result` reads the frames back from `scene.usdc`, composed (`meshdeform.export.results`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import re
 import threading
 from pathlib import Path
@@ -38,6 +49,7 @@ from meshdeform.export.results import (
     prefer_input,
     restore_input_world,
 )
+from meshdeform.export.usd_faces import author_face_sets, face_sets, mesh_name, prim_identifier
 from meshdeform.geometry import normal_layout, surface_normals, vertex_normals
 from meshdeform.mesh import Mesh
 
@@ -66,34 +78,83 @@ def start_usd() -> None:
             _usd_started = True
 
 
+LAYERS = ("single", "split")
+#: the UV primvar's default name, USD's convention (`uv_set`: Blender's USD importer names the UV map after it)
+DEFAULT_UV_SET = "st"
+#: the names `uv_set` takes: a primvar name without namespaces
+UV_SET_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+#: bytes per value of an ascii layer (usda) against 4 of usdc: a float32 printed shortest, with its separator
+_ASCII_FACTOR = 4
+
+
 def usd_prim_name(mesh: Mesh) -> str:
-    """A valid prim name from the mesh's file name ("mesh" when it has none)."""
-    stem = mesh.source.stem if mesh.source is not None else "mesh"
-    name = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "mesh"
-    return name if not name[0].isdigit() else f"_{name}"
+    """The mesh prim's name: `usd_faces.mesh_name` (the one OBJ object holding every face, else the file's
+    stem, "mesh" without a file) made a valid prim name (`usd_faces.prim_identifier`)."""
+    return prim_identifier(mesh_name(mesh))
 
 
 class UsdExporter(BaseExporter):
-    """Authors time samples as frames come and saves the stage at close."""
+    """Authors time samples as frames come and saves the stage (its layers) at close.
+
+    ascii: write `.usda` text layers instead of `.usdc` (crate). normals: write normals.
+    layers: "single" (one `scene.usdc`) or "split" (`rest.usdc`, `animation.usdc`, `scene.usdc`).
+    uv_set: the UV primvar's name ("st", USD's convention; "UVMap" as Blender names an OBJ's UV map).
+    """
 
     name: ClassVar[str] = "usd"
     summary: ClassVar[str] = "USD stage with time samples"
     supports_topology_change: ClassVar[bool] = True
 
-    def __init__(self, *, ascii: bool = False, normals: bool = True, **options: Any) -> None:
+    def __init__(
+        self,
+        *,
+        ascii: bool = False,
+        normals: bool = True,
+        layers: str = "single",
+        uv_set: str = DEFAULT_UV_SET,
+        **options: Any,
+    ) -> None:
         super().__init__(**options)
-        self.ascii = ascii
-        self.normals = normals
+        if layers not in LAYERS:
+            raise ExportError(f"usd: layers must be one of {', '.join(map(repr, LAYERS))}, not {layers!r}")
+        if not isinstance(uv_set, str) or not UV_SET_PATTERN.fullmatch(uv_set):
+            raise ExportError(
+                f"usd: uv_set must be a name of letters, digits and '_' (not starting with a digit), not {uv_set!r}"
+            )
+        self.ascii = bool(ascii)
+        self.normals = bool(normals)
+        self.layers = layers
+        self.uv_set = uv_set
 
     @classmethod
-    def estimated_bytes(cls, mesh: Mesh, frames: int) -> int | None:
-        """float32 points (and normals) per frame, int32 topology once, UVs once, and the stage's own."""
+    def estimated_bytes(
+        cls,
+        mesh: Mesh,
+        frames: int,
+        *,
+        ascii: bool = False,
+        layers: str = "single",
+        normals: bool = True,
+        **options: Any,
+    ) -> int | None:
+        """float32 points and normals (per corner at hard edges, else per vertex) per frame, int32 topology
+        once, UVs once, subsets, and the stage's own; with `layers = "split"` the rest pose once more
+        (rest.usdc) and two more layers' own; the data of text layers (`ascii`) at `_ASCII_FACTOR` times the
+        crate's."""
         corners = int(mesh.face_indices.shape[0])
         uvs = 0 if mesh.uvs is None else 8 * int(mesh.uvs.shape[0]) + 4 * corners
         layout = normal_layout(mesh)
-        normals = 0 if layout is None else 12 * (corners if layout.hard_edges else mesh.vertex_count)
-        per_frame = 12 * mesh.vertex_count + normals + 64
-        return int(8192 + per_frame * frames + 4 * (corners + mesh.face_count) + uvs)
+        per_corner = layout is not None and layout.hard_edges
+        normal_bytes = 0 if not normals else 12 * (corners if per_corner else mesh.vertex_count)
+        per_frame = 12 * mesh.vertex_count + normal_bytes + 24 + 64  # points, normals, extent, sample records
+        listed = sum(int(np.size(f)) for f in mesh.groups.values()) + mesh.face_count  # groups, objects, materials
+        subsets = 4 * listed + 512 * len(mesh.statements)
+        data = per_frame * frames + 4 * (corners + mesh.face_count) + uvs + subsets
+        own = 8192  # each layer's header, metadata and prim specs
+        if layers == "split":
+            data += per_frame
+            own *= 3
+        return int(own + data * (_ASCII_FACTOR if ascii else 1))
 
     @classmethod
     def reading(cls) -> ResultReading | None:
@@ -105,47 +166,82 @@ class UsdExporter(BaseExporter):
         )
 
     @property
+    def suffix(self) -> str:
+        return ".usda" if self.ascii else ".usdc"
+
+    @property
     def file_name(self) -> str:
-        return "scene.usda" if self.ascii else "scene.usdc"
+        """The stage users open: `scene.usdc` (`scene.usda` with ascii)."""
+        return f"scene{self.suffix}"
+
+    @property
+    def file_names(self) -> tuple[str, ...]:
+        """Every file written, in the order they are finished: the rest and animation layers, then the scene."""
+        if self.layers == "split":
+            return (f"rest{self.suffix}", f"animation{self.suffix}", self.file_name)
+        return (self.file_name,)
 
     def _open(self, ctx: ExportContext) -> None:
+        mesh = ctx.mesh
+        if mesh.face_count == 0 and mesh.line_count == 0:
+            raise ExportError("usd: the mesh has neither polygons nor polylines")
         start_usd()
         from pxr import Sdf, Usd, UsdGeom
 
-        self._target = ctx.out_dir / self.file_name
-        self._atomic = atomic_path(self._target)
-        self._tmp = self._atomic.__enter__()
-        self._tmp.unlink()  # USD refuses to create a layer over an existing file
-        stage = Usd.Stage.CreateNew(str(self._tmp))
-        if stage is None:
-            raise OSError(f"USD could not create {self._tmp}")
+        self._files: dict[str, tuple[Path, Any, Path]] = {}
+        for name in self.file_names:  # target, its atomic_path context, the temporary file it writes
+            target = ctx.out_dir / name
+            atomic = atomic_path(target)
+            tmp = atomic.__enter__()
+            self._files[name] = (target, atomic, tmp)
+            tmp.unlink()  # USD refuses to create a layer over an existing file
+        self._layers: dict[str, Any] = {}  # held here: a stage holds its layers weakly once it is dropped
+        for name in self.file_names[:2] if self.layers == "split" else (self.file_name,):
+            layer = Sdf.Layer.CreateNew(str(self._files[name][2]))
+            if layer is None:
+                raise OSError(f"USD could not create {self._files[name][2]}")
+            layer.timeCodesPerSecond = layer.framesPerSecond = float(ctx.fps)  # no time scaling between layers
+            self._layers[name] = layer
+        if self.layers == "split":  # a stage over both: the rest pose authored in one, the frames in the other
+            stage = Usd.Stage.CreateInMemory()
+            stage.GetRootLayer().timeCodesPerSecond = float(ctx.fps)
+            rest, animation = (self._layers[n] for n in self.file_names[:2])
+            stage.GetRootLayer().subLayerPaths = [animation.identifier, rest.identifier]
+            self._rest_target = stage.GetEditTargetForLocalLayer(rest)
+            self._animation_target = stage.GetEditTargetForLocalLayer(animation)
+        else:
+            stage = Usd.Stage.Open(self._layers[self.file_name])
+            self._rest_target = self._animation_target = stage.GetEditTarget()
         self._stage = stage
-        stage.SetTimeCodesPerSecond(float(ctx.fps))
-        stage.SetFramesPerSecond(float(ctx.fps))
-        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if ctx.up_axis == "z" else UsdGeom.Tokens.y)
-        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        root = UsdGeom.Xform.Define(stage, ROOT)
-        stage.SetDefaultPrim(root.GetPrim())
-        name = usd_prim_name(ctx.mesh)
-        self._geom = UsdGeom.Mesh.Define(stage, f"{ROOT}/{name}") if ctx.mesh.face_count else None
-        self._curves = UsdGeom.BasisCurves.Define(stage, f"{ROOT}/{name}_lines") if ctx.mesh.line_count else None
-        if self._geom is None and self._curves is None:
-            raise ExportError("usd: the mesh has neither polygons nor polylines")
-        if self._geom is not None:
-            self._geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-            self._geom.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
-            self._geom.CreateDoubleSidedAttr(True)
-        if self._curves is not None:
-            self._curves.CreateTypeAttr(UsdGeom.Tokens.linear)
-        self._sdf = Sdf
-        self._topology_mesh: Mesh | None = None
+        self._geom: Any = None
+        self._curves: Any = None
+        self._st: Any = None
         self._topology_sampled = False
         self._first_code: float | None = None
         self._last_code: float | None = None
-        self._st: Any = None
-
-    def _code(self, ctx: ExportContext, index: int) -> float:
-        return float(ctx.scene_frame(index))
+        sets = face_sets(mesh)
+        display = mesh_name(mesh, sets)
+        name = prim_identifier(display)
+        with Usd.EditContext(stage, self._rest_target):
+            root = UsdGeom.Xform.Define(stage, ROOT)
+            Usd.ModelAPI(root).SetKind("component")
+            if mesh.face_count:
+                self._geom = UsdGeom.Mesh.Define(stage, f"{ROOT}/{name}")
+                self._geom.GetPrim().SetDisplayName(display)
+                self._geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+                self._geom.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+                self._geom.CreateDoubleSidedAttr(True)
+            if mesh.line_count:
+                self._curves = UsdGeom.BasisCurves.Define(stage, f"{ROOT}/{name}_lines")
+                self._curves.GetPrim().SetDisplayName(f"{display} lines")
+                self._curves.CreateTypeAttr(UsdGeom.Tokens.linear)
+            if self._geom is not None:
+                author_face_sets(stage, self._geom, ROOT, sets, mesh.face_count)
+            if self.layers == "split":  # the rest asset: the input's topology and rest pose as defaults
+                self._author_topology(mesh, Usd.TimeCode.Default())
+                self._author_points(ctx, mesh, np.asarray(mesh.positions, dtype=np.float64), Usd.TimeCode.Default())
+        # one layer: the face lists of the first frame written (torn ones when a run tore before it)
+        self._topology_mesh: Mesh | None = mesh if self.layers == "split" else None
 
     def _author_topology(self, mesh: Mesh, code: Any) -> None:
         """Face lists, UV primvar and curve counts, as defaults or (after tearing) time samples."""
@@ -165,7 +261,9 @@ class UsdExporter(BaseExporter):
             if uv_ok:
                 if self._st is None:
                     api = UsdGeom.PrimvarsAPI(self._geom)
-                    self._st = api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+                    self._st = api.CreatePrimvar(
+                        self.uv_set, Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying
+                    )
                 uvs = np.ascontiguousarray(np.asarray(mesh.uvs)[:, :2], dtype=np.float32)
                 self._st.Set(Vt.Vec2fArray.FromNumpy(uvs), code)
                 self._st.SetIndices(Vt.IntArray.FromNumpy(np.asarray(mesh.face_uv_indices, dtype=np.int32)), code)
@@ -176,29 +274,30 @@ class UsdExporter(BaseExporter):
     def _write(self, ctx: ExportContext, frame: FrameData, mesh: Mesh, positions: np.ndarray) -> None:
         from pxr import Usd
 
-        code = self._code(ctx, frame.index)
+        code = float(ctx.scene_frame(frame.index))
         if self._topology_mesh is None:
             self._author_topology(mesh, Usd.TimeCode.Default())
             self._topology_mesh = mesh
-        elif mesh is not self._topology_mesh:
-            if not self._topology_sampled:  # hold the input topology up to this frame
-                self._author_topology(self._topology_mesh, Usd.TimeCode(self._first_code))
+        with Usd.EditContext(self._stage, self._animation_target):
+            if mesh is not self._topology_mesh:  # tearing: the face lists become time samples
+                if not self._topology_sampled and self._first_code is not None:  # the first up to this frame
+                    self._author_topology(self._topology_mesh, Usd.TimeCode(self._first_code))
                 self._topology_sampled = True
-            self._author_topology(mesh, Usd.TimeCode(code))
-            self._topology_mesh = mesh
-        if self._first_code is not None:  # motion blur: the states between the frame before and this one
-            for when, between in frame.subframes:
-                self._author_points(ctx, mesh, np.asarray(between, dtype=np.float64), ctx.start_frame + when * ctx.fps)
-        if self._first_code is None:
-            self._first_code = code
-        self._last_code = code
-        self._author_points(ctx, mesh, positions, code)
+                self._author_topology(mesh, Usd.TimeCode(code))
+                self._topology_mesh = mesh
+            if self._first_code is not None:  # motion blur: the states between the frame before and this one
+                for when, between in frame.subframes:
+                    time = Usd.TimeCode(ctx.start_frame + when * ctx.fps)
+                    self._author_points(ctx, mesh, np.asarray(between, dtype=np.float64), time)
+            if self._first_code is None:
+                self._first_code = code
+            self._last_code = code
+            self._author_points(ctx, mesh, positions, Usd.TimeCode(code))
 
-    def _author_points(self, ctx: ExportContext, mesh: Mesh, positions: np.ndarray, code: float) -> None:
-        """Points, extent and normals (and the polylines' points) at time code `code`."""
-        from pxr import Usd, Vt
+    def _author_points(self, ctx: ExportContext, mesh: Mesh, positions: np.ndarray, time: Any) -> None:
+        """Points, extent and normals (and the polylines' points) at `time` (a Usd.TimeCode)."""
+        from pxr import Vt
 
-        time = Usd.TimeCode(code)
         points = ctx.to_output_world(np.asarray(positions, dtype=np.float64))
         points32 = np.ascontiguousarray(points, dtype=np.float32)
         lo, hi = points32.min(axis=0), points32.max(axis=0)
@@ -218,7 +317,9 @@ class UsdExporter(BaseExporter):
                 self._geom.GetNormalsAttr().Set(
                     Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, dtype=np.float32)), time
                 )
-                self._geom.SetNormalsInterpolation(interpolation)
+                authored = self._geom.GetNormalsAttr().HasAuthoredMetadata("interpolation")
+                if not authored or self._geom.GetNormalsInterpolation() != interpolation:
+                    self._geom.SetNormalsInterpolation(interpolation)  # once (the rest layer's, when split)
         if self._curves is not None:
             curve_points = np.ascontiguousarray(points32[mesh.line_indices])
             self._curves.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(curve_points), time)
@@ -226,30 +327,78 @@ class UsdExporter(BaseExporter):
                 Vt.Vec3fArray.FromNumpy(np.stack([curve_points.min(axis=0), curve_points.max(axis=0)])), time
             )
 
-    def _close(self, ctx: ExportContext) -> list[Path]:
-        self._stage.SetStartTimeCode(self._first_code)
-        self._stage.SetEndTimeCode(self._last_code)
-        self._stage.GetRootLayer().Save()
-        self._release()
-        self._atomic.__exit__(None, None, None)
-        return [self._target]
+    def _stage_metadata(self, ctx: ExportContext, layer: Any, timed: bool) -> None:
+        """The stage metadata every layer carries (so each opens as a stage of its own): default prim, up
+        axis, metres per unit, time codes and frames per second, and (`timed`) the first and last time code."""
+        layer.defaultPrim = ROOT.lstrip("/")
+        layer.pseudoRoot.SetInfo("upAxis", "Z" if ctx.up_axis == "z" else "Y")
+        layer.pseudoRoot.SetInfo("metersPerUnit", 1.0)
+        layer.timeCodesPerSecond = layer.framesPerSecond = float(ctx.fps)
+        if timed:
+            layer.startTimeCode = float(self._first_code)
+            layer.endTimeCode = float(self._last_code)
 
-    def _release(self) -> None:
+    def _finish(self, name: str) -> Path:
+        """Rename a saved layer into place; `abort()` removes it again if a later one fails."""
+        target, atomic, _ = self._files.pop(name)
+        atomic.__exit__(None, None, None)
+        self._written.append(target)
+        return target
+
+    def _close(self, ctx: ExportContext) -> list[Path]:
+        from pxr import Sdf
+
+        self._release_stage()
+        if self.layers == "single":
+            layer = self._layers[self.file_name]
+            self._stage_metadata(ctx, layer, timed=True)
+            if not layer.Save():
+                raise OSError(f"USD could not save {self._files[self.file_name][2]}")
+            finished = [self._finish(self.file_name)]
+        else:
+            rest_name, animation_name, scene_name = self.file_names
+            finished = []
+            for name, below in ((rest_name, None), (animation_name, rest_name)):
+                layer = self._layers[name]
+                self._stage_metadata(ctx, layer, timed=below is not None)
+                if below is not None:  # set now that rest.usdc is in place, so it resolves
+                    layer.subLayerPaths = [f"./{below}"]
+                if not layer.Save():
+                    raise OSError(f"USD could not save {self._files[name][2]}")
+                finished.append(self._finish(name))
+            scene = Sdf.Layer.CreateNew(str(self._files[scene_name][2]))
+            if scene is None:
+                raise OSError(f"USD could not create {self._files[scene_name][2]}")
+            self._layers[scene_name] = scene
+            self._stage_metadata(ctx, scene, timed=True)
+            scene.subLayerPaths = [f"./{animation_name}"]
+            if not scene.Save():
+                raise OSError(f"USD could not save {self._files[scene_name][2]}")
+            finished.append(self._finish(scene_name))
+        self._layers = {}
+        return finished
+
+    def _release_stage(self) -> None:
         self._geom = None
         self._curves = None
         self._st = None
+        self._rest_target = self._animation_target = None
         self._stage = None
 
     def _abort(self) -> None:
-        self._release()
+        self._release_stage()
+        self._layers = {}
         err = RuntimeError("export aborted")
-        self._atomic.__exit__(type(err), err, None)
+        for _, atomic, _ in getattr(self, "_files", {}).values():
+            with contextlib.suppress(Exception):
+                atomic.__exit__(type(err), err, None)
+        self._files = {}
 
 
 def read_usd_frames(
     path: Path, turns: int | None = None, rest: np.ndarray | None = None
 ) -> tuple[Mesh, np.ndarray, list[int], float]:
-    """A stage's first `UsdGeom.Mesh`: (mesh at its default topology and first sample, positions (F, V, 3)
+    """A stage's first `UsdGeom.Mesh`: (mesh at its first frame's topology and points, positions (F, V, 3)
     in the input's coordinates, frame numbers: the time codes, scene frames as ours are written (a
     stage without time samples: its start time code, else 1), time codes per second). Samples between
     whole time codes (motion-blur subframes) are not frames, unless the stage has no others.
@@ -268,12 +417,13 @@ def read_usd_frames(
     if prim is None:
         raise MeshLoadError(f"{path}: no UsdGeom.Mesh in the stage")
     geom = UsdGeom.Mesh(prim)
-    counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
-    indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
     points_attr = geom.GetPointsAttr()
     samples = list(points_attr.GetTimeSamples())
     frames = [c for c in samples if abs(c - round(c)) < 1e-6]  # whole time codes: frames (others: subframes)
     codes = frames or samples or [Usd.TimeCode.Default()]
+    # the face lists at the first frame: their default, or their sample there when they are time-sampled
+    counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(codes[0]), dtype=np.int64)
+    indices = np.asarray(geom.GetFaceVertexIndicesAttr().Get(codes[0]), dtype=np.int64)
     z_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
     stored = [np.asarray(points_attr.Get(code), dtype=np.float64) for code in codes]
     if turns is None:

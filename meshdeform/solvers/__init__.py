@@ -6,7 +6,7 @@
 | `verlet`   | Verlet integration, springs relaxed as distance constraints (Jakobsen)  |
 | `xpbd`     | compliant distance constraints, small steps (Macklin et al. 2016/2019)  |
 | `springs`  | Hooke springs, semi-implicit Euler, stable substeps, Provot strain limit |
-| `implicit` | projective dynamics (Liu et al. 2013) with BDF2, prefactored           |
+| `implicit` | BDF2 steps minimised by L-BFGS on a prefactored projective-dynamics matrix |
 """
 
 from meshdeform.solvers.base import Control, Solver, SolverOptions

@@ -88,8 +88,17 @@ class XPBDOptions(SweepOptions):
 
 @dataclass(frozen=True)
 class ImplicitOptions(SolverOptions):
-    """Options of the `implicit` solver: `iterations` (local/global iterations per step) and
-    `damping`, as for every solver."""
+    """Options of the `implicit` solver: `iterations` (per step) and `damping`, as for every
+    solver, and
+
+    method: how each step's minimisation is iterated (see `meshdeform.solvers.implicit.solver`):
+        "lbfgs" (default) quasi-Newton steps with the prefactored matrix as the initial inverse
+        Hessian and a line search (Liu, Bouaziz, Kavan 2017), which also converge where springs
+        turn rather than stretch; "local_global" the plain local/global iterations of projective
+        dynamics (Liu et al. 2013), cheaper per iteration but slow to converge for stiff springs.
+    """
+
+    method: Literal["lbfgs", "local_global"] = "lbfgs"
 
 
 @dataclass(frozen=True)

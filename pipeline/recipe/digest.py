@@ -6,6 +6,7 @@ import hashlib
 import json
 
 from pipeline.recipe.document import Recipe, resolve_path
+from pipeline.recipe.schema import UsdOutputSpec
 from pipeline.recipe.solver_options import all_options, flat_options
 
 
@@ -16,9 +17,13 @@ def recipe_hash(recipe: Recipe) -> str:
     In the normal form the options of the solver in force are keys of `simulation`, one for every
     option of any registered solver (None when not given), and the other solvers' tables are left
     out, in [[assets]] rules too: the shape recipes had before `[simulation.<solver>]`, so a recipe
-    whose options moved into tables keeps its hash (and a batch its finished assets).
+    whose options moved into tables keeps its hash (and a batch its finished assets). Exporter tables
+    added since (`[output.usd]`) are left out when absent or at their defaults (the same files), so
+    results made before them keep their hash.
     """
     content = recipe.model_dump(mode="json", by_alias=True, exclude={"source"})
+    if recipe.output.usd is None or recipe.output.usd == UsdOutputSpec():
+        content["output"].pop("usd", None)
     given = recipe.simulation.given_options()
     content["simulation"].update({option: given.get(option) for option in all_options()})
     for rule in content["assets"]:

@@ -30,6 +30,7 @@ from pydantic import (
 )
 
 from meshdeform.export import EXPORTERS
+from meshdeform.export.usd import DEFAULT_UV_SET, LAYERS, UV_SET_PATTERN
 from meshdeform.material import KindMaterial, Material
 from meshdeform.scene.forces import AIR_DENSITY
 from meshdeform.scene.pins import Keyframe
@@ -562,6 +563,34 @@ def _formats(value: Any) -> Any:
     return value
 
 
+class UsdOutputSpec(Table):
+    """[output.usd]: the USD exporter's options (`meshdeform.export.usd.UsdExporter`, docs/recipes.md "USD")."""
+
+    #: "single": one scene.usdc; "split": rest.usdc (the rest asset), animation.usdc (its time samples,
+    #: over rest.usdc) and scene.usdc (the stage to open, over animation.usdc)
+    layers: StrictStr = "single"
+    #: the UV primvar's name: "st" (USD's convention) or, say, "UVMap" (Blender's name for an OBJ's UVs)
+    uv_set: StrictStr = DEFAULT_UV_SET
+    #: text layers (.usda) instead of crate (.usdc)
+    ascii: StrictBool = False
+
+    @field_validator("layers")
+    @classmethod
+    def _known_layers(cls, value: str) -> str:
+        if value not in LAYERS:
+            raise ValueError(f"expected one of {', '.join(map(repr, LAYERS))}, got {show(value)}")
+        return value
+
+    @field_validator("uv_set")
+    @classmethod
+    def _primvar_name(cls, value: str) -> str:
+        if not UV_SET_PATTERN.fullmatch(value):
+            raise ValueError(
+                f"expected a name of ASCII letters, digits and '_' not starting with a digit, got {show(value)}"
+            )
+        return value
+
+
 class OutputSpec(Table):
     """[output]: `formats` are names of the export registry (`meshdeform.export.EXPORTERS`)."""
 
@@ -574,6 +603,8 @@ class OutputSpec(Table):
     #: time samples per frame in USD (motion blur): the frame and the states between it and the
     #: one before; the other formats write whole frames
     subframes: StrictInt = Field(1, ge=1, le=16)
+    #: [output.usd]: the USD exporter's options (None: its defaults; left out of `recipe_hash` then)
+    usd: UsdOutputSpec | None = None
 
     @field_validator("frames")
     @classmethod
@@ -592,6 +623,11 @@ class OutputSpec(Table):
         if len(set(value)) != len(value):
             raise ValueError("a format is listed twice")
         return value
+
+    @property
+    def exporter_options(self) -> dict[str, dict[str, Any]]:
+        """format -> keyword options for its exporter (`make_exporter`), for the formats with a table here."""
+        return {} if self.usd is None else {"usd": self.usd.model_dump()}
 
     @property
     def preview_options(self) -> dict[str, Any] | None:

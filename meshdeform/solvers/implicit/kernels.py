@@ -79,3 +79,83 @@ def scatter_free(x, free_vertices, solution):  # pragma: no cover - compiled
         x[i, 0] = solution[j, 0]
         x[i, 1] = solution[j, 1]
         x[i, 2] = solution[j, 2]
+
+
+@nb.njit(**FAST)
+def step_energy(  # pragma: no cover - compiled
+    x, a, b, rest, stiff_t, stiff_c, modulus, free, free_vertices, inertia, y, grad
+):
+    """The energy (J) the implicit step minimises at positions x (V, 3), and its gradient.
+
+    E(x) = sum_free inertia_i / 2 |x_i - y_i|^2 + sum_s k_s / 2 (|x_a - x_b| - L_s)^2 with
+    k_s = max(stiffness, 0) * modulus under tension or compression (the sign of l - L), so the
+    energy is continuous where a spring passes its rest length. grad (F, 3) receives dE/dx of
+    the free vertices (F = free_vertices.shape[0], `free` maps a vertex to its row, -1 pinned);
+    pinned vertices enter at their current positions. Serial and in a fixed order: the same
+    bytes on any thread count (the line search compares energies).
+    """
+    energy = 0.0
+    for j in range(free_vertices.shape[0]):
+        i = free_vertices[j]
+        m = inertia[j]
+        dx = x[i, 0] - y[i, 0]
+        dy = x[i, 1] - y[i, 1]
+        dz = x[i, 2] - y[i, 2]
+        energy += 0.5 * m * (dx * dx + dy * dy + dz * dz)
+        grad[j, 0] = m * dx
+        grad[j, 1] = m * dy
+        grad[j, 2] = m * dz
+    for s in range(a.shape[0]):
+        ia = a[s]
+        ib = b[s]
+        fa = free[ia]
+        fb = free[ib]
+        if fa < 0 and fb < 0:
+            continue
+        dx = x[ia, 0] - x[ib, 0]
+        dy = x[ia, 1] - x[ib, 1]
+        dz = x[ia, 2] - x[ib, 2]
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        c = length - rest[s]
+        k = max(stiff_t[s] if c > 0.0 else stiff_c[s], 0.0) * modulus
+        energy += 0.5 * k * c * c
+        if length < 1e-12:
+            continue
+        f = k * c / length
+        if fa >= 0:
+            grad[fa, 0] += f * dx
+            grad[fa, 1] += f * dy
+            grad[fa, 2] += f * dz
+        if fb >= 0:
+            grad[fb, 0] -= f * dx
+            grad[fb, 1] -= f * dy
+            grad[fb, 2] -= f * dz
+    return energy
+
+
+@nb.njit(**JIT)
+def dot(u, v):  # pragma: no cover - compiled
+    """sum(u * v) of two (F, 3) arrays, serial in a fixed order (BLAS may thread and reorder)."""
+    total = 0.0
+    for j in range(u.shape[0]):
+        total += u[j, 0] * v[j, 0] + u[j, 1] * v[j, 1] + u[j, 2] * v[j, 2]
+    return total
+
+
+@nb.njit(**JIT)
+def add_scaled(out, u, scale):  # pragma: no cover - compiled
+    """out += scale * u, (F, 3) arrays."""
+    for j in range(out.shape[0]):
+        out[j, 0] += scale * u[j, 0]
+        out[j, 1] += scale * u[j, 1]
+        out[j, 2] += scale * u[j, 2]
+
+
+@nb.njit(**JIT)
+def place(x, free_vertices, base, direction, step):  # pragma: no cover - compiled
+    """x[free_vertices] = base + step * direction (base, direction (F, 3))."""
+    for j in range(free_vertices.shape[0]):
+        i = free_vertices[j]
+        x[i, 0] = base[j, 0] + step * direction[j, 0]
+        x[i, 1] = base[j, 1] + step * direction[j, 1]
+        x[i, 2] = base[j, 2] + step * direction[j, 2]

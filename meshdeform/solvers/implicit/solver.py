@@ -6,17 +6,25 @@ update, with air damping as a drag force -c v_n+1 taken implicitly, as the minim
     x' = argmin q / (2 b^2) |x - y|_M^2 + sum_s k_s / 2 (|x_a - x_b| - L_s)^2,   b = 2 dt / 3,
     y  = 4/3 x_n - 1/3 x_n-1 + (2 dt / 9 (4 v_n - v_n-1) + b^2 a_ext) / q,     q = 1 + b c
 
-by Liu et al.'s local/global iterations: the local step projects every spring onto its
-rest length (a closed form), the global step solves one sparse linear system whose matrix
-q M / b^2 + sum_s k_s (e_a - e_b)(e_a - e_b)^T does not change, so it is factorised once
-and each iteration is a back-substitution for x, y and z together (one (n, 3) right-hand
-side). The matrix is symmetric positive definite (mass > 0 on every free vertex, weights
-> 0), so it is factorised by sparse Cholesky (CHOLMOD through cholespy, with its
-fill-reducing ordering): one triangle L instead of SuperLU's L and U, less memory and a
-faster back-substitution. Only the lower triangle of the matrix is passed (CSC, duplicates
-summed by SciPy, which leaves CHOLMOD less to convert), and nothing but the factor (and one
-(n, 3) solution buffer) is kept; docs/performance.md has the sizes. Pinned vertices are
-eliminated (their current positions go to the right-hand side). Then
+by quasi-Newton iterations (`method = "lbfgs"`, the default: L-BFGS whose initial inverse
+Hessian is the projective-dynamics matrix below, with an Armijo line search; Liu, Bouaziz, Kavan
+2017, "Quasi-Newton methods for real-time simulation of hyperelastic materials") or by Liu et
+al.'s local/global iterations (`method = "local_global"`): the local step projects every spring
+onto its rest length (a closed form), the global step solves one sparse linear system whose
+matrix q M / b^2 + sum_s k_s (e_a - e_b)(e_a - e_b)^T does not change, so it is factorised once
+and each iteration is a back-substitution for x, y and z together (one (n, 3) right-hand side).
+One local/global iteration is exactly one preconditioned gradient step (the matrix times x minus
+the local step's right-hand side is the energy's gradient), so L-BFGS without history is that
+iteration; its history of the last steps adds the curvature the matrix lacks where springs turn
+(below), so a stiff cloth converges in a few iterations of one step a frame
+(docs/performance.md, "The implicit solver's quasi-Newton iterations"). The matrix is symmetric
+positive definite (mass > 0 on every free vertex, weights > 0), so it is factorised by sparse
+Cholesky (CHOLMOD through cholespy, with its fill-reducing ordering): one triangle L instead of
+SuperLU's L and U, less memory and a faster back-substitution. Only the lower triangle of the
+matrix is passed (CSC, duplicates summed by SciPy, which leaves CHOLMOD less to convert), and
+nothing but the factor and (n, 3) buffers is kept (one for local/global, 2 HISTORY + 5 for
+L-BFGS: 15 MB at 65k vertices); docs/performance.md has the
+sizes. Pinned vertices are eliminated (their current positions go to the right-hand side). Then
 v' = 3 / (2 dt) (x' - 4/3 x_n + 1/3 x_n-1).
 
 Air damping: c = -ln(1 - damping) (1/s), so that velocity decays as (1 - damping) ** t as with
@@ -32,8 +40,8 @@ The first step (and any step after the state was replaced) starts BDF2 from a hi
 consistent with constant external acceleration, so free fall without damping is exact.
 Material spring damping is not used: BDF2 damps the highest frequencies and air damping the
 rest. Every iteration lowers the step's energy, so the step cannot explode; too few
-iterations for very stiff springs make the cloth look softer than k (Liu et al.), not
-unstable, and they slow down motion across the springs: the global matrix holds every spring
+local/global iterations for very stiff springs make the cloth look softer than k (Liu et al.),
+not unstable, and they slow down motion across the springs: the global matrix holds every spring
 with its full stiffness in every direction, so a swing or a fold (which turns springs rather
 than stretching them) moves each iteration only by about m / (b^2 k) of the way, and the rest
 of the way is lost like motion to a strong damping (a swinging cloth creeps towards rest).
@@ -100,6 +108,12 @@ class ImplicitSolver(ModelCache, Solver):
         self.free_mass = np.asarray(model.mass, dtype=np.float64)[self.free_vertices]
         self.rhs = np.zeros((self.free_vertices.shape[0], 3))
         self.solution = np.zeros_like(self.rhs)
+        if self.options.method == "lbfgs":  # L-BFGS buffers, (F, 3) each, HISTORY pairs of them
+            shape = self.rhs.shape
+            self.grad, self.trial_grad = np.zeros(shape), np.zeros(shape)
+            self.direction, self.base, self.residual = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+            self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
+            self.rho = np.zeros(HISTORY)
         self.factor: cholespy.CholeskySolverD | None = None
         self._dt = -1.0
         self._state_key = None
@@ -160,13 +174,11 @@ class ImplicitSolver(ModelCache, Solver):
         fv = self.free_vertices
         if fv.shape[0] and self.factor is not None:
             x[fv] = y[fv]
-            for _ in range(self.iterations if self.a.shape[0] else 0):
-                kernels.pd_rhs(
-                    x, self.a, self.b, self.rest, self.weight, self.stiff_t, self.stiff_c, self.modulus,
-                    self.free, self.inertia, y, self.rhs,
-                )
-                self.factor.solve(self.rhs, self.solution)
-                kernels.scatter_free(x, fv, self.solution)
+            if self.a.shape[0]:
+                if self.options.method == "lbfgs":
+                    self._quasi_newton(x, y)
+                else:
+                    self._local_global(x, y)
         v_new = (1.5 / dt) * (x - x_hat)
         pinned = self.free < 0
         v_new[pinned] = (x[pinned] - state.previous[pinned]) / dt
@@ -175,3 +187,83 @@ class ImplicitSolver(ModelCache, Solver):
         state.previous[~pinned] = x_n[~pinned]
         v[:] = v_new
         self._state_key = (id(state), state.time + dt)
+
+    def _local_global(self, x: np.ndarray, y: np.ndarray) -> None:
+        """Liu et al.'s iterations: project every spring, solve the prefactored system, repeat."""
+        for _ in range(self.iterations):
+            kernels.pd_rhs(
+                x, self.a, self.b, self.rest, self.weight, self.stiff_t, self.stiff_c, self.modulus,
+                self.free, self.inertia, y, self.rhs,
+            )
+            self.factor.solve(self.rhs, self.solution)
+            kernels.scatter_free(x, self.free_vertices, self.solution)
+
+    def _energy(self, x: np.ndarray, y: np.ndarray, grad: np.ndarray) -> float:
+        return float(kernels.step_energy(
+            x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, self.free,
+            self.free_vertices, self.inertia, y, grad,
+        ))
+
+    def _quasi_newton(self, x: np.ndarray, y: np.ndarray) -> None:
+        """L-BFGS on the step's energy from x (= y on the free vertices), in place.
+
+        The initial inverse Hessian is the prefactored matrix's inverse: one L-BFGS iteration
+        without history is exactly one local/global iteration (the matrix times x minus the
+        local step's right-hand side is the energy's gradient), and the history of the last
+        `HISTORY` steps adds the curvature that matrix lacks, above all for springs that turn
+        (it holds every spring at full stiffness in every direction). Each direction is tried at
+        step 1, halved until the energy falls by the Armijo condition. The history is per step.
+        """
+        fv = self.free_vertices
+        grad, trial_grad, direction, base = self.grad, self.trial_grad, self.direction, self.base
+        energy = self._energy(x, y, grad)
+        slots: list[int] = []  # history slots, newest first
+        alpha = np.zeros(HISTORY)
+        for iteration in range(self.iterations):
+            # two-loop recursion: direction = H grad, H0 = matrix^-1 (the step is -direction)
+            self.residual[:] = grad
+            for slot in slots:
+                alpha[slot] = self.rho[slot] * kernels.dot(self.step_history[slot], self.residual)
+                kernels.add_scaled(self.residual, self.gradient_history[slot], -alpha[slot])
+            self.factor.solve(self.residual, direction)
+            for slot in reversed(slots):
+                beta = self.rho[slot] * kernels.dot(self.gradient_history[slot], direction)
+                kernels.add_scaled(direction, self.step_history[slot], alpha[slot] - beta)
+            slope = -kernels.dot(grad, direction)
+            if not slope < 0.0 and slots:  # the history spoilt the direction: start it afresh
+                slots.clear()
+                self.factor.solve(grad, direction)
+                slope = -kernels.dot(grad, direction)
+            if not slope < 0.0:  # a stationary point
+                return
+            base[:] = x[fv]
+            step = 1.0
+            for _ in range(LINE_SEARCH_HALVINGS):
+                kernels.place(x, fv, base, direction, -step)
+                trial = self._energy(x, y, trial_grad)
+                if trial <= energy + ARMIJO * step * slope:
+                    break
+                step *= 0.5
+            else:  # no decrease even at the smallest step: x is as good as this direction gets
+                kernels.place(x, fv, base, direction, 0.0)
+                return
+            if iteration + 1 == self.iterations:
+                return
+            slot = next(k for k in range(HISTORY) if k not in slots) if len(slots) < HISTORY else slots.pop()
+            s_k, y_k = self.step_history[slot], self.gradient_history[slot]
+            np.multiply(direction, -step, out=s_k)
+            np.subtract(trial_grad, grad, out=y_k)
+            curvature = kernels.dot(s_k, y_k)
+            if curvature > 0.0:
+                self.rho[slot] = 1.0 / curvature
+                slots.insert(0, slot)
+            grad, trial_grad = trial_grad, grad
+            energy = trial
+
+
+#: L-BFGS history length (Liu, Bouaziz, Kavan 2017 use 5)
+HISTORY = 5
+#: sufficient decrease of the line search: the energy must fall by this fraction of the slope
+ARMIJO = 1e-4
+#: halvings of the step before the line search gives up on a direction
+LINE_SEARCH_HALVINGS = 12
