@@ -8,6 +8,13 @@ import numpy as np
 from meshdeform.solvers.jit import FAST, JIT
 
 
+@nb.njit(inline="always", **JIT)
+def spring_constant(stretch, stiff_t, stiff_c, modulus):  # pragma: no cover - compiled
+    """k (N/m) of a spring stretched by `stretch` = l - L (m): its tension stiffness while longer
+    than rest, its compression stiffness while shorter, times the material's modulus (never < 0)."""
+    return max(stiff_t if stretch > 0.0 else stiff_c, 0.0) * modulus
+
+
 @nb.njit(**FAST)
 def pd_rhs(x, a, b, rest, weight, stiff_t, stiff_c, modulus, free, inertia, y, out):  # pragma: no cover - compiled
     """Local step + right-hand side of projective dynamics (Liu et al. 2013) for free vertices.
@@ -48,7 +55,7 @@ def pd_rhs(x, a, b, rest, weight, stiff_t, stiff_c, modulus, free, inertia, y, o
             tz = 0.0
         else:
             c = length - rest[s]
-            r = max(stiff_t[s] if c > 0.0 else stiff_c[s], 0.0) * modulus / w
+            r = spring_constant(c, stiff_t[s], stiff_c[s], modulus) / w
             scale = (length - r * c) / length
             tx = dx * scale
             ty = dy * scale
@@ -117,7 +124,7 @@ def step_energy(  # pragma: no cover - compiled
         dz = x[ia, 2] - x[ib, 2]
         length = np.sqrt(dx * dx + dy * dy + dz * dz)
         c = length - rest[s]
-        k = max(stiff_t[s] if c > 0.0 else stiff_c[s], 0.0) * modulus
+        k = spring_constant(c, stiff_t[s], stiff_c[s], modulus)
         energy += 0.5 * k * c * c
         if length < 1e-12:
             continue
