@@ -106,6 +106,8 @@ class _State:
         self.pending: int | None = None
         #: an Interrupted has been raised: further signals are ignored while the cleanup runs
         self.interrupted = False
+        #: the signal of that Interrupted (`raise_if_lost` raises it again)
+        self.raised: int | None = None
         #: in a pool worker: the pid of the batch process it serves
         self.parent: int | None = None
         #: in a pool worker: a job is running (SIGINT then stops the job, letting it clean up)
@@ -127,16 +129,25 @@ def _deliver(signum: int) -> None:
     """Act on an interrupting signal outside any `publishing` block."""
     if _state.mode == "worker":
         if signum == signal.SIGINT and _state.job_running and not _state.interrupted:
-            _state.interrupted = True
+            _state.interrupted, _state.raised = True, signum
             raise Interrupted(signum)  # Ctrl-C to the process group: the job removes its staging folder
         _die(signum)  # SIGTERM from the pool or the kernel (parent gone), SIGINT while idle: quietly
     if _state.interrupted:
         return  # the cleanup of the first interrupt is running: let it finish
-    _state.interrupted = True
+    _state.interrupted, _state.raised = True, signum
     # The exception may land inside a library's half-built object (llvmlite while Numba compiles), whose
     # __del__ then fails when it is collected, up to interpreter exit: that report goes to the log.
     sys.unraisablehook = _log_unraisable
     raise Interrupted(signum)
+
+
+def raise_if_lost() -> None:
+    """Raise again an Interrupted that never reached the run: a signal handled while Python ran a
+    finalizer (`__del__`, a weakref callback) raises there, and Python reports such an exception as
+    unraisable and goes on, so the run would continue with further signals ignored. A run's loop
+    calls this once a frame; the cleanup of an interrupt that did arrive never runs that loop."""
+    if _state.interrupted and _state.raised is not None:
+        raise Interrupted(_state.raised)
 
 
 def _log_unraisable(unraisable: Any) -> None:
@@ -166,14 +177,14 @@ def handling_signals() -> Iterator[None]:
     for signum in INTERRUPT_SIGNALS:
         with contextlib.suppress(OSError, ValueError):
             previous[signum] = signal.signal(signum, _handler)
-    _state.mode, _state.interrupted, _state.pending = "raise", False, None
+    _state.mode, _state.interrupted, _state.pending, _state.raised = "raise", False, None, None
     try:
         yield
     finally:
         for signum, handler in previous.items():
             with contextlib.suppress(OSError, ValueError, TypeError):
                 signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
-        _state.mode, _state.interrupted, _state.pending = None, False, None
+        _state.mode, _state.interrupted, _state.pending, _state.raised = None, False, None, None
 
 
 # -- putting a folder into place -----------------------------------------------------------------

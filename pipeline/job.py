@@ -25,6 +25,7 @@ from meshdeform.errors import MeshdeformError
 from meshdeform.mesh import Mesh
 from pipeline import __version__
 from pipeline.hashing import file_sha256
+from pipeline.interrupts import raise_if_lost
 from pipeline.output_folder import REPORT_NAME, check_output_folder, staged_directory
 from pipeline.recipe import Recipe, recipe_hash, resolve_path
 
@@ -202,6 +203,7 @@ def run_job(
                 if extra:
                     extra_work.append(frame.index)
                 export(frame)
+                raise_if_lost()  # a signal whose Interrupted a finalizer swallowed still stops the run
                 if on_frame is not None:
                     on_frame(frame.index, settings.frames)
                 tick = time.perf_counter()

@@ -23,6 +23,7 @@ from pipeline.interrupts import (
     note_unwritten,
     noting_unwritten,
     publishing,
+    raise_if_lost,
     unwritten_target,
 )
 
@@ -235,6 +236,28 @@ def test_signals_during_the_cleanup_of_an_interrupt_are_ignored() -> None:
             time.sleep(0.05)
             cleaned = True
     assert cleaned
+
+
+def test_an_interrupt_swallowed_by_a_finalizer_is_raised_again_by_the_run_loop() -> None:
+    """A signal handled while a `__del__` runs raises there; Python reports it as unraisable and goes
+    on (what left a CI run writing frames after SIGHUP). The run loop's check raises it again."""
+
+    class SignalsOnCollection:
+        def __del__(self) -> None:
+            os.kill(os.getpid(), signal.SIGHUP)
+            time.sleep(0.2)  # the handler runs inside this finalizer
+
+    previous_hook = sys.unraisablehook
+    with handling_signals():
+        try:
+            SignalsOnCollection()  # collected at once: the Interrupted is lost in __del__
+            reached_the_loop = True
+            with pytest.raises(Interrupted) as raised:
+                raise_if_lost()
+        finally:
+            sys.unraisablehook = previous_hook
+    assert reached_the_loop and raised.value.signum == signal.SIGHUP
+    raise_if_lost()  # outside the block nothing is pending
 
 
 def test_handlers_are_restored_after_the_block() -> None:
