@@ -72,8 +72,8 @@ class ImplicitSolver(ModelCache, Solver):
     summary: ClassVar[str] = "projective dynamics (Liu et al. 2013) with BDF2, prefactored: stiff springs in few steps"
     hint: ClassVar[str] = "use more substeps or iterations, or check the forces for non-finite values"
     options_class: ClassVar[type[ImplicitOptions]] = ImplicitOptions
-    default_substeps: ClassVar[int] = 8
-    default_iterations: ClassVar[int] = 3
+    default_substeps: ClassVar[int] = 4
+    default_iterations: ClassVar[int] = 4
 
     def __init__(self, options: ImplicitOptions) -> None:
         super().__init__(options)
