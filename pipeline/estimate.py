@@ -116,7 +116,9 @@ def output_bytes(recipe: Recipe, mesh: Mesh) -> dict[str, int]:
         if exporter is None:
             continue
         lead = written.start if exporter.pads_to_scene_frame_zero else 0  # copies for scene frames 0 ..
-        size = exporter.estimated_bytes(mesh, frames + lead, **recipe.output.exporter_options.get(name, {}))
+        # motion blur: every frame after the first written one also holds the states between it and the one before
+        between = (frames - 1) * (recipe.output.subframes - 1) if exporter.writes_subframes else 0
+        size = exporter.estimated_bytes(mesh, frames + lead + between, **recipe.output.exporter_options.get(name, {}))
         if size is not None:
             sizes[name] = int(size)
     preview = _preview_bytes(recipe)

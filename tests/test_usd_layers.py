@@ -436,6 +436,24 @@ def test_output_usd_table_reaches_the_exporter_and_the_result_folder(tmp_path: P
     assert read_marker(out) == marker
 
 
+def test_the_run_estimate_counts_motion_blur_subframes(tmp_path: Path) -> None:
+    """`[output] subframes = 8` writes seven more time samples a frame: the estimate `meshdeform check`
+    prints and the disk check uses stays on the high side of what the run writes."""
+    from pipeline.estimate import output_bytes
+    from pipeline.job import run_job
+    from pipeline.recipe import parse_recipe
+
+    path = Path(__file__).resolve().parents[1] / "samples" / "meshes" / "sheet.obj"
+    mesh = load(path)
+    for subframes in (1, 8):
+        recipe = parse_recipe(f'[simulation]\nframes = 6\n[output]\nformats = ["usd"]\nsubframes = {subframes}\n')
+        out = tmp_path / f"blur{subframes}"
+        run_job(path, recipe, out)
+        written = (out / "scene.usdc").stat().st_size
+        estimate = output_bytes(recipe, mesh)["usd"]
+        assert written <= estimate < 4 * written + 65536, (subframes, written, estimate)
+
+
 # -- real meshes ------------------------------------------------------------------------------
 
 

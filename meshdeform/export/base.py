@@ -199,6 +199,8 @@ class BaseExporter:
     supports_topology_change: ClassVar[bool] = False
     #: a point cache whose sample k is scene frame k (`leading_samples` copies before the first frame)
     pads_to_scene_frame_zero: ClassVar[bool] = False
+    #: `FrameData.subframes` become samples of their own (USD motion blur), each as large as a frame's
+    writes_subframes: ClassVar[bool] = False
     #: the reason given when a frame changes the topology and the format cannot follow
     topology_message: ClassVar[str] = "this format needs a fixed topology"
 

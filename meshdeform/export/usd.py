@@ -103,6 +103,7 @@ class UsdExporter(BaseExporter):
 
     name: ClassVar[str] = "usd"
     summary: ClassVar[str] = "USD stage with time samples"
+    writes_subframes: ClassVar[bool] = True
     supports_topology_change: ClassVar[bool] = True
 
     def __init__(
