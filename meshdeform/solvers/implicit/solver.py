@@ -107,9 +107,10 @@ class ImplicitSolver(ModelCache, Solver):
         self.free[self.free_vertices] = np.arange(self.free_vertices.shape[0], dtype=np.int32)
         self.free_mass = np.asarray(model.mass, dtype=np.float64)[self.free_vertices]
         self.rhs = np.zeros((self.free_vertices.shape[0], 3))
-        self.solution = np.zeros_like(self.rhs)
-        if self.options.method == "lbfgs":  # L-BFGS buffers, (F, 3) each, HISTORY pairs of them
-            shape = self.rhs.shape
+        shape = self.rhs.shape
+        if self.options.method == "local_global":  # the global step's result, (F, 3)
+            self.solution = np.zeros(shape)
+        else:  # L-BFGS buffers, (F, 3) each, HISTORY pairs of them
             self.grad, self.trial_grad = np.zeros(shape), np.zeros(shape)
             self.direction, self.base, self.residual = np.zeros(shape), np.zeros(shape), np.zeros(shape)
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
