@@ -142,7 +142,10 @@ def run_job(
             frame_count=settings.frames,
         )
         preview = (
-            RunPreview(recipe.output.preview, context, formats, model, colliders)
+            RunPreview(
+                recipe.output.preview, context, formats, model, colliders,
+                exporter_options=recipe.output.exporter_options,
+            )
             if recipe.output.preview
             else None
         )

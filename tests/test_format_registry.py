@@ -93,6 +93,22 @@ def test_a_folder_in_one_format_is_read_by_that_formats_reader_as_its_read_back_
     assert open_result(ctx.out_dir, mesh=mesh).frame_numbers == [1, 2, 3, 4]  # from the run's first frame
 
 
+@pytest.mark.parametrize("layers", ["single", "split"])
+def test_a_text_usd_run_is_read_back_as_its_text_stage(layers: str, mesh: Mesh, tmp_path: Path) -> None:
+    """`[output.usd] ascii = true` writes scene.usda: the run's read-back names that file, as reading
+    the folder does (the preview label's source)."""
+    options = {"usd": {"ascii": True, "layers": layers}}
+    ctx = ExportContext(mesh=mesh, out_dir=tmp_path / layers, fps=24.0, frame_count=3)
+    with ExportSession(["usd"], ctx, options) as session:
+        for i in range(4):
+            session.write(FrameData(index=i, time=i / 24.0, positions=sag(mesh, i)))
+    result = open_result(ctx.out_dir, mesh=mesh)
+    read_back = read_back_for(["usd"], ctx, options)
+    assert result.source == "scene.usda"
+    assert read_back is not None and read_back.source == result.source
+    assert read_back_for(["usd"], ctx).source == "scene.usdc"  # the crate file a plain run writes
+
+
 def test_formats_previews_cannot_read_have_no_read_back(mesh: Mesh, tmp_path: Path) -> None:
     for name in set(EXPORTERS) - set(READABLE):
         ctx = ExportContext(mesh=mesh, out_dir=tmp_path, fps=24.0)

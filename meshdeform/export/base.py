@@ -224,10 +224,11 @@ class BaseExporter:
         return None
 
     @classmethod
-    def reading(cls) -> ResultReading | None:
+    def reading(cls, **options: Any) -> ResultReading | None:
         """How previews read this format back, from a result folder or from a run's frames in memory
         (its reader and `ReadBack`, beside the writer), or None when they cannot (the format is then
-        never searched for)."""
+        never searched for). `options`: the run's `[output.<format>]` options, for a format whose
+        file names depend on them (usd's `ascii`); none for a folder searched without a recipe."""
         return None
 
     # -- public protocol -------------------------------------------------------------------

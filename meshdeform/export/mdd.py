@@ -19,7 +19,7 @@ import shutil
 import struct
 import tempfile
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -64,7 +64,7 @@ class MddExporter(BaseExporter):
         return int(mdd_bytes(frames, mesh.vertex_count))
 
     @classmethod
-    def reading(cls) -> ResultReading | None:
+    def reading(cls, **options: Any) -> ResultReading | None:
         return ResultReading(priority=70, looks_for=FILE_NAME, read=read_mdd_result, read_back=MddReadBack)
 
     def _open(self, ctx: ExportContext) -> None:

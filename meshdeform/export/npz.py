@@ -19,7 +19,7 @@ from __future__ import annotations
 import tempfile
 from dataclasses import replace
 from pathlib import Path
-from typing import IO, ClassVar
+from typing import IO, Any, ClassVar
 
 import numpy as np
 
@@ -74,7 +74,7 @@ class NpzExporter(BaseExporter):
         return int(4096 + (12 + POINT_DATA_BYTES) * v * frames + 16 * frames + 8 * (corners + f + 1) + 24 * v)
 
     @classmethod
-    def reading(cls) -> ResultReading | None:
+    def reading(cls, **options: Any) -> ResultReading | None:
         return ResultReading(
             priority=30,
             looks_for=FILE_NAME,

@@ -70,7 +70,7 @@ class ObjExporter(FrameSequenceExporter):
         return int(obj_frame_bytes(mesh) * frames)
 
     @classmethod
-    def reading(cls) -> ResultReading | None:
+    def reading(cls, **options: Any) -> ResultReading | None:
         """`frames/` first of all (a run writing obj and ply previews its .obj files)."""
         return frame_files_reading(10, cls.suffix)
 

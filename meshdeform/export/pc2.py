@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import struct
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -71,7 +71,7 @@ class Pc2Exporter(BaseExporter):
         return int(pc2_bytes(frames, mesh.vertex_count))
 
     @classmethod
-    def reading(cls) -> ResultReading | None:
+    def reading(cls, **options: Any) -> ResultReading | None:
         return ResultReading(priority=60, looks_for=FILE_NAME, read=read_pc2_result, read_back=Pc2ReadBack)
 
     def _open(self, ctx: ExportContext) -> None:

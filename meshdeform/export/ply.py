@@ -46,7 +46,7 @@ class PlyExporter(FrameSequenceExporter):
         return int(per_frame * frames)
 
     @classmethod
-    def reading(cls) -> ResultReading | None:
+    def reading(cls, **options: Any) -> ResultReading | None:
         """`frames/`, searched once with obj's; previews of a run read .ply frames when it writes no .obj."""
         return frame_files_reading(20, cls.suffix)
 

@@ -158,12 +158,14 @@ class UsdExporter(BaseExporter):
         return int(own + data * (_ASCII_FACTOR if ascii else 1))
 
     @classmethod
-    def reading(cls) -> ResultReading | None:
+    def reading(cls, *, ascii: bool = False, **options: Any) -> ResultReading | None:
+        """`scene.usdc` (or the `.usda` a run with `ascii` writes: what its read-back names)."""
+        stage_name = "scene.usda" if ascii else "scene.usdc"
         return ResultReading(
             priority=40,
             looks_for="scene.usdc",
             read=read_usd_result,
-            read_back=UsdReadBack,
+            read_back=lambda ctx: UsdReadBack(ctx, stage_name),
         )
 
     @property
@@ -458,10 +460,9 @@ class UsdReadBack(ReadBack):
     first frame's topology, the run's fps, and the errors reading the stage gives (no polygons, so no
     `UsdGeom.Mesh`; a vertex count that changes over time)."""
 
-    source = "scene.usdc"
-
-    def __init__(self, ctx: ExportContext) -> None:
+    def __init__(self, ctx: ExportContext, stage_name: str = "scene.usdc") -> None:
         super().__init__(ctx)
+        self.source = stage_name  # the file the reader opens: scene.usdc, or scene.usda with `ascii`
         self._path = ctx.out_dir / self.source
         self._error: MeshLoadError | None = None
 

@@ -124,7 +124,7 @@ class VtkExporter(BaseExporter):
         return int(per_frame * frames + 256 * frames)
 
     @classmethod
-    def reading(cls) -> ResultReading | None:
+    def reading(cls, **options: Any) -> ResultReading | None:
         """The `.vtp` frames; their first frame's `pinned` array also serves the frames other readers find."""
         return ResultReading(
             priority=50,

@@ -63,7 +63,9 @@ class RunPreview:
     options: as `render_previews` takes them (a recipe's `[output] preview` table). model: the run's
     SpringModel (its `vertex_map`, `pinned` and springs for the strain). colliders: the run's scene's
     colliders, drawn at each frame's time ((scene frame - `ctx.start_frame`) / `ctx.fps`).
-    memory_budget: bytes of kept frames held in memory (module docstring).
+    memory_budget: bytes of kept frames held in memory (module docstring). exporter_options: the run's
+    `[output.<format>]` options (`OutputSpec.exporter_options`), for the file names the frames are
+    read back as (usd's `ascii`: scene.usda).
     """
 
     def __init__(
@@ -74,13 +76,14 @@ class RunPreview:
         model: Any,
         colliders: Sequence[Collider] = (),
         memory_budget: int = MEMORY_BUDGET,
+        exporter_options: Mapping[str, Mapping[str, Any]] | None = None,
     ) -> None:
         self.ctx = ctx
         self.colliders = list(colliders)
         self.formats = list(formats)
         self.model = model
         self._options = options
-        self._read_back = read_back_for(self.formats, ctx)
+        self._read_back = read_back_for(self.formats, ctx, exporter_options)
         self._mesh: Mesh = ctx.mesh  # the mesh in force
         self._base: Mesh | None = None
         self._preview: SequencePreview | None = None

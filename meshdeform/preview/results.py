@@ -28,10 +28,13 @@ from meshdeform.preview.sequence import render_previews
 from meshdeform.scene.colliders import Collider
 
 
-def readings(formats: Iterable[str]) -> list[ResultReading]:
+def readings(
+    formats: Iterable[str], exporter_options: Mapping[str, Mapping[str, Any]] | None = None
+) -> list[ResultReading]:
     """The readings of the registered `formats` previews can read back, in priority order (names the
-    registry does not know are skipped)."""
-    found = (EXPORTERS[name].reading() for name in dict.fromkeys(formats) if name in EXPORTERS)
+    registry does not know are skipped); `exporter_options`: a run's `[output.<format>]` options."""
+    options = exporter_options or {}
+    found = (EXPORTERS[name].reading(**options.get(name, {})) for name in dict.fromkeys(formats) if name in EXPORTERS)
     return sorted((r for r in found if r is not None), key=lambda r: r.priority)
 
 
@@ -44,10 +47,12 @@ def search_order() -> list[ResultReading]:
     return list(first.values())
 
 
-def read_back_for(formats: Sequence[str], ctx: ExportContext) -> ReadBack | None:
-    """The `ReadBack` of what `open_result` reads from a folder a run writes in `formats` (on `ctx`), or
-    None when it reads none of them (xdmf alone)."""
-    chosen = readings(formats)
+def read_back_for(
+    formats: Sequence[str], ctx: ExportContext, exporter_options: Mapping[str, Mapping[str, Any]] | None = None
+) -> ReadBack | None:
+    """The `ReadBack` of what `open_result` reads from a folder a run writes in `formats` (on `ctx`, with
+    the run's `[output.<format>]` `exporter_options`), or None when it reads none of them (xdmf alone)."""
+    chosen = readings(formats, exporter_options)
     return chosen[0].read_back(ctx) if chosen else None
 
 
