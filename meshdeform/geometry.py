@@ -298,7 +298,8 @@ def normal_layout(mesh: Mesh) -> NormalLayout | None:
     normal per vertex, a smooth mesh split at UV seams stays smooth across them, and a position
     with distinct input normals (a real hard edge) keeps one normal per side. Output normals are
     numbered by welded vertex (input vertex order), then by input normal value. Judged on the
-    first mesh seen with these normal arrays (the input, at rest) and cached with them.
+    first mesh seen with these normal arrays (the input, at rest) and cached with them. A torn mesh
+    (`Mesh.welded` set) groups by its `welded` ids instead: the two lips of a cut get a normal each.
     """
     if mesh.normals is None or mesh.face_normal_indices is None:
         return None
@@ -313,13 +314,15 @@ def normal_layout(mesh: Mesh) -> NormalLayout | None:
         quantised = np.rint(unit * 10.0**NORMAL_DECIMALS).astype(np.int64) + 0
         _, value_id = np.unique(quantised, axis=0, return_inverse=True)
         value_id = value_id.ravel().astype(np.int64)
-        welded = weld(mesh.positions).vertex_map[np.asarray(mesh.face_indices, dtype=np.int64)]
+        points = weld(mesh.positions).vertex_map if mesh.welded is None else np.asarray(mesh.welded, np.int64)
+        welded = points[np.asarray(mesh.face_indices, dtype=np.int64)]
         normal_ids = np.asarray(mesh.face_normal_indices, dtype=np.int64)
         keys = welded * (int(value_id.max()) + 1) + value_id[normal_ids]
         _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
         return NormalLayout(inverse.ravel().astype(np.int64), unit[normal_ids[first]], welded[first])
 
-    return _cached("layout", (mesh.normals, mesh.face_normal_indices, mesh.face_offsets), build)
+    arrays = (mesh.normals, mesh.face_normal_indices, mesh.face_offsets)
+    return _cached("layout", arrays if mesh.welded is None else (*arrays, mesh.welded), build)
 
 
 def surface_normals(mesh: Mesh, positions: np.ndarray | None = None) -> np.ndarray:

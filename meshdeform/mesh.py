@@ -37,6 +37,10 @@ class Mesh:
     face_properties: extra per-face scalar arrays (PLY).
     source: the file it was read from, if any.
     warnings: what the reader repaired or dropped, one sentence each.
+    welded: (V,) int64, which vertices are one point of the surface (equal ids), when the positions
+        cannot tell: a torn mesh's split copies start where their originals are yet are separate
+        points (set by tearing: each vertex's simulation vertex). None: vertices at one position
+        are one point (an input's vertices split at UV seams).
     """
 
     positions: np.ndarray
@@ -54,6 +58,7 @@ class Mesh:
     face_properties: dict[str, np.ndarray] = field(default_factory=dict)
     source: Path | None = None
     warnings: tuple[str, ...] = ()
+    welded: np.ndarray | None = None
 
     @property
     def vertex_count(self) -> int:

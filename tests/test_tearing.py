@@ -483,3 +483,50 @@ def test_build_makes_the_tearer_and_checks_selections() -> None:
         mesh,
     )
     assert late.scene.tearing is not None and any("never happens" in w for w in late.warnings)
+
+
+def test_the_lips_of_a_cut_get_a_normal_each_in_the_written_obj(tmp_path: Path) -> None:
+    """A sheet written with one shared `vn` (as Blender writes a flat plane) is cut in two and its right
+    half folded up by 90 degrees: every corner's normal in the OBJ written for that frame, read back
+    with trimesh's loader, is the normal of its own face computed from the file's positions (before,
+    the two lips of the cut shared one normal halfway between the halves)."""
+    from dataclasses import replace
+
+    from meshdeform.export import ExportContext, ExportSession, FrameData
+    from meshdeform.model import SpringModel
+
+    sheet = grid_sheet(9)  # the xy plane, normal +z
+    mesh = replace(sheet, normals=np.array([[0.0, 0.0, 1.0]]), face_normal_indices=np.zeros_like(sheet.face_indices))
+    model = SpringModel.from_mesh(mesh)
+    tearer = Tearer(mesh, model, None, [Cut.plane(0.02, point=[0.5, 0, 0], normal=[1, 0, 0])])
+    frames = run(model, Scene(tearing=tearer), frames=1)
+    assert frames[-1].pieces == 2
+    torn = tearer.mesh
+    corners = torn.face_indices.reshape(-1, 4)
+    right = torn.positions[corners].mean(axis=1)[:, 0] > 0.5
+    moved = np.unique(corners[right])
+    assert not np.isin(moved, corners[~right]).any()  # the halves share no vertex
+    positions = torn.positions.copy()
+    lever = positions[moved, 0] - 0.5
+    positions[moved, 0] = 0.5
+    positions[moved, 2] = lever  # the right half stands up along +z, hinged at x = 0.5
+
+    ctx = ExportContext(mesh=torn, out_dir=tmp_path, fps=24.0, frame_count=1)
+    with ExportSession(["obj"], ctx) as session:
+        session.write(FrameData(index=0, time=0.0, positions=positions))
+        session.write(FrameData(index=1, time=1 / 24, positions=positions))
+    written = sorted((tmp_path / "frames").glob("*.obj"))[-1]
+    lines = written.read_text().splitlines()
+    normals = np.array([[float(t) for t in line.split()[1:4]] for line in lines if line.startswith("vn ")])
+    points = np.array([[float(t) for t in line.split()[1:4]] for line in lines if line.startswith("v ")])
+    faces = [
+        [tuple(int(i) - 1 for i in c.split("/")) for c in line.split()[1:]] for line in lines if line.startswith("f ")
+    ]
+    loaded = trimesh.load(written, process=False, force="mesh")  # an independent reader agrees on the points
+    np.testing.assert_allclose(np.sort(loaded.vertices, axis=0), np.sort(points, axis=0), atol=1e-9)
+    for face in faces:
+        a, b, c = (points[corner[0]] for corner in face[:3])
+        own = np.cross(b - a, c - a)
+        own /= np.linalg.norm(own)
+        for corner in face:
+            assert np.dot(normals[corner[2]], own) > 0.999, (face, normals[corner[2]], own)

@@ -74,6 +74,7 @@ class OutputLayout:
             positions=np.asarray(input_mesh.positions)[inp],
             face_indices=self.corner_out.copy(),
             vertex_properties=props,
+            welded=self.sim.copy(),  # the lips of a cut are apart, wherever they start
         )
 
 
