@@ -104,9 +104,8 @@ class _State:
         self.deferring = 0
         #: a signal that arrived inside `publishing`, delivered at its end
         self.pending: int | None = None
-        #: an Interrupted has been raised: further signals are ignored while the cleanup runs
-        self.interrupted = False
-        #: the signal of that Interrupted (`raise_if_lost` raises it again)
+        #: the signal of the Interrupted raised, if one was: further signals are ignored while the
+        #: cleanup runs, and `raise_if_lost` raises it again
         self.raised: int | None = None
         #: in a pool worker: the pid of the batch process it serves
         self.parent: int | None = None
@@ -128,13 +127,13 @@ def _die(signum: int) -> None:
 def _deliver(signum: int) -> None:
     """Act on an interrupting signal outside any `publishing` block."""
     if _state.mode == "worker":
-        if signum == signal.SIGINT and _state.job_running and not _state.interrupted:
-            _state.interrupted, _state.raised = True, signum
+        if signum == signal.SIGINT and _state.job_running and _state.raised is None:
+            _state.raised = signum
             raise Interrupted(signum)  # Ctrl-C to the process group: the job removes its staging folder
         _die(signum)  # SIGTERM from the pool or the kernel (parent gone), SIGINT while idle: quietly
-    if _state.interrupted:
+    if _state.raised is not None:
         return  # the cleanup of the first interrupt is running: let it finish
-    _state.interrupted, _state.raised = True, signum
+    _state.raised = signum
     # The exception may land inside a library's half-built object (llvmlite while Numba compiles), whose
     # __del__ then fails when it is collected, up to interpreter exit: that report goes to the log.
     sys.unraisablehook = _log_unraisable
@@ -146,7 +145,7 @@ def raise_if_lost() -> None:
     finalizer (`__del__`, a weakref callback) raises there, and Python reports such an exception as
     unraisable and goes on, so the run would continue with further signals ignored. A run's loop
     calls this once a frame; the cleanup of an interrupt that did arrive never runs that loop."""
-    if _state.interrupted and _state.raised is not None:
+    if _state.raised is not None:
         raise Interrupted(_state.raised)
 
 
@@ -177,14 +176,14 @@ def handling_signals() -> Iterator[None]:
     for signum in INTERRUPT_SIGNALS:
         with contextlib.suppress(OSError, ValueError):
             previous[signum] = signal.signal(signum, _handler)
-    _state.mode, _state.interrupted, _state.pending, _state.raised = "raise", False, None, None
+    _state.mode, _state.pending, _state.raised = "raise", None, None
     try:
         yield
     finally:
         for signum, handler in previous.items():
             with contextlib.suppress(OSError, ValueError, TypeError):
                 signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
-        _state.mode, _state.interrupted, _state.pending, _state.raised = None, False, None, None
+        _state.mode, _state.pending, _state.raised = None, None, None
 
 
 # -- putting a folder into place -----------------------------------------------------------------
