@@ -271,17 +271,35 @@ def test_simulate_prints_the_not_converged_warning_under_its_summary(tmp_path: P
     assert "raise iterations or substeps" in lines[-1]
 
 
-def test_implicit_lbfgs_converges_on_a_stiff_cloth_where_local_global_iterations_do_not() -> None:
-    """Issue 16 item 1: a cloth ten times stiffer than the default (10 000 N/m), one implicit step
-    a frame of 10 iterations. Liu et al.'s local/global iterations hold every spring at full
-    stiffness in every direction, so the hanging corners' springs barely turn per iteration and
-    the cloth settles far below the material's equilibrium (the explicit `springs` solver: Hooke
-    forces balance gravity exactly at rest); the quasi-Newton method (L-BFGS with the same
-    prefactored matrix, the default) settles on it, and its force residual is ten times lower."""
+def test_implicit_lbfgs_swings_a_stiff_cloth_down_where_local_global_iterations_creep() -> None:
+    """Issue 16 item 1: a flat 1 m cloth ten times stiffer than the default (10 000 N/m), two
+    corners of one edge pinned, one implicit step a frame of 10 iterations. Liu et al.'s
+    local/global iterations hold every spring at full stiffness in every direction, so the
+    springs barely turn per iteration and the swing is lost like motion to a strong damping; the
+    quasi-Newton method (L-BFGS with the prefactored matrix of the structural springs, the
+    default) swings down; with every spring in its matrix it lags too, less. Yardstick: a rigid
+    1 m plate hinged at one edge reaches the vertical 0.48 s after release (a physical pendulum, I = m L^2 / 3, from 90
+    degrees: 1.854 sqrt(2 L / 3 g)); a cloth held at two corners falls at least as fast, so its
+    lowest point is close to 1 m down within the first second."""
+    model = grid_cloth(24, pins=TOP_CORNERS, material=Material(stretch_modulus=10_000.0), plane="xz").model
+
+    def deepest(**options: object) -> float:
+        options = SOLVERS["implicit"].options_class(iterations=10, **options)
+        settings = Settings(solver="implicit", frames=24, substeps=1, options=options)
+        return max(float(-frame.welded_positions[:, 1].min()) for frame in simulate(model, Scene(), settings))
+
+    assert deepest() > 0.75
+    assert deepest(preconditioner="all") > 0.5 > deepest(method="local_global")
+
+
+def test_an_inexact_implicit_step_settles_on_the_material_equilibrium() -> None:
+    """Each step starts from the inertial prediction without gravity, so a cloth at rest starts at
+    its solution and even one or two local/global iterations a step settle on the equilibrium of
+    the explicit `springs` solver (Hooke forces balance gravity exactly at rest), where a start
+    from the prediction with gravity left a bias of the unfinished iterations in every step (the
+    cloth settled far too low, 1.5x the sag and more)."""
     model = grid_cloth(24, pins=TOP_CORNERS, material=Material(stretch_modulus=10_000.0)).model
     reference = sag(model, settle(model, "springs"))
-    lbfgs = settle(model, "implicit", substeps=1, iterations=10)
-    local_global = settle(model, "implicit", substeps=1, iterations=10, method="local_global")
-    assert sag(model, lbfgs) == pytest.approx(reference, rel=0.05)
-    assert sag(model, local_global) > 1.5 * reference
-    assert lbfgs.force_residual < 0.1 * local_global.force_residual
+    for iterations in (1, 2):
+        settled = settle(model, "implicit", substeps=1, iterations=iterations, method="local_global")
+        assert sag(model, settled) == pytest.approx(reference, rel=0.02)

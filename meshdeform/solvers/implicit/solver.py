@@ -17,7 +17,11 @@ One local/global iteration is exactly one preconditioned gradient step (the matr
 the local step's right-hand side is the energy's gradient), so L-BFGS without history is that
 iteration; its history of the last steps adds the curvature the matrix lacks where springs turn
 (below), so a stiff cloth converges in a few iterations of one step a frame
-(docs/performance.md, "The implicit solver's quasi-Newton iterations"). The matrix is symmetric
+(docs/performance.md, "The implicit solver's quasi-Newton iterations"). As L-BFGS only needs a
+good initial inverse Hessian, not the exact matrix, its matrix holds the structural springs
+alone by default (`preconditioner`): their factor has a fraction of the fill of one that also
+couples diagonal and skip-one neighbours (5 instead of 13 entries a row on a grid), and shear
+and bending springs still act fully through the energy and gradient. The matrix is symmetric
 positive definite (mass > 0 on every free vertex, weights > 0), so it is factorised by sparse
 Cholesky (CHOLMOD through cholespy, with its fill-reducing ordering): one triangle L instead of
 SuperLU's L and U, less memory and a faster back-substitution. Only the lower triangle of the
@@ -45,9 +49,9 @@ not unstable, and they slow down motion across the springs: the global matrix ho
 with its full stiffness in every direction, so a swing or a fold (which turns springs rather
 than stretching them) moves each iteration only by about m / (b^2 k) of the way, and the rest
 of the way is lost like motion to a strong damping (a swinging cloth creeps towards rest).
-Shorter steps raise that fraction as 1 / dt^2 where more iterations add to it only linearly,
-so the defaults are 8 steps a frame of 3 iterations each (chosen by the figures in
-docs/performance.md).
+Shorter steps raise that fraction as 1 / dt^2 where more iterations add to it only linearly;
+L-BFGS recovers most of it, and the defaults are 4 steps a frame of 4 iterations each (chosen
+by the figures in docs/performance.md).
 """
 
 from __future__ import annotations
@@ -63,6 +67,7 @@ from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import kernels
 from meshdeform.solvers.options import ImplicitOptions
+from meshdeform.topology import SpringKind
 
 
 class ImplicitSolver(ModelCache, Solver):
@@ -88,13 +93,19 @@ class ImplicitSolver(ModelCache, Solver):
         weight = np.maximum(kt, kc)
         del kt, kc
         springs, rest = model.springs, model.rest_lengths
-        stiff_t, stiff_c = model.stiffness, model.compression
+        stiff_t, stiff_c, kinds = model.stiffness, model.compression, model.kinds
         keep = weight > 0.0
         if not keep.all():
             index = np.flatnonzero(keep)
-            springs, rest, stiff_t, stiff_c, weight = (
-                springs[index], rest[index], stiff_t[index], stiff_c[index], weight[index]
+            springs, rest, stiff_t, stiff_c, weight, kinds = (
+                springs[index], rest[index], stiff_t[index], stiff_c[index], weight[index], kinds[index]
             )
+        # the springs of the global matrix: every one for local/global (its fixed point needs the
+        # exact matrix), the structural ones for the L-BFGS preconditioner unless asked otherwise
+        if self.options.method == "lbfgs" and self.options.preconditioner == "structural":
+            self.in_matrix: np.ndarray | None = kinds == SpringKind.STRUCTURAL
+        else:
+            self.in_matrix = None
         self.a = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
         self.b = np.ascontiguousarray(springs[:, 1], dtype=np.int32)
         self.rest = np.ascontiguousarray(rest, dtype=np.float64)
@@ -129,6 +140,8 @@ class ImplicitSolver(ModelCache, Solver):
         fa = self.free[self.a]
         fb = self.free[self.b]
         w = self.weight
+        if self.in_matrix is not None:
+            fa, fb, w = fa[self.in_matrix], fb[self.in_matrix], w[self.in_matrix]
         both = (fa >= 0) & (fb >= 0)
         diag = self.inertia.copy()
         diag += np.bincount(fa[fa >= 0], weights=w[fa >= 0], minlength=nf)
@@ -174,7 +187,11 @@ class ImplicitSolver(ModelCache, Solver):
         y += x_hat
         fv = self.free_vertices
         if fv.shape[0] and self.factor is not None:
-            x[fv] = y[fv]
+            # start from the inertial prediction without the external acceleration: on a
+            # supported cloth the springs already balance most of it there (a cloth at rest starts
+            # at its solution), and in free fall the first iteration adds exactly b^2 a / q
+            # (the matrix maps the free vertices' translation M a to it), so it stays exact
+            x[fv] = y[fv] - (self.beta2 / self.drag_factor) * accel[fv]
             if self.a.shape[0]:
                 if self.options.method == "lbfgs":
                     self._quasi_newton(x, y)
