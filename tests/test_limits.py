@@ -152,10 +152,14 @@ def test_substeps_times_iterations_uses_the_solver_defaults() -> None:
         "r.toml: simulation.substeps (line 2): 50001 substeps x 2 iterations (xpbd's default) = 100002 "
         "is above the limit of 100000 solver sweeps per frame"
     )
-    # implicit: 4 substeps of 4 iterations by default
-    parse_recipe('[simulation]\nsolver = "implicit"\niterations = 25000\n')
-    message = error_of('[simulation]\nsolver = "implicit"\nsubsteps = 25001\n')
-    assert "25001 substeps x 4 iterations (implicit's default) = 100004" in message
+    # implicit: 8 substeps of 3 iterations by default
+    parse_recipe('[simulation]\nsolver = "implicit"\niterations = 12500\n')
+    assert "8 substeps (implicit's default) x 12501 iterations = 100008" in error_of(
+        '[simulation]\nsolver = "implicit"\niterations = 12501\n'
+    )
+    parse_recipe('[simulation]\nsolver = "implicit"\nsubsteps = 33333\n')
+    message = error_of('[simulation]\nsolver = "implicit"\nsubsteps = 33334\n')
+    assert "33334 substeps x 3 iterations (implicit's default) = 100002" in message
     # springs have no sweeps: iterations do not multiply their work
     parse_recipe('[simulation]\nsolver = "springs"\nsubsteps = 100000\niterations = 50\n')
     # verlet with both given: the message names substeps, the line is substeps'

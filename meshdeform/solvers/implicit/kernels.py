@@ -166,3 +166,15 @@ def place(x, free_vertices, base, direction, step):  # pragma: no cover - compil
         x[i, 0] = base[j, 0] + step * direction[j, 0]
         x[i, 1] = base[j, 1] + step * direction[j, 1]
         x[i, 2] = base[j, 2] + step * direction[j, 2]
+
+
+@nb.njit(**JIT)
+def rows_changed(x, v, x_was, v_was):  # pragma: no cover - compiled
+    """(V,) bool: the rows where positions x or velocities v (V, 3) differ from x_was, v_was."""
+    out = np.zeros(x.shape[0], dtype=np.bool_)
+    for i in range(x.shape[0]):
+        for k in range(3):
+            if x[i, k] != x_was[i, k] or v[i, k] != v_was[i, k]:
+                out[i] = True
+                break
+    return out

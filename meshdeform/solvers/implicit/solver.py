@@ -18,10 +18,13 @@ the local step's right-hand side is the energy's gradient), so L-BFGS without hi
 iteration; its history of the last steps adds the curvature the matrix lacks where springs turn
 (below), so a stiff cloth converges in a few iterations of one step a frame
 (docs/performance.md, "The implicit solver's quasi-Newton iterations"). As L-BFGS only needs a
-good initial inverse Hessian, not the exact matrix, its matrix holds the structural springs
-alone by default (`preconditioner`): their factor has a fraction of the fill of one that also
-couples diagonal and skip-one neighbours (5 instead of 13 entries a row on a grid), and shear
-and bending springs still act fully through the energy and gradient. The matrix is symmetric
+good initial inverse Hessian, not the exact matrix, its matrix leaves the bending springs out by
+default (`preconditioner`): the factor of the in-plane (structural and shear) springs has half
+the fill of one that also couples skip-one neighbours (9 instead of 13 entries a row on a grid),
+and bending springs, soft next to the in-plane ones, still act fully through the energy and
+gradient. (A matrix of the structural springs alone, 5 entries a row, is faster again, but a
+few iterations then barely resist shear, and a cloth crumpling on a collider collapsed into a
+ball: docs/performance.md.) The matrix is symmetric
 positive definite (mass > 0 on every free vertex, weights > 0), so it is factorised by sparse
 Cholesky (CHOLMOD through cholespy, with its fill-reducing ordering): one triangle L instead of
 SuperLU's L and U, less memory and a faster back-substitution. Only the lower triangle of the
@@ -50,8 +53,15 @@ with its full stiffness in every direction, so a swing or a fold (which turns sp
 than stretching them) moves each iteration only by about m / (b^2 k) of the way, and the rest
 of the way is lost like motion to a strong damping (a swinging cloth creeps towards rest).
 Shorter steps raise that fraction as 1 / dt^2 where more iterations add to it only linearly;
-L-BFGS recovers most of it, and the defaults are 4 steps a frame of 4 iterations each (chosen
-by the figures in docs/performance.md).
+L-BFGS recovers most of it. The defaults are 8 steps a frame of 3 iterations each: 4 steps
+settle and rest as well, but under collider contact a step that stops part of the cloth is too
+long for a few iterations to resolve (a sheet draped over a sphere flickered between 1.05 and
+1.7 stretch at 4 steps a frame; docs/performance.md has the figures).
+
+Constraints (colliders, self-collision, tethers) move vertices after the step; BDF2 would
+extrapolate those vertices' former path through the correction (a landed vertex still falling
+in its history bounces back up), so a vertex whose position or velocity is not what the last
+step left starts its history afresh where it is, as at the first step.
 """
 
 from __future__ import annotations
@@ -77,8 +87,8 @@ class ImplicitSolver(ModelCache, Solver):
     summary: ClassVar[str] = "projective dynamics (Liu et al. 2013) with BDF2, prefactored: stiff springs in few steps"
     hint: ClassVar[str] = "use more substeps or iterations, or check the forces for non-finite values"
     options_class: ClassVar[type[ImplicitOptions]] = ImplicitOptions
-    default_substeps: ClassVar[int] = 4
-    default_iterations: ClassVar[int] = 4
+    default_substeps: ClassVar[int] = 8
+    default_iterations: ClassVar[int] = 3
 
     def __init__(self, options: ImplicitOptions) -> None:
         super().__init__(options)
@@ -101,9 +111,9 @@ class ImplicitSolver(ModelCache, Solver):
                 springs[index], rest[index], stiff_t[index], stiff_c[index], weight[index], kinds[index]
             )
         # the springs of the global matrix: every one for local/global (its fixed point needs the
-        # exact matrix), the structural ones for the L-BFGS preconditioner unless asked otherwise
-        if self.options.method == "lbfgs" and self.options.preconditioner == "structural":
-            self.in_matrix: np.ndarray | None = kinds == SpringKind.STRUCTURAL
+        # exact matrix), the in-plane ones for the L-BFGS preconditioner unless asked otherwise
+        if self.options.method == "lbfgs" and self.options.preconditioner == "in_plane":
+            self.in_matrix: np.ndarray | None = kinds != SpringKind.BENDING
         else:
             self.in_matrix = None
         self.a = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
@@ -177,6 +187,14 @@ class ImplicitSolver(ModelCache, Solver):
             # BDF2 history consistent with constant external acceleration (exact free fall)
             self.x_prev = x - dt * v + 0.5 * dt * dt * accel
             self.v_prev = v - dt * accel
+        else:
+            # vertices a constraint moved since this solver's last step (a collider, self-
+            # collision, tethers) start their history afresh from where they are: BDF2's
+            # extrapolation of their former path would carry on through the contact
+            moved = kernels.rows_changed(x, v, self.x_out, self.v_out)
+            if moved.any():
+                self.x_prev[moved] = x[moved] - dt * v[moved] + 0.5 * dt * dt * accel[moved]
+                self.v_prev[moved] = v[moved] - dt * accel[moved]
         x_n = x.copy()
         v_n = v.copy()
         x_hat = (4.0 / 3.0) * x_n - (1.0 / 3.0) * self.x_prev
@@ -204,6 +222,8 @@ class ImplicitSolver(ModelCache, Solver):
         self.v_prev = v_n
         state.previous[~pinned] = x_n[~pinned]
         v[:] = v_new
+        self.x_out = x.copy()
+        self.v_out = v_new
         self._state_key = (id(state), state.time + dt)
 
     def _local_global(self, x: np.ndarray, y: np.ndarray) -> None:
