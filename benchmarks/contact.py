@@ -13,9 +13,9 @@ Three scenes, each a 40 x 40 vertex sheet of 1 x 1 m (quads), 24 fps, gravity on
 Sides, each on the same vertices and quads:
 
 - meshdeform through its CLI (`simulate` with a recipe written to a temporary folder, `npz` output
-  read back), `[self_collision]` off and on; the same process runs once untimed first so that
-  Numba's cache is warm. Until the recipe loader knows `[self_collision]`, the 'on' side is
-  reported as refused and the rest still runs.
+  read back), each of `--solvers` (default xpbd) at its defaults, `[self_collision]` off and on;
+  the same process runs once untimed first so that Numba's cache is warm. Until the recipe
+  loader knows `[self_collision]`, the 'on' side is reported as refused and the rest still runs.
 - Blender's cloth modifier through `bpy` (pip install bpy, in a venv of its own: it is never a
   dependency of meshdeform) with self-collision on; the colliders are meshes with a collision
   modifier (a 50 m plane, a 64 x 32 UV sphere, an 8-vertex box), Blender's default cloth otherwise.
@@ -23,7 +23,8 @@ Sides, each on the same vertices and quads:
 
 Printed per scene and side: frames/s of the simulated frames alone (meshdeform: report.json's
 `seconds`; Blender: the `frame_set` calls from frame 2 on, frame 1 being the rest pose), the median
-of `--repeats` runs; the largest count over frames of intersecting triangle pairs that share no
+of `--repeats` runs; the worst structural stretch (a quad side's length over its rest length)
+over the frames; the largest count over frames of intersecting triangle pairs that share no
 vertex (tests/intersections.py, decided by ipctk; quads split along their 0-2 diagonal) and the
 frame it occurs in; the smallest distance over frames of any cloth vertex to each collider's
 exact surface minus the collider's thickness (negative: closer than the thickness), in mm; and
@@ -189,24 +190,26 @@ class Side:
 # ---------------------------------------------------------------------------------------------- meshdeform
 
 
-def recipe(scene: ContactScene, frames: int, self_collision: bool) -> str:
-    """The recipe of one meshdeform run."""
-    text = f"[simulation]\nfps = {FPS}\nframes = {frames}\n\n"
+def recipe(scene: ContactScene, frames: int, self_collision: bool, solver: str = "xpbd") -> str:
+    """The recipe of one meshdeform run (the solver at its defaults)."""
+    text = f'[simulation]\nsolver = "{solver}"\nfps = {FPS}\nframes = {frames}\n\n'
     text += "\n".join(collider.recipe() for collider in scene.colliders)
     if self_collision:
         text += f"\n[self_collision]\nthickness = {SELF_THICKNESS}\nfriction = {SELF_FRICTION}\n"
     return text + '\n[output]\nformats = ["npz"]\n'
 
 
-def run_meshdeform(scene: ContactScene, frames: int, repeats: int, self_collision: bool, folder: Path) -> Side:
+def run_meshdeform(
+    scene: ContactScene, frames: int, repeats: int, self_collision: bool, folder: Path, solver: str = "xpbd"
+) -> Side:
     """`simulate` through the CLI, once untimed to warm the cache, then `repeats` timed runs."""
-    label = f"meshdeform, self-collision {'on' if self_collision else 'off'}"
+    label = f"meshdeform {solver}, self-collision {'on' if self_collision else 'off'}"
     mesh = Mesh(
         positions=scene.positions,
         face_indices=scene.quads.ravel().astype(np.int64),
         face_offsets=np.arange(0, scene.quads.size + 1, 4, dtype=np.int64),
     )
-    tag = f"{scene.name}_{'on' if self_collision else 'off'}"
+    tag = f"{scene.name}_{solver}_{'on' if self_collision else 'off'}"
     obj = folder / f"{scene.name}.obj"
     write_obj(obj, mesh)
     env = {
@@ -217,7 +220,7 @@ def run_meshdeform(scene: ContactScene, frames: int, repeats: int, self_collisio
     positions = None
     for run in range(repeats + 1):
         toml = folder / f"{tag}_{run}.toml"
-        toml.write_text(recipe(scene, 2 if run == 0 else frames, self_collision))
+        toml.write_text(recipe(scene, 2 if run == 0 else frames, self_collision, solver))
         out = folder / f"{tag}_{run}"
         command = [sys.executable, "-c", "from pipeline.cli import app; app()", "simulate", str(obj)]
         proc = subprocess.run(
@@ -342,9 +345,10 @@ def run_blender(python: str, scene: ContactScene, frames: int, repeats: int, fol
 def describe(
     scene: ContactScene, side: Side, oracle: Callable[[np.ndarray, np.ndarray], int], base: float | None
 ) -> str:
-    """One table row: frames/s, x Blender, max intersecting pairs (frame), clearance per collider."""
+    """One table row: frames/s, x Blender, worst structural stretch over the frames, max
+    intersecting pairs (frame), clearance per collider."""
     if side.refused is not None:
-        return f"  {side.label:36s} {side.refused}"
+        return f"  {side.label:40s} {side.refused}"
     assert side.positions is not None
     triangles = scene.triangles()
     counts = [oracle(frame, triangles) for frame in side.positions]
@@ -353,7 +357,15 @@ def describe(
     clearance = [1000.0 * (float(c.signed_distance(side.positions).min()) - c.thickness) for c in scene.colliders]
     ratio = f"{side.median / base:9.2f}" if base else f"{'-':>9s}"
     gaps = "  ".join(f"{value:8.2f}" for value in clearance)
-    return f"  {side.label:36s} {side.median:9.1f} {ratio} {counts[worst]:9d} {at}   {gaps}"
+    stretch = max(structural_stretch(scene, frame) for frame in side.positions)
+    return f"  {side.label:40s} {side.median:9.1f} {ratio} {stretch:8.3f} {counts[worst]:9d} {at}   {gaps}"
+
+
+def structural_stretch(scene: ContactScene, positions: np.ndarray) -> float:
+    """The largest length over rest length of the grid's edges (the quads' sides) at positions (V, 3)."""
+    edges = np.concatenate([scene.quads[:, [k, (k + 1) % 4]] for k in range(4)])
+    rest = np.linalg.norm(scene.positions[edges[:, 0]] - scene.positions[edges[:, 1]], axis=1)
+    return float((np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1) / rest).max())
 
 
 def main() -> None:
@@ -363,6 +375,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--scenes", default="drop,collapse,fold", help="comma-separated scene names")
     parser.add_argument("--save", type=Path, help="write each side's frames (Y up) to DIR/<scene>_<side>.npy")
+    parser.add_argument("--solvers", default="xpbd", help="comma-separated meshdeform solvers, each at its defaults")
     args = parser.parse_args()
     oracle = _load_oracle()
     wanted = args.scenes.split(",")
@@ -372,25 +385,28 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="meshdeform-contact-") as tmp:
         folder = Path(tmp)
         for scene in chosen:
-            off = run_meshdeform(scene, args.frames, args.repeats, False, folder)
-            on = run_meshdeform(scene, args.frames, args.repeats, True, folder)
+            runs = {}
+            for solver in args.solvers.split(","):
+                runs[f"{solver}_off"] = run_meshdeform(scene, args.frames, args.repeats, False, folder, solver)
+                runs[f"{solver}_on"] = run_meshdeform(scene, args.frames, args.repeats, True, folder, solver)
             blender = None
             if args.blender_python:
                 blender = run_blender(args.blender_python, scene, args.frames, args.repeats, folder)
+                runs["blender"] = blender
             base = blender.median if blender else None
             names = "  ".join(f"{c.shape:>8s}" for c in scene.colliders)
             print(f"\n{scene.name}: {scene.summary}")
-            heading = f"{'side':36s} {'frames/s':>9s} {'x blender':>9s} {'max pairs':>9s} {'frame':>6s}"
+            heading = f"{'side':40s} {'frames/s':>9s} {'x blender':>9s} {'stretch':>8s} {'max pairs':>9s} {'frame':>6s}"
             print(f"  {heading}   clearance mm: {names}")
-            for key, side in (("off", off), ("on", on), ("blender", blender)):
-                if side is None:
-                    continue
+            for key, side in runs.items():
                 print(describe(scene, side, oracle, base))
                 if args.save and side.positions is not None:
                     args.save.mkdir(parents=True, exist_ok=True)
                     np.save(args.save / f"{scene.name}_{key}.npy", side.positions)
-            if on.refused is None:
-                print(f"  self-collision cost (meshdeform frames/s off / on): {off.median / on.median:.2f}x")
+            for solver in args.solvers.split(","):
+                off, on = runs[f"{solver}_off"], runs[f"{solver}_on"]
+                if on.refused is None:
+                    print(f"  {solver}: self-collision cost (frames/s off / on): {off.median / on.median:.2f}x")
             sys.stdout.flush()
 
 
