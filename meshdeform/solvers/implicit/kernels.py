@@ -169,12 +169,61 @@ def place(x, free_vertices, base, direction, step):  # pragma: no cover - compil
 
 
 @nb.njit(**JIT)
-def rows_changed(x, v, x_was, v_was):  # pragma: no cover - compiled
-    """(V,) bool: the rows where positions x or velocities v (V, 3) differ from x_was, v_was."""
-    out = np.zeros(x.shape[0], dtype=np.bool_)
-    for i in range(x.shape[0]):
-        for k in range(3):
-            if x[i, k] != x_was[i, k] or v[i, k] != v_was[i, k]:
-                out[i] = True
-                break
+def constrained_rows(x, v, x_was, v_was, free, normal):  # pragma: no cover - compiled
+    """The vertices a constraint changed since the last step, and which way it pushed them.
+
+    x, v (V, 3): positions and velocities now; x_was, v_was: what the last step left. Returns
+    moved (V,) bool, the rows whose position or velocity differs, and pushed (V,) bool, the free
+    vertices (free >= 0) whose position moved; normal (V, 3) receives the unit direction of that
+    move (x - x_was) on the pushed rows (a collider's contact normal, or the way back along a
+    crossing path).
+    """
+    n = x.shape[0]
+    moved = np.zeros(n, dtype=np.bool_)
+    pushed = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        dx = x[i, 0] - x_was[i, 0]
+        dy = x[i, 1] - x_was[i, 1]
+        dz = x[i, 2] - x_was[i, 2]
+        if dx != 0.0 or dy != 0.0 or dz != 0.0:
+            moved[i] = True
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if free[i] >= 0 and length > 1e-12:
+                pushed[i] = True
+                normal[i, 0] = dx / length
+                normal[i, 1] = dy / length
+                normal[i, 2] = dz / length
+        elif v[i, 0] != v_was[i, 0] or v[i, 1] != v_was[i, 1] or v[i, 2] != v_was[i, 2]:
+            moved[i] = True
+    return moved, pushed
+
+
+@nb.njit(**JIT)
+def remove_normal(arr, rows, normals):  # pragma: no cover - compiled
+    """arr[rows[k]] -= (arr[rows[k]] . normals[k]) normals[k]: (F, 3) rows made tangent to a contact."""
+    for k in range(rows.shape[0]):
+        j = rows[k]
+        along = arr[j, 0] * normals[k, 0] + arr[j, 1] * normals[k, 1] + arr[j, 2] * normals[k, 2]
+        arr[j, 0] -= along * normals[k, 0]
+        arr[j, 1] -= along * normals[k, 1]
+        arr[j, 2] -= along * normals[k, 2]
+
+
+@nb.njit(**JIT)
+def longest_row(arr):  # pragma: no cover - compiled
+    """The largest row length of an (F, 3) array."""
+    longest = 0.0
+    for j in range(arr.shape[0]):
+        longest = max(longest, arr[j, 0] * arr[j, 0] + arr[j, 1] * arr[j, 1] + arr[j, 2] * arr[j, 2])
+    return np.sqrt(longest)
+
+
+@nb.njit(**JIT)
+def pressing(grad, rows, normals):  # pragma: no cover - compiled
+    """(K,) bool: whether the force -grad on each contact row (rows (K,) of grad (F, 3)) points
+    into its obstacle, against its unit normal (K, 3)."""
+    out = np.empty(rows.shape[0], dtype=np.bool_)
+    for k in range(rows.shape[0]):
+        j = rows[k]
+        out[k] = grad[j, 0] * normals[k, 0] + grad[j, 1] * normals[k, 1] + grad[j, 2] * normals[k, 2] > 0.0
     return out
