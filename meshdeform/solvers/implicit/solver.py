@@ -65,8 +65,9 @@ step left starts its history afresh where it is, as at the first step. Contact i
 into the next step's iterations (Baraff and Witkin 1998's filtered directions, as an active
 set): a vertex the last constraints pushed is held along that push (the contact normal) while
 the forces press it into the obstacle, and each iteration moves no vertex further than a
-quarter of an edge (`TRUST_FRACTION`), so a cloth stopped by a thin bar within a long step is
-not pulled through it or slung across it (it hooked around the bar at 4 to 7x stretch).
+quarter of an edge while there is contact (`TRUST_FRACTION`), so a cloth stopped by a thin bar
+within a long step is not pulled through it or slung across it (it hooked around the bar at 4
+to 7x stretch).
 """
 
 from __future__ import annotations
@@ -271,6 +272,7 @@ class ImplicitSolver(ModelCache, Solver):
         fv = self.free_vertices
         grad, trial_grad, direction, base = self.grad, self.trial_grad, self.direction, self.base
         energy = self._energy(x, y, grad)
+        trust = self.trust if self.contact_rows.shape[0] else np.inf  # only a step with contact is bounded
         slots: list[int] = []  # history slots, newest first
         alpha = np.zeros(HISTORY)
         for iteration in range(self.iterations):
@@ -306,7 +308,7 @@ class ImplicitSolver(ModelCache, Solver):
                 return
             base[:] = x[fv]
             longest = kernels.longest_row(direction)
-            step = 1.0 if longest <= self.trust else self.trust / longest
+            step = 1.0 if longest <= trust else trust / longest
             for _ in range(LINE_SEARCH_HALVINGS):
                 kernels.place(x, fv, base, direction, -step)
                 trial = self._energy(x, y, trial_grad)
@@ -331,9 +333,10 @@ class ImplicitSolver(ModelCache, Solver):
             energy = trial
 
 
-#: the longest move of a vertex in one L-BFGS iteration, as a fraction of the median structural
-#: rest length: a cloth stretched around an obstacle otherwise slings a vertex across it in one
-#: step (29 m/s on the fold scene); 0.5 still let the fold diverge, free fall needs no iteration
+#: the longest move of a vertex in one L-BFGS iteration of a step with contact, as a fraction of
+#: the median structural rest length: a cloth stretched around an obstacle otherwise slings a
+#: vertex across it in one step (29 m/s on the fold scene, then divergence); steps without
+#: contact are not bounded (at 256 x 256 the bound slowed a hanging cloth's convergence)
 TRUST_FRACTION = 0.25
 #: L-BFGS history length (Liu, Bouaziz, Kavan 2017 use 5)
 HISTORY = 5
