@@ -62,12 +62,12 @@ Constraints (colliders, self-collision, tethers) move vertices after the step; B
 extrapolate those vertices' former path through the correction (a landed vertex still falling
 in its history bounces back up), so a vertex whose position or velocity is not what the last
 step left starts its history afresh where it is, as at the first step. Contact is also taken
-into the next step's iterations (Baraff and Witkin 1998's filtered directions, as an active
-set): a vertex the last constraints pushed is held along that push (the contact normal) while
-the forces press it into the obstacle, and each iteration moves no vertex further than a
-quarter of an edge while there is contact (`TRUST_FRACTION`), so a cloth stopped by a thin bar
-within a long step is not pulled through it or slung across it (it hooked around the bar at 4
-to 7x stretch).
+into the next step's L-BFGS iterations (Baraff and Witkin 1998's filtered directions, as an
+active set; `local_global` does not): a vertex the last constraints pushed is held along that
+push (the contact normal) while the forces press it into the obstacle, and each iteration
+moves no vertex further than a quarter of an edge while there is contact (`TRUST_FRACTION`), so
+a cloth stopped by a thin bar within a long step is not pulled through it or slung across it
+(it hooked around the bar at 4 to 7x stretch).
 """
 
 from __future__ import annotations
