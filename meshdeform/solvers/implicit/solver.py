@@ -143,13 +143,12 @@ class ImplicitSolver(ModelCache, Solver):
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
             self.rho = np.zeros(HISTORY)
         self.factor: cholespy.CholeskySolverD | None = None
-        structural = rest[kinds == SpringKind.STRUCTURAL]
+        edges = rest[kinds == SpringKind.STRUCTURAL]
+        edges = edges if edges.size else rest
         #: the longest move an L-BFGS iteration may give a vertex (m): a fraction of the median edge
-        self.trust = TRUST_FRACTION * float(np.median(structural if structural.size else rest)) if rest.size else np.inf
-        #: the free rows (of F) a constraint pushed before this step, and the unit push of each (K, 3)
-        self.contact_rows = np.zeros(0, dtype=np.int64)
-        self.contact_normals = np.zeros((0, 3))
-        self._normal = np.zeros((model.vertex_count, 3))
+        self.trust = TRUST_FRACTION * float(np.median(edges)) if edges.size else np.inf
+        self._forget_contacts()
+        self._normal = np.zeros((model.vertex_count, 3))  # scratch of `kernels.constrained_rows`
         self._dt = -1.0
         self._state_key = None
 
@@ -200,7 +199,7 @@ class ImplicitSolver(ModelCache, Solver):
             # BDF2 history consistent with constant external acceleration (exact free fall)
             self.x_prev = x - dt * v + 0.5 * dt * dt * accel
             self.v_prev = v - dt * accel
-            self.contact_rows = np.zeros(0, dtype=np.int64)
+            self._forget_contacts()
         else:
             # vertices a constraint moved since this solver's last step (a collider, self-
             # collision, tethers) start their history afresh from where they are: BDF2's
@@ -242,6 +241,12 @@ class ImplicitSolver(ModelCache, Solver):
         self.x_out = x.copy()
         self.v_out = v_new
         self._state_key = (id(state), state.time + dt)
+
+    def _forget_contacts(self) -> None:
+        """No vertex held: the free rows (K,) of F a constraint pushed before this step and the unit
+        push of each (K, 3) are empty together."""
+        self.contact_rows = np.zeros(0, dtype=np.int64)
+        self.contact_normals = np.zeros((0, 3))
 
     def _local_global(self, x: np.ndarray, y: np.ndarray) -> None:
         """Liu et al.'s iterations: project every spring, solve the prefactored system, repeat."""
