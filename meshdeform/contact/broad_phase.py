@@ -28,8 +28,21 @@ def cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
     if lo.shape[0] == 0:
         return 1.0
     extent = (hi - lo).max(axis=1)
-    size = float(np.percentile(extent, 90.0))
+    size = _percentile_90(extent)
     return size if size > 1e-9 else max(float(extent.max()), 1e-6)
+
+
+def _percentile_90(values: np.ndarray) -> float:
+    """`np.percentile(values, 90)` (its linear method, the same bits) by one partial sort: the
+    general function's overhead was a tenth of a contact substep's broad phase."""
+    position = 0.9 * (values.shape[0] - 1)
+    below = int(np.floor(position))
+    above = min(below + 1, values.shape[0] - 1)
+    ordered = np.partition(values, [below, above])
+    low, high = float(ordered[below]), float(ordered[above])
+    fraction = position - below
+    span = high - low
+    return low + span * fraction if fraction < 0.5 else high - span * (1.0 - fraction)
 
 
 @nb.njit(**JIT)
@@ -82,6 +95,60 @@ def build_grid(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> tuple[np.ndar
 
 
 @nb.njit(**JIT)
+def query_box(
+    qlo: np.ndarray,
+    qhi: np.ndarray,
+    q: int,
+    elo: np.ndarray,
+    ehi: np.ndarray,
+    inv_cell: float,
+    start: np.ndarray,
+    element: np.ndarray,
+    cell: np.ndarray,
+    above: int,
+    found: np.ndarray,
+) -> int:
+    """The elements whose boxes overlap query box q of qlo, qhi (Q, 3), each once, in the grid's
+    fixed order, written to found (S,) int64; only elements > `above` (-1: all). Returns their
+    count, which may exceed S: then found holds the first S and the caller asks again with room."""
+    mask = start.shape[0] - 2
+    capacity = found.shape[0]
+    count = 0
+    x0 = int(np.floor(qlo[q, 0] * inv_cell))
+    y0 = int(np.floor(qlo[q, 1] * inv_cell))
+    z0 = int(np.floor(qlo[q, 2] * inv_cell))
+    x1 = int(np.floor(qhi[q, 0] * inv_cell))
+    y1 = int(np.floor(qhi[q, 1] * inv_cell))
+    z1 = int(np.floor(qhi[q, 2] * inv_cell))
+    for ix in range(x0, x1 + 1):
+        for iy in range(y0, y1 + 1):
+            for iz in range(z0, z1 + 1):
+                h = _hash(ix, iy, iz, mask)
+                for slot in range(start[h], start[h + 1]):
+                    if cell[slot, 0] != ix or cell[slot, 1] != iy or cell[slot, 2] != iz:
+                        continue
+                    e = element[slot]
+                    if e <= above:
+                        continue
+                    if (
+                        elo[e, 0] > qhi[q, 0] or ehi[e, 0] < qlo[q, 0]
+                        or elo[e, 1] > qhi[q, 1] or ehi[e, 1] < qlo[q, 1]
+                        or elo[e, 2] > qhi[q, 2] or ehi[e, 2] < qlo[q, 2]
+                    ):
+                        continue
+                    # report once: in the cell of the overlap's lower corner (clamped to the query's cells)
+                    cx = min(max(int(np.floor(max(qlo[q, 0], elo[e, 0]) * inv_cell)), x0), x1)
+                    cy = min(max(int(np.floor(max(qlo[q, 1], elo[e, 1]) * inv_cell)), y0), y1)
+                    cz = min(max(int(np.floor(max(qlo[q, 2], elo[e, 2]) * inv_cell)), z0), z1)
+                    if cx != ix or cy != iy or cz != iz:
+                        continue
+                    if count < capacity:
+                        found[count] = e
+                    count += 1
+    return count
+
+
+@nb.njit(**JIT)
 def _overlapping(
     qlo: np.ndarray,
     qhi: np.ndarray,
@@ -92,46 +159,39 @@ def _overlapping(
     element: np.ndarray,
     cell: np.ndarray,
     upper_only: bool,
-    out: np.ndarray,
-) -> int:
-    """Count the (query, element) overlaps, writing them to out (P, 2) when it is large enough."""
-    mask = start.shape[0] - 2
-    capacity = out.shape[0]
+    capacity: int,
+) -> np.ndarray:
+    """Every (query, element) overlap, (P, 2) int64, by query, then in the grid's order."""
+    out = np.empty((max(capacity, 16), 2), dtype=np.int64)
+    found = np.empty(64, dtype=np.int64)
     count = 0
     for q in range(qlo.shape[0]):
-        x0 = int(np.floor(qlo[q, 0] * inv_cell))
-        y0 = int(np.floor(qlo[q, 1] * inv_cell))
-        z0 = int(np.floor(qlo[q, 2] * inv_cell))
-        x1 = int(np.floor(qhi[q, 0] * inv_cell))
-        y1 = int(np.floor(qhi[q, 1] * inv_cell))
-        z1 = int(np.floor(qhi[q, 2] * inv_cell))
-        for ix in range(x0, x1 + 1):
-            for iy in range(y0, y1 + 1):
-                for iz in range(z0, z1 + 1):
-                    h = _hash(ix, iy, iz, mask)
-                    for slot in range(start[h], start[h + 1]):
-                        if cell[slot, 0] != ix or cell[slot, 1] != iy or cell[slot, 2] != iz:
-                            continue
-                        e = element[slot]
-                        if upper_only and e <= q:
-                            continue
-                        if (
-                            elo[e, 0] > qhi[q, 0] or ehi[e, 0] < qlo[q, 0]
-                            or elo[e, 1] > qhi[q, 1] or ehi[e, 1] < qlo[q, 1]
-                            or elo[e, 2] > qhi[q, 2] or ehi[e, 2] < qlo[q, 2]
-                        ):
-                            continue
-                        # report once: in the cell of the overlap's lower corner (clamped to the query's cells)
-                        cx = min(max(int(np.floor(max(qlo[q, 0], elo[e, 0]) * inv_cell)), x0), x1)
-                        cy = min(max(int(np.floor(max(qlo[q, 1], elo[e, 1]) * inv_cell)), y0), y1)
-                        cz = min(max(int(np.floor(max(qlo[q, 2], elo[e, 2]) * inv_cell)), z0), z1)
-                        if cx != ix or cy != iy or cz != iz:
-                            continue
-                        if count < capacity:
-                            out[count, 0] = q
-                            out[count, 1] = e
-                        count += 1
-    return count
+        above = q if upper_only else -1
+        n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, above, found)
+        if n > found.shape[0]:
+            found = np.empty(2 * n, dtype=np.int64)
+            n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, above, found)
+        if count + n > out.shape[0]:
+            grown = np.empty((2 * (count + n), 2), dtype=np.int64)
+            grown[:count] = out[:count]
+            out = grown
+        for j in range(n):
+            out[count, 0] = q
+            out[count, 1] = found[j]
+            count += 1
+    return out[:count]
+
+
+def grid_for(
+    qlo: np.ndarray, qhi: np.ndarray, elo: np.ndarray, ehi: np.ndarray
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """The grid of element boxes elo, ehi (M, 3) for queries qlo, qhi (Q, 3): 1 / cell (1/m) and
+    `build_grid`'s bucket starts, elements and cells. The cell suits the larger boxes of the two."""
+    size = cell_size(elo, ehi)
+    if qlo is not elo or qhi is not ehi:
+        size = max(size, cell_size(qlo, qhi))
+    inv_cell = 1.0 / size
+    return (inv_cell, *build_grid(elo, ehi, inv_cell))
 
 
 def overlapping_pairs(
@@ -155,14 +215,9 @@ def overlapping_pairs(
     ehi = np.ascontiguousarray(ehi, dtype=np.float64)
     if qlo.shape[0] == 0 or elo.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    inv_cell = 1.0 / max(cell_size(elo, ehi), cell_size(qlo, qhi))
-    start, element, cell = build_grid(elo, ehi, inv_cell)
-    out = np.empty((max(capacity_hint, 16 * qlo.shape[0]), 2), dtype=np.int64)
-    count = _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, upper_only, out)
-    if count > out.shape[0]:
-        out = np.empty((count, 2), dtype=np.int64)
-        _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, upper_only, out)
-    return out[:count]
+    inv_cell, start, element, cell = grid_for(qlo, qhi, elo, ehi)
+    capacity = max(capacity_hint, 16 * qlo.shape[0])
+    return _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, upper_only, capacity)
 
 
 @nb.njit(**JIT)

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshdeform.contact import self_kernels
-from meshdeform.contact.broad_phase import overlapping_pairs, swept_boxes, within
+from meshdeform.contact.broad_phase import grid_for, swept_boxes, within
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 
@@ -203,26 +203,26 @@ class SelfCollision(Constraint, Remappable):
         vertices = np.arange(x0.shape[0], dtype=np.int64)[:, None]
         lo, hi = swept_boxes(x0, x1, vertices, 0.0)
         tlo, thi = swept_boxes(x0, x1, topology.triangles, 0.0)
-        vf = overlapping_pairs(lo - reach, hi + reach, tlo, thi, capacity_hint=self._capacity[0])
-        elo, ehi = swept_boxes(x0, x1, topology.edges, 0.5 * reach)
-        ee = overlapping_pairs(elo, ehi, elo, ehi, upper_only=True, capacity_hint=self._capacity[1])
-        self._capacity = (int(1.25 * vf.shape[0]), int(1.25 * ee.shape[0]))
-        ring_start, ring = self._rings
-        vf, vf_near = self_kernels.filter_vf(vf, topology.triangles, self._origin, ring_start, ring)
-        ee, ee_near = self_kernels.filter_ee(ee, topology.edges, self._origin, ring_start, ring)
         # keep only the pairs that can come within the thickness while the list holds: a vertex then
         # stays within its swept box's diagonal plus the slack's of where it is now, so a pair's
         # distance falls at most by the two sides' largest such reach
         slack = 0.5 * self._margin
         wander = np.linalg.norm(hi - lo, axis=1) + np.sqrt(3.0) * slack
-        gap_vf, gap_ee = self_kernels.pair_gaps(x1, topology.triangles, topology.edges, vf, ee)
-        triangle_wander = wander[topology.triangles].max(axis=1, initial=0.0)
-        edge_wander = wander[topology.edges].max(axis=1, initial=0.0)
-        can_vf = gap_vf <= self.thickness + wander[vf[:, 0]] + triangle_wander[vf[:, 1]]
-        can_ee = gap_ee <= self.thickness + edge_wander[ee[:, 0]] + edge_wander[ee[:, 1]]
-        vf, vf_near, ee, ee_near = vf[can_vf], vf_near[can_vf], ee[can_ee], ee_near[can_ee]
+        ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
-        vf_rest, ee_rest = self_kernels.pair_gaps(rest, topology.triangles, topology.edges, vf, ee)
+        qlo, qhi = lo - reach, hi + reach
+        inv_cell, start, element, cell = grid_for(qlo, qhi, tlo, thi)
+        vf, vf_near, vf_rest = self_kernels.vf_candidates(
+            x1, rest, qlo, qhi, tlo, thi, inv_cell, start, element, cell,
+            topology.triangles, self._origin, ring_start, ring, wander, self.thickness, self._capacity[0],
+        )  # fmt: skip
+        elo, ehi = swept_boxes(x0, x1, topology.edges, 0.5 * reach)
+        inv_cell, start, element, cell = grid_for(elo, ehi, elo, ehi)
+        ee, ee_near, ee_rest = self_kernels.ee_candidates(
+            x1, rest, elo, ehi, inv_cell, start, element, cell,
+            topology.edges, self._origin, ring_start, ring, wander, self.thickness, self._capacity[1],
+        )  # fmt: skip
+        self._capacity = (int(1.25 * vf.shape[0]), int(1.25 * ee.shape[0]))
         vf_lower, ee_lower = np.zeros(vf.shape[0]), np.zeros(ee.shape[0])  # unknown: computed when checked
         centre = x1.mean(axis=0)
         self._held = _Pairs(vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, lo, hi, centre, slack)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from meshdeform.contact.broad_phase import query_box
 from meshdeform.contact.primitives import point_triangle_weights, segment_segment_params
 from meshdeform.solvers.jit import JIT
 
@@ -42,52 +43,6 @@ def _adjacent(ring_start: np.ndarray, ring: np.ndarray, a: int, b: int) -> bool:
         else:
             hi = mid
     return lo < ring_start[a + 1] and ring[lo] == b
-
-
-@nb.njit(**JIT)
-def filter_vf(
-    pairs: np.ndarray, triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The VF candidates to check (the vertex is no corner of the triangle) and, per kept pair,
-    whether it takes proximity repulsion (its origin is neither a corner's origin nor a rest
-    neighbour of one)."""
-    keep = np.empty(pairs.shape[0], dtype=np.bool_)
-    near = np.empty(pairs.shape[0], dtype=np.bool_)
-    for k in range(pairs.shape[0]):
-        v = pairs[k, 0]
-        t = pairs[k, 1]
-        keep[k] = v != triangles[t, 0] and v != triangles[t, 1] and v != triangles[t, 2]
-        ov = origin[v]
-        oa = origin[triangles[t, 0]]
-        ob = origin[triangles[t, 1]]
-        oc = origin[triangles[t, 2]]
-        near[k] = keep[k] and not (
-            _adjacent(ring_start, ring, ov, oa) or _adjacent(ring_start, ring, ov, ob)
-            or _adjacent(ring_start, ring, ov, oc)
-        )
-    kept = np.flatnonzero(keep)
-    return pairs[kept], near[kept]
-
-
-@nb.njit(**JIT)
-def filter_ee(
-    pairs: np.ndarray, edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The EE candidates to check (no shared vertex) and whether each takes proximity repulsion
-    (no end's origin equal to or a rest neighbour of an end's origin of the other)."""
-    keep = np.empty(pairs.shape[0], dtype=np.bool_)
-    near = np.empty(pairs.shape[0], dtype=np.bool_)
-    for k in range(pairs.shape[0]):
-        p0, p1 = edges[pairs[k, 0], 0], edges[pairs[k, 0], 1]
-        q0, q1 = edges[pairs[k, 1], 0], edges[pairs[k, 1], 1]
-        keep[k] = p0 != q0 and p0 != q1 and p1 != q0 and p1 != q1
-        a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
-        near[k] = keep[k] and not (
-            _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
-            or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
-        )
-    kept = np.flatnonzero(keep)
-    return pairs[kept], near[kept]
 
 
 @nb.njit(**JIT)
@@ -149,6 +104,151 @@ def pair_gaps(
         e, f = ee[k, 0], ee[k, 1]
         dee[k] = _ee_gap(x, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])[0]
     return dvf, dee
+
+
+@nb.njit(**JIT)
+def _ball(x: np.ndarray, a: int, b: int, c: int) -> tuple[float, float, float, float]:
+    """A ball around the points a, b, c of x: the centre of their bounding box and the largest
+    distance of a point from it (m)."""
+    cx = 0.5 * (min(x[a, 0], min(x[b, 0], x[c, 0])) + max(x[a, 0], max(x[b, 0], x[c, 0])))
+    cy = 0.5 * (min(x[a, 1], min(x[b, 1], x[c, 1])) + max(x[a, 1], max(x[b, 1], x[c, 1])))
+    cz = 0.5 * (min(x[a, 2], min(x[b, 2], x[c, 2])) + max(x[a, 2], max(x[b, 2], x[c, 2])))
+    radius = 0.0
+    for p in (a, b, c):
+        dx, dy, dz = x[p, 0] - cx, x[p, 1] - cy, x[p, 2] - cz
+        radius = max(radius, np.sqrt(dx * dx + dy * dy + dz * dz))
+    return cx, cy, cz, radius
+
+
+@nb.njit(**JIT)
+def _vf_far(x: np.ndarray, v: int, a: int, b: int, c: int, reach: float) -> bool:
+    """Whether vertex v is surely further than `reach` (m) from triangle (a, b, c) of x: its
+    distance from a ball holding the triangle is (a lower bound of the exact distance, far
+    cheaper; kept a hair short of `reach` so that rounding never drops a pair the exact
+    distance keeps)."""
+    cx, cy, cz, radius = _ball(x, a, b, c)
+    dx, dy, dz = x[v, 0] - cx, x[v, 1] - cy, x[v, 2] - cz
+    return np.sqrt(dx * dx + dy * dy + dz * dz) - radius > reach * (1.0 + 1e-9) + 1e-12
+
+
+@nb.njit(**JIT)
+def _ee_far(x: np.ndarray, p0: int, p1: int, q0: int, q1: int, reach: float) -> bool:
+    """Whether edges (p0, p1) and (q0, q1) of x are surely further apart than `reach` (m): the
+    distance of their midpoints less their half lengths is (a lower bound, as `_vf_far`)."""
+    dx = 0.5 * (x[p0, 0] + x[p1, 0] - x[q0, 0] - x[q1, 0])
+    dy = 0.5 * (x[p0, 1] + x[p1, 1] - x[q0, 1] - x[q1, 1])
+    dz = 0.5 * (x[p0, 2] + x[p1, 2] - x[q0, 2] - x[q1, 2])
+    ux, uy, uz = x[p1, 0] - x[p0, 0], x[p1, 1] - x[p0, 1], x[p1, 2] - x[p0, 2]
+    wx, wy, wz = x[q1, 0] - x[q0, 0], x[q1, 1] - x[q0, 1], x[q1, 2] - x[q0, 2]
+    half = 0.5 * (np.sqrt(ux * ux + uy * uy + uz * uz) + np.sqrt(wx * wx + wy * wy + wz * wz))
+    return np.sqrt(dx * dx + dy * dy + dz * dz) - half > reach * (1.0 + 1e-9) + 1e-12
+
+
+@nb.njit(**JIT)
+def _grow(
+    pairs: np.ndarray, near: np.ndarray, rest: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first `count` rows of the three output arrays, in arrays twice as long."""
+    size = 2 * max(count, 16)
+    grown_pairs = np.empty((size, 2), dtype=np.int64)
+    grown_near = np.empty(size, dtype=np.bool_)
+    grown_rest = np.empty(size)
+    grown_pairs[:count] = pairs[:count]
+    grown_near[:count] = near[:count]
+    grown_rest[:count] = rest[:count]
+    return grown_pairs, grown_near, grown_rest
+
+
+@nb.njit(**JIT)
+def vf_candidates(
+    x: np.ndarray, rest: np.ndarray, qlo: np.ndarray, qhi: np.ndarray, tlo: np.ndarray, thi: np.ndarray,
+    inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray,
+    triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
+    wander: np.ndarray, thickness: float, capacity: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The VF pairs to keep for the coming substeps, straight from the grid of triangle boxes
+    tlo, thi (T, 3) (`broad_phase.grid_for`) queried with each vertex's box qlo, qhi (V, 3): the
+    vertex no corner of the triangle, and its distance in x (V, 3) within the thickness plus
+    what the vertex and the triangle's corners may still travel (`wander` (V,), m) while the
+    list holds. Returns the pairs (P, 2) (vertex, triangle) by vertex, then in the grid's order;
+    whether each takes proximity repulsion (its origin neither a corner's origin nor a rest
+    neighbour of one), (P,) bool; and its distance (m) in the rest positions (P,)."""
+    pairs = np.empty((max(capacity, 16), 2), dtype=np.int64)
+    near = np.empty(pairs.shape[0], dtype=np.bool_)
+    rest_gap = np.empty(pairs.shape[0])
+    found = np.empty(64, dtype=np.int64)
+    count = 0
+    for v in range(qlo.shape[0]):
+        n = query_box(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, -1, found)
+        if n > found.shape[0]:
+            found = np.empty(2 * n, dtype=np.int64)
+            n = query_box(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, -1, found)
+        ov = origin[v]
+        for j in range(n):
+            t = found[j]
+            a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+            if v in (a, b, c):
+                continue
+            reach = thickness + wander[v] + max(wander[a], max(wander[b], wander[c]))
+            if _vf_far(x, v, a, b, c, reach) or _vf_gap(x, v, a, b, c)[0] > reach:
+                continue
+            if count == pairs.shape[0]:
+                pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
+            pairs[count, 0] = v
+            pairs[count, 1] = t
+            near[count] = not (
+                _adjacent(ring_start, ring, ov, origin[a]) or _adjacent(ring_start, ring, ov, origin[b])
+                or _adjacent(ring_start, ring, ov, origin[c])
+            )
+            rest_gap[count] = _vf_gap(rest, v, a, b, c)[0]
+            count += 1
+    return pairs[:count], near[:count], rest_gap[:count]
+
+
+@nb.njit(**JIT)
+def ee_candidates(
+    x: np.ndarray, rest: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
+    inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray,
+    edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
+    wander: np.ndarray, thickness: float, capacity: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The EE pairs to keep, from the grid of edge boxes elo, ehi (E, 3) queried with themselves
+    (each pair once, the second edge the higher): no shared vertex, and the distance in x within
+    the thickness plus what the four ends may still travel (`wander`). Returns the pairs (Q, 2),
+    whether each takes proximity repulsion (no end's origin equal to or a rest neighbour of an
+    end's origin of the other), (Q,) bool, and the distance (m) in the rest positions (Q,)."""
+    pairs = np.empty((max(capacity, 16), 2), dtype=np.int64)
+    near = np.empty(pairs.shape[0], dtype=np.bool_)
+    rest_gap = np.empty(pairs.shape[0])
+    found = np.empty(64, dtype=np.int64)
+    count = 0
+    for e in range(elo.shape[0]):
+        n = query_box(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, e, found)
+        if n > found.shape[0]:
+            found = np.empty(2 * n, dtype=np.int64)
+            n = query_box(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, e, found)
+        p0, p1 = edges[e, 0], edges[e, 1]
+        e_wander = max(wander[p0], wander[p1])
+        for j in range(n):
+            f = found[j]
+            q0, q1 = edges[f, 0], edges[f, 1]
+            if p0 in (q0, q1) or p1 in (q0, q1):
+                continue
+            reach = thickness + e_wander + max(wander[q0], wander[q1])
+            if _ee_far(x, p0, p1, q0, q1, reach) or _ee_gap(x, p0, p1, q0, q1)[0] > reach:
+                continue
+            if count == pairs.shape[0]:
+                pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
+            pairs[count, 0] = e
+            pairs[count, 1] = f
+            a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
+            near[count] = not (
+                _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
+                or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
+            )
+            rest_gap[count] = _ee_gap(rest, p0, p1, q0, q1)[0]
+            count += 1
+    return pairs[:count], near[:count], rest_gap[:count]
 
 
 @nb.njit(**JIT)

@@ -30,7 +30,7 @@ test found what the end positions alone would have missed.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -319,11 +319,15 @@ class ContactStats:
     rounds: int = 0
     reverted: int = 0
 
+    def counts(self) -> tuple[int, int, int, int, int, int]:
+        """The fields in order (`dataclasses.astuple` copies deeply and cost 0.3 ms a substep)."""
+        return (self.substeps, self.contacts, self.swept, self.crossed, self.rounds, self.reverted)
+
     def __add__(self, other: ContactStats) -> ContactStats:
-        return ContactStats(*(a + b for a, b in zip(astuple(self), astuple(other), strict=True)))
+        return ContactStats(*(a + b for a, b in zip(self.counts(), other.counts(), strict=True)))
 
     def __sub__(self, other: ContactStats) -> ContactStats:
-        return ContactStats(*(a - b for a, b in zip(astuple(self), astuple(other), strict=True)))
+        return ContactStats(*(a - b for a, b in zip(self.counts(), other.counts(), strict=True)))
 
 
 @dataclass(frozen=True)
