@@ -115,9 +115,10 @@ class _Pairs:
     the continuous check keeps up to date (`self_kernels.colliding_pairs`).
 
     Found from the boxes `lo`, `hi` (V, 3) each vertex swept in the substep they were gathered
-    in, as the pairs whose boxes come within the thickness plus twice `slack` (m). While every
-    vertex stays within `slack` of its box (after the cloth's mean motion since, from `centre`,
-    is taken out: a common translation moves no pair closer), no other pair can come within the
+    in and on along its motion by up to `slack` (`_ahead`), as the pairs whose boxes come within
+    the thickness plus twice `slack` (m). While every vertex stays within `slack` of its box
+    (after the cloth's mean motion since, from `centre`, is taken out: a common translation
+    moves no pair closer), no other pair can come within the
     thickness or touch, so the list holds.
     """
 
@@ -201,30 +202,33 @@ class SelfCollision(Constraint, Remappable):
         self.work.pair_builds += 1
         reach = self.thickness + self._margin
         vertices = np.arange(x0.shape[0], dtype=np.int64)[:, None]
-        lo, hi = swept_boxes(x0, x1, vertices, 0.0)
-        tlo, thi = swept_boxes(x0, x1, topology.triangles, 0.0)
-        # keep only the pairs that can come within the thickness while the list holds: a vertex then
-        # stays within its swept box's diagonal plus the slack's of where it is now, so a pair's
-        # distance falls at most by the two sides' largest such reach
         slack = 0.5 * self._margin
+        centre = x1.mean(axis=0)
+        # the boxes reach on along each vertex's motion, so a cloth moving steadily keeps its list
+        # for a few substeps more (any box holds the argument of `_Pairs`; this one fits the path)
+        ahead = _ahead(x0, x1, slack)
+        lo, hi = swept_boxes(x0, ahead, vertices, 0.0)
+        tlo, thi = swept_boxes(x0, ahead, topology.triangles, 0.0)
+        # keep only the pairs that can come within the thickness while the list holds: a vertex then
+        # stays within its box's diagonal plus the slack's of any point of the box (here `ahead`),
+        # so a pair's distance falls at most by the two sides' largest such reach
         wander = np.linalg.norm(hi - lo, axis=1) + np.sqrt(3.0) * slack
         ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
         qlo, qhi = lo - reach, hi + reach
         inv_cell, start, element, cell = grid_for(qlo, qhi, tlo, thi)
         vf, vf_near, vf_rest = self_kernels.vf_candidates(
-            x1, rest, qlo, qhi, tlo, thi, inv_cell, start, element, cell,
+            ahead, rest, qlo, qhi, tlo, thi, inv_cell, start, element, cell,
             topology.triangles, self._origin, ring_start, ring, wander, self.thickness, self._capacity[0],
         )  # fmt: skip
-        elo, ehi = swept_boxes(x0, x1, topology.edges, 0.5 * reach)
+        elo, ehi = swept_boxes(x0, ahead, topology.edges, 0.5 * reach)
         inv_cell, start, element, cell = grid_for(elo, ehi, elo, ehi)
         ee, ee_near, ee_rest = self_kernels.ee_candidates(
-            x1, rest, elo, ehi, inv_cell, start, element, cell,
+            ahead, rest, elo, ehi, inv_cell, start, element, cell,
             topology.edges, self._origin, ring_start, ring, wander, self.thickness, self._capacity[1],
         )  # fmt: skip
         self._capacity = (int(1.25 * vf.shape[0]), int(1.25 * ee.shape[0]))
         vf_lower, ee_lower = np.zeros(vf.shape[0]), np.zeros(ee.shape[0])  # unknown: computed when checked
-        centre = x1.mean(axis=0)
         self._held = _Pairs(vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, lo, hi, centre, slack)
         return self._held
 
@@ -291,6 +295,10 @@ SEAM_FRACTION = 0.2
 MARGIN_FRACTION = 0.25
 
 
+#: how many substeps of its current motion a vertex's box reaches ahead (at most the slack)
+LOOKAHEAD = 4.0
+
+
 #: the thickness self-collision keeps is at most this fraction of the median rest edge length
 THICKNESS_EDGE_FRACTION = 0.5
 
@@ -311,6 +319,17 @@ def contact_thickness(thickness: float, edge: float) -> float:
     every vertex a contact of dozens of rest neighbours (a fine scan at the default 5 mm gathers
     millions of pairs) and cannot be kept anyway where the cloth folds within a few edges."""
     return min(thickness, THICKNESS_EDGE_FRACTION * edge) if edge > 0 else thickness
+
+
+def _ahead(x0: np.ndarray, x1: np.ndarray, slack: float) -> np.ndarray:
+    """Each vertex of x1 (V, 3) moved on along its substep's motion from x0 by `LOOKAHEAD`
+    substeps of it, by at most `slack` (m): the far end of the box its candidate pairs are
+    gathered for. (Reaching further gathers more pairs than the rebuilds it saves: on the
+    collapse of benchmarks/contact.py a reach of a quarter of an edge was slower than none.)"""
+    step = x1 - x0
+    length = np.sqrt(np.einsum("ij,ij->i", step, step))
+    scale = np.minimum(LOOKAHEAD, slack / np.maximum(length, 1e-300))
+    return x1 + scale[:, None] * step
 
 
 def _settle(state: State, before: np.ndarray, dt: float) -> None:
