@@ -122,6 +122,38 @@ def test_a_sheet_thrown_at_another_never_passes_through(speed: float) -> None:
         assert x[upper, 1].mean() > x[~upper, 1].mean()
 
 
+def test_an_impact_zone_does_not_carry_a_layer_into_the_ground() -> None:
+    """A sheet falling through one that lies on the ground within one substep, with no proximity
+    sweeps, so only impact zones part them: a zone's common translation would carry the lower
+    sheet down into the ground's thickness (its mean motion is the upper sheet's fall, halved).
+    Afterwards no triangle pair intersects, every vertex keeps the ground's 1 cm less 1 mm, and
+    the upper sheet is still above the lower one."""
+    lower = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.0, 0.012, 0.0))
+    upper = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.01, 0.03, 0.013))
+    count = lower.positions.shape[0]
+    mesh = Mesh(
+        positions=np.concatenate([lower.positions, upper.positions]),
+        face_indices=np.concatenate([lower.face_indices, upper.face_indices + count]),
+        face_offsets=np.concatenate([lower.face_offsets, upper.face_offsets[1:] + lower.face_indices.shape[0]]),
+    )
+    model = SpringModel.from_mesh(mesh)
+    top = np.arange(model.vertex_count) >= count
+    state = State.at_rest(model)
+    dt = 1.0 / 240.0
+    ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 0.3, 0.01)
+    contact = SelfCollision(SelfCollisionSettings(thickness=THICKNESS, sweeps=0), [ground])
+    contact.project(model, state, dt, dt)  # a substep at rest: where the next one starts
+    state.positions[top, 1] = -0.01  # the end of a substep at 9.6 m/s: through the lower sheet
+    state.velocities[top, 1] = -0.04 / dt
+    ground.project(model, state, 2 * dt, dt)  # as `simulate` runs them: the colliders, then self-collision
+    contact.project(model, state, 2 * dt, dt)
+    x = state.positions
+    assert contact.work.zone_rounds > 0  # the zones were what parted them
+    assert intersecting_pairs(x, model.triangles) == 0
+    assert float(x[:, 1].min()) >= 0.01 - 0.001
+    assert x[top, 1].mean() > x[~top, 1].mean()
+
+
 def test_runs_are_byte_identical() -> None:
     model = SpringModel.from_mesh(_collapsing_sheet(12))
     first = _run(model, True, 8)

@@ -232,6 +232,40 @@ class SelfCollision(Constraint, Remappable):
         self._held = _Pairs(vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, lo, hi, centre, slack)
         return self._held
 
+    def _impact_zones(
+        self, model: SpringModel, topology: _Topology, x0: np.ndarray, x: np.ndarray, inv_mass: np.ndarray,
+        work: ContactWork, translate: bool,
+    ) -> bool:
+        """The continuous check along x0 -> x (V, 3), and impact zones in x until it flags
+        nothing: each zone takes its members' mass-weighted mean displacement (`translate`) or
+        goes back to x0 (unless pinned members move it). Returns whether any zone formed."""
+        n = x.shape[0]
+        parent = np.arange(n, dtype=np.int64)
+        in_zone = np.zeros(n, dtype=np.bool_)
+        settings = self.settings
+        zoned = False
+        for round_ in range(settings.max_rounds + 1):
+            pairs = self._pairs(model, topology, x0, x)
+            vf, ee = pairs.vf, pairs.ee
+            hit_vf, hit_ee = self_kernels.colliding_pairs(
+                x0, x, topology.triangles, topology.edges, vf, ee, self._origin, SEAM_FRACTION * self.thickness,
+                pairs.vf_lower, pairs.ee_lower,
+            )
+            flagged = int(hit_vf.sum() + hit_ee.sum())
+            if flagged == 0:
+                break
+            zoned = True
+            work.flagged_pairs += flagged
+            work.zone_rounds += 1
+            self_kernels.merge_zones(parent, in_zone, topology.triangles, topology.edges, vf, hit_vf, ee, hit_ee)
+            if round_ == settings.max_rounds:  # last resort: every flagged vertex in one zone
+                members = np.flatnonzero(in_zone)
+                parent[members] = members[0]
+            zone_sizes = np.bincount(_roots(parent, in_zone))
+            work.largest_zone = max(work.largest_zone, int(zone_sizes.max(initial=0)))
+            self_kernels.move_zones(x, x0, inv_mass, parent, in_zone, translate)
+        return zoned
+
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
         topology = self._prepare(model)
         if topology.triangles.shape[0] == 0:
@@ -260,29 +294,18 @@ class SelfCollision(Constraint, Remappable):
         x2 = x.copy()
 
         # 2. and 3. the continuous check along x0 -> x, impact zones until nothing is flagged
-        parent = np.arange(n, dtype=np.int64)
-        in_zone = np.zeros(n, dtype=np.bool_)
-        for round_ in range(settings.max_rounds + 1):
-            pairs = self._pairs(model, topology, x0, x)
-            vf, ee = pairs.vf, pairs.ee
-            hit_vf, hit_ee = self_kernels.colliding_pairs(
-                x0, x, topology.triangles, topology.edges, vf, ee, self._origin, SEAM_FRACTION * self.thickness,
-                pairs.vf_lower, pairs.ee_lower,
-            )
-            flagged = int(hit_vf.sum() + hit_ee.sum())
-            if flagged == 0:
-                break
-            work.flagged_pairs += flagged
-            work.zone_rounds += 1
-            self_kernels.merge_zones(parent, in_zone, topology.triangles, topology.edges, vf, hit_vf, ee, hit_ee)
-            if round_ == settings.max_rounds:  # last resort: every flagged vertex in one zone
-                members = np.flatnonzero(in_zone)
-                parent[members] = members[0]
-            zone_sizes = np.bincount(_roots(parent, in_zone))
-            work.largest_zone = max(work.largest_zone, int(zone_sizes.max(initial=0)))
-            self_kernels.move_zones(x, x0, inv_mass, parent, in_zone)
-
+        zoned = self._impact_zones(model, topology, x0, x, inv_mass, work, translate=True)
         _settle(state, x2, dt)
+        if zoned and self.colliders:
+            # a zone's common translation can carry a vertex a collider held into the collider's
+            # thickness (a falling layer caught by one lying on the ground moves it down with
+            # it): the colliders again, then the continuous check with zones that stay where the
+            # substep started (clear of both, since the last substep ended so)
+            for collider in self.colliders:
+                collider.project(model, state, time, dt)
+            x3 = x.copy()
+            self._impact_zones(model, topology, x0, x, inv_mass, work, translate=False)
+            _settle(state, x3, dt)
         self._start = x.copy()
         self.work.add(work)
 

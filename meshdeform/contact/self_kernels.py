@@ -600,10 +600,13 @@ def merge_zones(
 
 
 @nb.njit(**JIT)
-def move_zones(x: np.ndarray, x0: np.ndarray, inv_mass: np.ndarray, parent: np.ndarray, in_zone: np.ndarray) -> int:
+def move_zones(
+    x: np.ndarray, x0: np.ndarray, inv_mass: np.ndarray, parent: np.ndarray, in_zone: np.ndarray, translate: bool
+) -> int:
     """Give every impact zone one translation, x = x0 + the mass-weighted mean displacement of its
     free members (or the mean displacement of its pinned members, which cannot be moved): a
-    translation keeps every distance inside the zone, so no pair within it can meet. Returns the
+    translation keeps every distance inside the zone, so no pair within it can meet. Without
+    `translate` a zone without pinned members stays at x0 (no displacement at all). Returns the
     number of vertices in zones."""
     n = x.shape[0]
     mass = np.zeros(n)
@@ -630,6 +633,9 @@ def move_zones(x: np.ndarray, x0: np.ndarray, inv_mass: np.ndarray, parent: np.n
             continue
         r = _root(parent, i)
         for axis in range(3):
-            shift = pinned_moved[r, axis] / pinned[r] if pinned[r] > 0.0 else moved[r, axis] / mass[r]
+            if pinned[r] > 0.0:
+                shift = pinned_moved[r, axis] / pinned[r]
+            else:
+                shift = moved[r, axis] / mass[r] if translate else 0.0
             x[i, axis] = x0[i, axis] + shift
     return members
