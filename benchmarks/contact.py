@@ -49,7 +49,7 @@ import sys
 import tempfile
 import textwrap
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -181,6 +181,10 @@ class Side:
     frames_per_second: list[float]
     positions: np.ndarray | None  # (frames, V, 3) Y up
     refused: str | None = None
+    #: self-collision's work in the first timed run, summed over its frames (report.json's
+    #: `self_collision` lists: pair_builds, projections, flagged_pairs, zone_rounds), the
+    #: largest zone its largest
+    work: dict[str, int] = field(default_factory=dict)
 
     @property
     def median(self) -> float:
@@ -218,6 +222,7 @@ def run_meshdeform(
     }
     rates: list[float] = []
     positions = None
+    work: dict[str, int] = {}
     for run in range(repeats + 1):
         toml = folder / f"{tag}_{run}.toml"
         toml.write_text(recipe(scene, 2 if run == 0 else frames, self_collision, solver))
@@ -239,7 +244,13 @@ def run_meshdeform(
         if positions is None:
             with np.load(out / "positions.npz") as data:
                 positions = data["positions"].astype(np.float64)
-    return Side(label, rates, positions)
+            lists = report.get("self_collision", {})
+            work = {
+                key: max(values, default=0) if key == "largest_zone" else sum(values)
+                for key, values in lists.items()
+                if isinstance(values, list)
+            }
+    return Side(label, rates, positions, work=work)
 
 
 # ---------------------------------------------------------------------------------------------- Blender
@@ -407,6 +418,8 @@ def main() -> None:
                 off, on = runs[f"{solver}_off"], runs[f"{solver}_on"]
                 if on.refused is None:
                     print(f"  {solver}: self-collision cost (frames/s off / on): {off.median / on.median:.2f}x")
+                    done = ", ".join(f"{key} {value}" for key, value in on.work.items())
+                    print(f"  {solver}: self-collision work over the {args.frames} frames: {done}")
             sys.stdout.flush()
 
 
