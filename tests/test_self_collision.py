@@ -161,20 +161,34 @@ def test_runs_are_byte_identical() -> None:
     assert all(a.tobytes() == b.tobytes() for a, b in zip(first, second, strict=True))
 
 
-def test_broad_phase_finds_exactly_the_overlapping_boxes() -> None:
+@pytest.mark.parametrize("dense_factor", [0.0, 1e9])  # always hashed, always dense
+def test_broad_phase_finds_exactly_the_overlapping_boxes(dense_factor: float) -> None:
     rng = np.random.default_rng(7)
     qlo = rng.uniform(0, 1, (300, 3))
     qhi = qlo + rng.uniform(0, 0.1, (300, 3))
     elo = rng.uniform(0, 1, (400, 3))
     ehi = elo + rng.uniform(0, 0.2, (400, 3))
-    found = overlapping_pairs(qlo, qhi, elo, ehi)
+    found = overlapping_pairs(qlo, qhi, elo, ehi, dense_factor=dense_factor)
     overlap = np.all((qlo[:, None] <= ehi[None]) & (qhi[:, None] >= elo[None]), axis=2)
     expected = set(zip(*np.nonzero(overlap), strict=True))
     assert len(found) == len(expected)  # each pair once
     assert set(map(tuple, found.tolist())) == expected
-    same = overlapping_pairs(elo, ehi, elo, ehi, upper_only=True)
+    same = overlapping_pairs(elo, ehi, elo, ehi, upper_only=True, dense_factor=dense_factor)
     overlap = np.all((elo[:, None] <= ehi[None]) & (ehi[:, None] >= elo[None]), axis=2)
     assert set(map(tuple, same.tolist())) == {(a, b) for a, b in zip(*np.nonzero(overlap), strict=True) if a < b}
+    assert len(same) == np.count_nonzero(np.triu(overlap, 1))
+
+
+def test_the_dense_and_the_hashed_grid_report_the_same_pairs_in_the_same_order() -> None:
+    """Contact's bytes do not depend on which grid a rebuild used (a cloth spreading out moves
+    from the dense grid to the hashed one)."""
+    rng = np.random.default_rng(3)
+    lo = rng.uniform(-0.2, 0.2, (500, 3))
+    hi = lo + rng.uniform(0, 0.08, (500, 3))
+    hashed = overlapping_pairs(lo, hi, lo, hi, upper_only=True, dense_factor=0.0)
+    dense = overlapping_pairs(lo, hi, lo, hi, upper_only=True, dense_factor=1e9)
+    assert hashed.shape[0] > 500
+    assert hashed.tobytes() == dense.tobytes()
 
 
 def _sampled_min_distance(x0: np.ndarray, x1: np.ndarray, samples: int = 2001) -> float:

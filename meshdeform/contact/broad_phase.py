@@ -20,6 +20,9 @@ import numpy as np
 from meshdeform.solvers.jit import JIT
 
 _P1, _P2, _P3 = 73856093, 19349663, 83492791  # Teschner et al.'s hash primes
+#: a grid is dense (no hashing) where the cells of its elements' range are at most this many per
+#: entry: a crumpled or draped cloth (compact), not a sheet spread over a large volume
+DENSE_FACTOR = 4.0
 
 
 def cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
@@ -51,47 +54,78 @@ def _hash(ix: int, iy: int, iz: int, mask: int) -> int:
 
 
 @nb.njit(**JIT)
-def build_grid(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The grid of element boxes lo, hi (M, 3).
+def build_grid(
+    lo: np.ndarray, hi: np.ndarray, inv_cell: float, dense_factor: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The grid of element boxes lo, hi (M, 3): dense (one bucket per cell of the elements'
+    bounding range) where that range has at most `dense_factor` cells per entry, else hashed.
 
-    Returns bucket_start (H + 1,) int64 (H a power of two), and per entry, sorted by bucket and
-    within a bucket by element: the element (K,) int64 and its cell (K, 3) int64.
+    Returns bucket_start (H + 1,) int64, and per entry, sorted by bucket and within a bucket by
+    element: the element (K,) int64 and, hashed, its cell (K, 3) int64 ((0, 3) when dense); and
+    the dense range (6,) int64, its first cell and its size in cells per axis (sizes 0: hashed,
+    H a power of two). Either way a bucket's entries of one cell come in element order, so a
+    query reports the same pairs in the same order from both.
     """
     m = lo.shape[0]
     cells = np.empty((m, 6), dtype=np.int64)
     total = 0
+    low = np.full(3, np.iinfo(np.int64).max, dtype=np.int64)
+    high = np.full(3, np.iinfo(np.int64).min, dtype=np.int64)
     for e in range(m):
         for k in range(3):
             cells[e, k] = int(np.floor(lo[e, k] * inv_cell))
             cells[e, 3 + k] = int(np.floor(hi[e, k] * inv_cell))
+            low[k] = min(low[k], cells[e, k])
+            high[k] = max(high[k], cells[e, 3 + k])
         total += (cells[e, 3] - cells[e, 0] + 1) * (cells[e, 4] - cells[e, 1] + 1) * (cells[e, 5] - cells[e, 2] + 1)
-    size = 1
-    while size < 2 * total:
-        size *= 2
-    mask = size - 1
+    box = np.zeros(6, dtype=np.int64)
+    if m:
+        span = (high[0] - low[0] + 1) * (high[1] - low[1] + 1) * (high[2] - low[2] + 1)
+        if span <= dense_factor * total:
+            for k in range(3):
+                box[k] = low[k]
+                box[3 + k] = high[k] - low[k] + 1
+    dense = box[3] > 0
+    if dense:
+        size = box[3] * box[4] * box[5]
+        mask = 0
+    else:
+        size = 1
+        while size < 2 * total:
+            size *= 2
+        mask = size - 1
     start = np.zeros(size + 1, dtype=np.int64)
     for e in range(m):
         for ix in range(cells[e, 0], cells[e, 3] + 1):
             for iy in range(cells[e, 1], cells[e, 4] + 1):
                 for iz in range(cells[e, 2], cells[e, 5] + 1):
-                    start[_hash(ix, iy, iz, mask) + 1] += 1
+                    start[_bucket(ix, iy, iz, box, mask) + 1] += 1
     for h in range(size):
         start[h + 1] += start[h]
     fill = start[:-1].copy()
     element = np.empty(total, dtype=np.int64)
-    cell = np.empty((total, 3), dtype=np.int64)
+    cell = np.empty((0 if dense else total, 3), dtype=np.int64)
     for e in range(m):
         for ix in range(cells[e, 0], cells[e, 3] + 1):
             for iy in range(cells[e, 1], cells[e, 4] + 1):
                 for iz in range(cells[e, 2], cells[e, 5] + 1):
-                    h = _hash(ix, iy, iz, mask)
+                    h = _bucket(ix, iy, iz, box, mask)
                     slot = fill[h]
                     fill[h] += 1
                     element[slot] = e
-                    cell[slot, 0] = ix
-                    cell[slot, 1] = iy
-                    cell[slot, 2] = iz
-    return start, element, cell
+                    if not dense:
+                        cell[slot, 0] = ix
+                        cell[slot, 1] = iy
+                        cell[slot, 2] = iz
+    return start, element, cell, box
+
+
+@nb.njit(**JIT)
+def _bucket(ix: int, iy: int, iz: int, box: np.ndarray, mask: int) -> int:
+    """The bucket of cell (ix, iy, iz): its place in the dense range `box`, else its hash."""
+    if box[3] > 0:
+        return ((ix - box[0]) * box[4] + (iy - box[1])) * box[5] + (iz - box[2])
+    return _hash(ix, iy, iz, mask)
 
 
 @nb.njit(**JIT)
@@ -105,13 +139,16 @@ def query_box(
     start: np.ndarray,
     element: np.ndarray,
     cell: np.ndarray,
+    box: np.ndarray,
     above: int,
     found: np.ndarray,
 ) -> int:
     """The elements whose boxes overlap query box q of qlo, qhi (Q, 3), each once, in the grid's
-    fixed order, written to found (S,) int64; only elements > `above` (-1: all). Returns their
-    count, which may exceed S: then found holds the first S and the caller asks again with room."""
-    mask = start.shape[0] - 2
+    fixed order, written to found (S,) int64; only elements > `above` (-1: all). The grid is
+    `build_grid`'s (start, element, cell, box). Returns their count, which may exceed S: then
+    found holds the first S and the caller asks again with room."""
+    dense = box[3] > 0
+    mask = 0 if dense else start.shape[0] - 2
     capacity = found.shape[0]
     count = 0
     x0 = int(np.floor(qlo[q, 0] * inv_cell))
@@ -120,12 +157,17 @@ def query_box(
     x1 = int(np.floor(qhi[q, 0] * inv_cell))
     y1 = int(np.floor(qhi[q, 1] * inv_cell))
     z1 = int(np.floor(qhi[q, 2] * inv_cell))
-    for ix in range(x0, x1 + 1):
-        for iy in range(y0, y1 + 1):
-            for iz in range(z0, z1 + 1):
-                h = _hash(ix, iy, iz, mask)
+    # a dense grid has no entries outside its range: visit only the cells inside it
+    ax0, ay0, az0 = (max(x0, box[0]), max(y0, box[1]), max(z0, box[2])) if dense else (x0, y0, z0)
+    ax1 = min(x1, box[0] + box[3] - 1) if dense else x1
+    ay1 = min(y1, box[1] + box[4] - 1) if dense else y1
+    az1 = min(z1, box[2] + box[5] - 1) if dense else z1
+    for ix in range(ax0, ax1 + 1):
+        for iy in range(ay0, ay1 + 1):
+            for iz in range(az0, az1 + 1):
+                h = _bucket(ix, iy, iz, box, mask)
                 for slot in range(start[h], start[h + 1]):
-                    if cell[slot, 0] != ix or cell[slot, 1] != iy or cell[slot, 2] != iz:
+                    if not dense and (cell[slot, 0] != ix or cell[slot, 1] != iy or cell[slot, 2] != iz):
                         continue
                     e = element[slot]
                     if e <= above:
@@ -158,6 +200,7 @@ def _overlapping(
     start: np.ndarray,
     element: np.ndarray,
     cell: np.ndarray,
+    box: np.ndarray,
     upper_only: bool,
     capacity: int,
 ) -> np.ndarray:
@@ -167,10 +210,10 @@ def _overlapping(
     count = 0
     for q in range(qlo.shape[0]):
         above = q if upper_only else -1
-        n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, above, found)
+        n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, box, above, found)
         if n > found.shape[0]:
             found = np.empty(2 * n, dtype=np.int64)
-            n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, above, found)
+            n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, box, above, found)
         if count + n > out.shape[0]:
             grown = np.empty((2 * (count + n), 2), dtype=np.int64)
             grown[:count] = out[:count]
@@ -183,15 +226,16 @@ def _overlapping(
 
 
 def grid_for(
-    qlo: np.ndarray, qhi: np.ndarray, elo: np.ndarray, ehi: np.ndarray
-) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    qlo: np.ndarray, qhi: np.ndarray, elo: np.ndarray, ehi: np.ndarray, dense_factor: float = DENSE_FACTOR
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The grid of element boxes elo, ehi (M, 3) for queries qlo, qhi (Q, 3): 1 / cell (1/m) and
-    `build_grid`'s bucket starts, elements and cells. The cell suits the larger boxes of the two."""
+    `build_grid`'s bucket starts, elements, cells and dense range. The cell suits the larger
+    boxes of the two."""
     size = cell_size(elo, ehi)
     if qlo is not elo or qhi is not ehi:
         size = max(size, cell_size(qlo, qhi))
     inv_cell = 1.0 / size
-    return (inv_cell, *build_grid(elo, ehi, inv_cell))
+    return (inv_cell, *build_grid(elo, ehi, inv_cell, dense_factor))
 
 
 def overlapping_pairs(
@@ -202,12 +246,13 @@ def overlapping_pairs(
     *,
     upper_only: bool = False,
     capacity_hint: int = 0,
+    dense_factor: float = DENSE_FACTOR,
 ) -> np.ndarray:
     """(P, 2) int64 (query, element) pairs whose boxes overlap, by query, then in the
     grid's fixed order; `upper_only` keeps element > query (a set against itself, each pair once).
 
     qlo, qhi (Q, 3) / elo, ehi (M, 3): box corners, metres. capacity_hint: expected pair count
-    (a guess avoids a second pass).
+    (a guess avoids a second pass). dense_factor: as `grid_for` (0: always hashed).
     """
     qlo = np.ascontiguousarray(qlo, dtype=np.float64)
     qhi = np.ascontiguousarray(qhi, dtype=np.float64)
@@ -215,9 +260,9 @@ def overlapping_pairs(
     ehi = np.ascontiguousarray(ehi, dtype=np.float64)
     if qlo.shape[0] == 0 or elo.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    inv_cell, start, element, cell = grid_for(qlo, qhi, elo, ehi)
+    inv_cell, start, element, cell, box = grid_for(qlo, qhi, elo, ehi, dense_factor)
     capacity = max(capacity_hint, 16 * qlo.shape[0])
-    return _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, upper_only, capacity)
+    return _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, box, upper_only, capacity)
 
 
 @nb.njit(**JIT)

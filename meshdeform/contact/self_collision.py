@@ -216,15 +216,15 @@ class SelfCollision(Constraint, Remappable):
         ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
         qlo, qhi = lo - reach, hi + reach
-        inv_cell, start, element, cell = grid_for(qlo, qhi, tlo, thi)
+        inv_cell, start, element, cell, box = grid_for(qlo, qhi, tlo, thi)
         vf, vf_near, vf_rest = self_kernels.vf_candidates(
-            ahead, rest, qlo, qhi, tlo, thi, inv_cell, start, element, cell,
+            ahead, rest, qlo, qhi, tlo, thi, inv_cell, start, element, cell, box,
             topology.triangles, self._origin, ring_start, ring, wander, self.thickness, self._capacity[0],
         )  # fmt: skip
         elo, ehi = swept_boxes(x0, ahead, topology.edges, 0.5 * reach)
-        inv_cell, start, element, cell = grid_for(elo, ehi, elo, ehi)
+        inv_cell, start, element, cell, box = grid_for(elo, ehi, elo, ehi)
         ee, ee_near, ee_rest = self_kernels.ee_candidates(
-            ahead, rest, elo, ehi, inv_cell, start, element, cell,
+            ahead, rest, elo, ehi, inv_cell, start, element, cell, box,
             topology.edges, self._origin, ring_start, ring, wander, self.thickness, self._capacity[1],
         )  # fmt: skip
         self._capacity = (int(1.25 * vf.shape[0]), int(1.25 * ee.shape[0]))

@@ -162,7 +162,7 @@ def _grow(
 @nb.njit(**JIT)
 def vf_candidates(
     x: np.ndarray, rest: np.ndarray, qlo: np.ndarray, qhi: np.ndarray, tlo: np.ndarray, thi: np.ndarray,
-    inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray,
+    inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
     triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
     wander: np.ndarray, thickness: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -179,10 +179,10 @@ def vf_candidates(
     found = np.empty(64, dtype=np.int64)
     count = 0
     for v in range(qlo.shape[0]):
-        n = query_box(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, -1, found)
+        n = query_box(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, box, -1, found)
         if n > found.shape[0]:
             found = np.empty(2 * n, dtype=np.int64)
-            n = query_box(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, -1, found)
+            n = query_box(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, box, -1, found)
         ov = origin[v]
         for j in range(n):
             t = found[j]
@@ -208,7 +208,7 @@ def vf_candidates(
 @nb.njit(**JIT)
 def ee_candidates(
     x: np.ndarray, rest: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
-    inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray,
+    inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
     edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
     wander: np.ndarray, thickness: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -223,10 +223,10 @@ def ee_candidates(
     found = np.empty(64, dtype=np.int64)
     count = 0
     for e in range(elo.shape[0]):
-        n = query_box(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, e, found)
+        n = query_box(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e, found)
         if n > found.shape[0]:
             found = np.empty(2 * n, dtype=np.int64)
-            n = query_box(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, e, found)
+            n = query_box(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e, found)
         p0, p1 = edges[e, 0], edges[e, 1]
         e_wander = max(wander[p0], wander[p1])
         for j in range(n):
