@@ -191,6 +191,30 @@ def query_box(
 
 
 @nb.njit(**JIT)
+def query_grown(
+    qlo: np.ndarray,
+    qhi: np.ndarray,
+    q: int,
+    elo: np.ndarray,
+    ehi: np.ndarray,
+    inv_cell: float,
+    start: np.ndarray,
+    element: np.ndarray,
+    cell: np.ndarray,
+    box: np.ndarray,
+    above: int,
+    found: np.ndarray,
+) -> tuple[int, np.ndarray]:
+    """`query_box`, asked again with a buffer twice the count where `found` was too short:
+    the count and the buffer holding all of them (found or its replacement)."""
+    n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, box, above, found)
+    if n > found.shape[0]:
+        found = np.empty(2 * n, dtype=np.int64)
+        n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, box, above, found)
+    return n, found
+
+
+@nb.njit(**JIT)
 def _overlapping(
     qlo: np.ndarray,
     qhi: np.ndarray,
@@ -210,10 +234,7 @@ def _overlapping(
     count = 0
     for q in range(qlo.shape[0]):
         above = q if upper_only else -1
-        n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, box, above, found)
-        if n > found.shape[0]:
-            found = np.empty(2 * n, dtype=np.int64)
-            n = query_box(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, box, above, found)
+        n, found = query_grown(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, box, above, found)
         if count + n > out.shape[0]:
             grown = np.empty((2 * (count + n), 2), dtype=np.int64)
             grown[:count] = out[:count]

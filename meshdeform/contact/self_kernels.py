@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from meshdeform.contact.broad_phase import query_box
+from meshdeform.contact.broad_phase import query_grown
 from meshdeform.contact.primitives import point_triangle_weights, segment_segment_params
 from meshdeform.solvers.jit import JIT
 
@@ -145,14 +145,18 @@ def _ee_far(x: np.ndarray, p0: int, p1: int, q0: int, q1: int, reach: float) -> 
 
 
 @nb.njit(**JIT)
+def _pair_buffers(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Room for `size` candidate pairs: the pairs (size, 2) int64, their proximity flags (size,)
+    and their rest distances (size,)."""
+    return np.empty((size, 2), dtype=np.int64), np.empty(size, dtype=np.bool_), np.empty(size)
+
+
+@nb.njit(**JIT)
 def _grow(
     pairs: np.ndarray, near: np.ndarray, rest: np.ndarray, count: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The first `count` rows of the three output arrays, in arrays twice as long."""
-    size = 2 * max(count, 16)
-    grown_pairs = np.empty((size, 2), dtype=np.int64)
-    grown_near = np.empty(size, dtype=np.bool_)
-    grown_rest = np.empty(size)
+    grown_pairs, grown_near, grown_rest = _pair_buffers(2 * max(count, 16))
     grown_pairs[:count] = pairs[:count]
     grown_near[:count] = near[:count]
     grown_rest[:count] = rest[:count]
@@ -173,16 +177,11 @@ def vf_candidates(
     list holds. Returns the pairs (P, 2) (vertex, triangle) by vertex, then in the grid's order;
     whether each takes proximity repulsion (its origin neither a corner's origin nor a rest
     neighbour of one), (P,) bool; and its distance (m) in the rest positions (P,)."""
-    pairs = np.empty((max(capacity, 16), 2), dtype=np.int64)
-    near = np.empty(pairs.shape[0], dtype=np.bool_)
-    rest_gap = np.empty(pairs.shape[0])
+    pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = 0
     for v in range(qlo.shape[0]):
-        n = query_box(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, box, -1, found)
-        if n > found.shape[0]:
-            found = np.empty(2 * n, dtype=np.int64)
-            n = query_box(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, box, -1, found)
+        n, found = query_grown(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, box, -1, found)
         ov = origin[v]
         for j in range(n):
             t = found[j]
@@ -217,16 +216,11 @@ def ee_candidates(
     the thickness plus what the four ends may still travel (`wander`). Returns the pairs (Q, 2),
     whether each takes proximity repulsion (no end's origin equal to or a rest neighbour of an
     end's origin of the other), (Q,) bool, and the distance (m) in the rest positions (Q,)."""
-    pairs = np.empty((max(capacity, 16), 2), dtype=np.int64)
-    near = np.empty(pairs.shape[0], dtype=np.bool_)
-    rest_gap = np.empty(pairs.shape[0])
+    pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = 0
     for e in range(elo.shape[0]):
-        n = query_box(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e, found)
-        if n > found.shape[0]:
-            found = np.empty(2 * n, dtype=np.int64)
-            n = query_box(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e, found)
+        n, found = query_grown(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e, found)
         p0, p1 = edges[e, 0], edges[e, 1]
         e_wander = max(wander[p0], wander[p1])
         for j in range(n):
