@@ -252,10 +252,7 @@ def grid_for(
     """The grid of element boxes elo, ehi (M, 3) for queries qlo, qhi (Q, 3): 1 / cell (1/m) and
     `build_grid`'s bucket starts, elements, cells and dense range. The cell suits the larger
     boxes of the two."""
-    size = cell_size(elo, ehi)
-    if qlo is not elo or qhi is not ehi:
-        size = max(size, cell_size(qlo, qhi))
-    inv_cell = 1.0 / size
+    inv_cell = 1.0 / max(cell_size(elo, ehi), cell_size(qlo, qhi))
     return (inv_cell, *build_grid(elo, ehi, inv_cell, dense_factor))
 
 
@@ -266,14 +263,13 @@ def overlapping_pairs(
     ehi: np.ndarray,
     *,
     upper_only: bool = False,
-    capacity_hint: int = 0,
     dense_factor: float = DENSE_FACTOR,
 ) -> np.ndarray:
     """(P, 2) int64 (query, element) pairs whose boxes overlap, by query, then in the
     grid's fixed order; `upper_only` keeps element > query (a set against itself, each pair once).
 
-    qlo, qhi (Q, 3) / elo, ehi (M, 3): box corners, metres. capacity_hint: expected pair count
-    (a guess avoids a second pass). dense_factor: as `grid_for` (0: always hashed).
+    qlo, qhi (Q, 3) / elo, ehi (M, 3): box corners, metres. dense_factor: as `grid_for` (0:
+    always hashed).
     """
     qlo = np.ascontiguousarray(qlo, dtype=np.float64)
     qhi = np.ascontiguousarray(qhi, dtype=np.float64)
@@ -282,8 +278,7 @@ def overlapping_pairs(
     if qlo.shape[0] == 0 or elo.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64)
     inv_cell, start, element, cell, box = grid_for(qlo, qhi, elo, ehi, dense_factor)
-    capacity = max(capacity_hint, 16 * qlo.shape[0])
-    return _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, box, upper_only, capacity)
+    return _overlapping(qlo, qhi, elo, ehi, inv_cell, start, element, cell, box, upper_only, 16 * qlo.shape[0])
 
 
 @nb.njit(**JIT)

@@ -91,22 +91,6 @@ def _ee_gap(x: np.ndarray, p0: int, p1: int, q0: int, q1: int) -> tuple[float, f
 
 
 @nb.njit(**JIT)
-def pair_gaps(
-    x: np.ndarray, triangles: np.ndarray, edges: np.ndarray, vf: np.ndarray, ee: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Distances (m) of the VF pairs (P,) and the EE pairs (Q,) in positions x."""
-    dvf = np.empty(vf.shape[0])
-    for k in range(vf.shape[0]):
-        t = vf[k, 1]
-        dvf[k] = _vf_gap(x, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])[0]
-    dee = np.empty(ee.shape[0])
-    for k in range(ee.shape[0]):
-        e, f = ee[k, 0], ee[k, 1]
-        dee[k] = _ee_gap(x, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])[0]
-    return dvf, dee
-
-
-@nb.njit(**JIT)
 def _ball(x: np.ndarray, a: int, b: int, c: int) -> tuple[float, float, float, float]:
     """A ball around the points a, b, c of x: the centre of their bounding box and the largest
     distance of a point from it (m)."""
