@@ -304,10 +304,23 @@ def swept_boxes(
 
 
 @nb.njit(**JIT)
-def within(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, slack: float) -> bool:
-    """Whether every row of x (V, 3) lies inside its box lo, hi (V, 3) grown by slack (m)."""
-    for v in range(x.shape[0]):
+def follows(x: np.ndarray, base: np.ndarray, motion: np.ndarray, steps: float, slack: float) -> bool:
+    """Whether every row of x (V, 3) lies within `slack` (m, Euclidean) of base + steps * motion
+    (V, 3 each: a start and a motion per step), once the rows' mean departure from those points
+    is taken out (a common translation brings no two points closer)."""
+    n = x.shape[0]
+    if n == 0:
+        return True
+    mean = np.zeros(3)
+    for v in range(n):
         for axis in range(3):
-            if x[v, axis] < lo[v, axis] - slack or x[v, axis] > hi[v, axis] + slack:
-                return False
+            mean[axis] += x[v, axis] - base[v, axis] - steps * motion[v, axis]
+    mean /= n
+    limit = slack * slack
+    for v in range(n):
+        dx = x[v, 0] - base[v, 0] - steps * motion[v, 0] - mean[0]
+        dy = x[v, 1] - base[v, 1] - steps * motion[v, 1] - mean[1]
+        dz = x[v, 2] - base[v, 2] - steps * motion[v, 2] - mean[2]
+        if dx * dx + dy * dy + dz * dz > limit:
+            return False
     return True

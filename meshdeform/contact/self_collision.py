@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshdeform.contact import self_kernels
-from meshdeform.contact.broad_phase import grid_for, swept_boxes, within
+from meshdeform.contact.broad_phase import follows, grid_for, swept_boxes
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 
@@ -114,12 +114,16 @@ class _Pairs:
     pair's proximity flag, rest distance (m) and a lower bound (m) of its current distance that
     the continuous check keeps up to date (`self_kernels.colliding_pairs`).
 
-    Found from the boxes `lo`, `hi` (V, 3) each vertex swept in the substep they were gathered
-    in and on along its motion by up to `slack` (`_ahead`), as the pairs whose boxes come within
-    the thickness plus twice `slack` (m). While every vertex stays within `slack` of its box
-    (after the cloth's mean motion since, from `centre`, is taken out: a common translation
-    moves no pair closer), no other pair can come within the
-    thickness or touch, so the list holds.
+    Gathered in substep `built`, which ended at `base` (V, 3) after each vertex moved by `motion`
+    (V, 3, m). The list covers the substeps while every vertex stays within `slack` (m) of its
+    path carried on at that motion (`base + k motion` after k more substeps, `follows`: a
+    common translation taken out, as it brings no pair closer), for at most `LIST_SUBSTEPS`.
+    Over that span two vertices come closer by at most `LIST_SUBSTEPS` times their relative
+    motion plus twice the slack (and a triangle's or an edge's points by at most their
+    corners' largest such figure), so the pairs further apart than the thickness plus that
+    reach cannot come within the thickness or touch and are left out: the reach is relative,
+    so parts of the cloth that move together (a falling or sliding sheet, neighbours anywhere)
+    keep only the pairs within the thickness, however fast they go.
     """
 
     vf: np.ndarray
@@ -130,18 +134,20 @@ class _Pairs:
     ee_rest: np.ndarray
     vf_lower: np.ndarray
     ee_lower: np.ndarray
-    lo: np.ndarray
-    hi: np.ndarray
-    centre: np.ndarray
+    base: np.ndarray
+    motion: np.ndarray
+    built: int
     slack: float
 
-    def hold(self, x0: np.ndarray, x1: np.ndarray) -> bool:
-        """Whether these pairs cover a substep from x0 to x1 (V, 3)."""
-        if self.lo.shape[0] != x0.shape[0]:
+    def hold(self, x0: np.ndarray, x1: np.ndarray, substep: int) -> bool:
+        """Whether these pairs cover substep number `substep`, from x0 to x1 (V, 3): both ends
+        within the slack of the carried-on paths (then every point between them is too)."""
+        ahead = substep - self.built
+        if self.base.shape[0] != x0.shape[0] or ahead > LIST_SUBSTEPS:
             return False
-        shift = x1.mean(axis=0) - self.centre
-        lo, hi = self.lo + shift, self.hi + shift
-        return within(x0, lo, hi, self.slack) and within(x1, lo, hi, self.slack)
+        return follows(x1, self.base, self.motion, ahead, self.slack) and follows(
+            x0, self.base, self.motion, ahead - 1, self.slack
+        )
 
 
 class SelfCollision(Constraint, Remappable):
@@ -159,6 +165,7 @@ class SelfCollision(Constraint, Remappable):
         self._rings: tuple[np.ndarray, np.ndarray] | None = None
         self._start: np.ndarray | None = None
         self._held: _Pairs | None = None
+        self._substep = 0  # substeps projected so far: the age of the kept pairs
         self._margin = 0.0
         self._capacity = (0, 0)
         #: the thickness kept on the model last prepared (`contact_thickness`), metres
@@ -195,41 +202,41 @@ class SelfCollision(Constraint, Remappable):
 
     def _pairs(self, model: SpringModel, topology: _Topology, x0: np.ndarray, x1: np.ndarray) -> _Pairs:
         """The candidate pairs for a substep from x0 to x1: the kept list while it holds, else
-        gathered afresh from the boxes swept from x0 to x1, grown by the thickness and a margin."""
+        gathered afresh around x1 for the substeps to come (`_Pairs`)."""
         held = self._held
-        if held is not None and held.hold(x0, x1):
+        if held is not None and held.hold(x0, x1, self._substep):
             return held
         self.work.pair_builds += 1
-        reach = self.thickness + self._margin
-        vertices = np.arange(x0.shape[0], dtype=np.int64)[:, None]
         slack = 0.5 * self._margin
-        centre = x1.mean(axis=0)
-        # the boxes reach on along each vertex's motion, so a cloth moving steadily keeps its list
-        # for a few substeps more (any box holds the argument of `_Pairs`; this one fits the path)
-        ahead = _ahead(x0, x1, slack)
-        lo, hi = swept_boxes(x0, ahead, vertices, 0.0)
-        tlo, thi = swept_boxes(x0, ahead, topology.triangles, 0.0)
-        # keep only the pairs that can come within the thickness while the list holds: a vertex then
-        # stays within its box's diagonal plus the slack's of any point of the box (here `ahead`),
-        # so a pair's distance falls at most by the two sides' largest such reach
-        wander = np.linalg.norm(hi - lo, axis=1) + np.sqrt(3.0) * slack
+        reach = self.thickness + 2.0 * slack
+        motion = x1 - x0
+        # the boxes hold each vertex's path carried on over the list's span, from the start of
+        # this substep, in a frame moving with the cloth's mean motion (a common motion changes
+        # no distance): a pair that comes within the thickness while the list holds has its
+        # carried-on paths within `reach` of each other at that moment, so its boxes overlap
+        drift = motion - motion.mean(axis=0)
+        first, last = x1 - drift, x1 + LIST_SUBSTEPS * drift
+        vertices = np.arange(x0.shape[0], dtype=np.int64)[:, None]
+        qlo, qhi = swept_boxes(first, last, vertices, reach)
+        tlo, thi = swept_boxes(first, last, topology.triangles, 0.0)
         ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
-        qlo, qhi = lo - reach, hi + reach
         inv_cell, start, element, cell, box = grid_for(qlo, qhi, tlo, thi)
         vf, vf_near, vf_rest = self_kernels.vf_candidates(
-            ahead, rest, qlo, qhi, tlo, thi, inv_cell, start, element, cell, box,
-            topology.triangles, self._origin, ring_start, ring, wander, self.thickness, self._capacity[0],
+            x1, rest, qlo, qhi, tlo, thi, inv_cell, start, element, cell, box,
+            topology.triangles, self._origin, ring_start, ring, motion, LIST_SUBSTEPS, reach, self._capacity[0],
         )  # fmt: skip
-        elo, ehi = swept_boxes(x0, ahead, topology.edges, 0.5 * reach)
+        elo, ehi = swept_boxes(first, last, topology.edges, 0.5 * reach)
         inv_cell, start, element, cell, box = grid_for(elo, ehi, elo, ehi)
         ee, ee_near, ee_rest = self_kernels.ee_candidates(
-            ahead, rest, elo, ehi, inv_cell, start, element, cell, box,
-            topology.edges, self._origin, ring_start, ring, wander, self.thickness, self._capacity[1],
+            x1, rest, elo, ehi, inv_cell, start, element, cell, box,
+            topology.edges, self._origin, ring_start, ring, motion, LIST_SUBSTEPS, reach, self._capacity[1],
         )  # fmt: skip
         self._capacity = (int(1.25 * vf.shape[0]), int(1.25 * ee.shape[0]))
         vf_lower, ee_lower = np.zeros(vf.shape[0]), np.zeros(ee.shape[0])  # unknown: computed when checked
-        self._held = _Pairs(vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, lo, hi, centre, slack)
+        self._held = _Pairs(
+            vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, x1.copy(), motion, self._substep, slack
+        )
         return self._held
 
     def _impact_zones(
@@ -270,6 +277,7 @@ class SelfCollision(Constraint, Remappable):
         topology = self._prepare(model)
         if topology.triangles.shape[0] == 0:
             return
+        self._substep += 1
         x = state.positions
         n = x.shape[0]
         x0 = self._start if self._start is not None and self._start.shape[0] == n else state.previous.copy()
@@ -318,8 +326,9 @@ SEAM_FRACTION = 0.2
 MARGIN_FRACTION = 0.25
 
 
-#: how many substeps of its current motion a vertex's box reaches ahead (at most the slack)
-LOOKAHEAD = 4.0
+#: how many substeps a list of candidate pairs covers at most (`_Pairs`): a longer span keeps
+#: the pairs whose relative motion could close their gap within it
+LIST_SUBSTEPS = 4
 
 
 #: the thickness self-collision keeps is at most this fraction of the median rest edge length
@@ -342,17 +351,6 @@ def contact_thickness(thickness: float, edge: float) -> float:
     every vertex a contact of dozens of rest neighbours (a fine scan at the default 5 mm gathers
     millions of pairs) and cannot be kept anyway where the cloth folds within a few edges."""
     return min(thickness, THICKNESS_EDGE_FRACTION * edge) if edge > 0 else thickness
-
-
-def _ahead(x0: np.ndarray, x1: np.ndarray, slack: float) -> np.ndarray:
-    """Each vertex of x1 (V, 3) moved on along its substep's motion from x0 by `LOOKAHEAD`
-    substeps of it, by at most `slack` (m): the far end of the box its candidate pairs are
-    gathered for. (Reaching further gathers more pairs than the rebuilds it saves: on the
-    collapse of benchmarks/contact.py a reach of a quarter of an edge was slower than none.)"""
-    step = x1 - x0
-    length = np.sqrt(np.einsum("ij,ij->i", step, step))
-    scale = np.minimum(LOOKAHEAD, slack / np.maximum(length, 1e-300))
-    return x1 + scale[:, None] * step
 
 
 def _settle(state: State, before: np.ndarray, dt: float) -> None:

@@ -129,6 +129,15 @@ def _ee_far(x: np.ndarray, p0: int, p1: int, q0: int, q1: int, reach: float) -> 
 
 
 @nb.njit(**JIT)
+def _apart(motion: np.ndarray, p: int, q: int) -> float:
+    """|motion[p] - motion[q]|: how fast (m per substep) points p and q move relative to each other."""
+    dx = motion[p, 0] - motion[q, 0]
+    dy = motion[p, 1] - motion[q, 1]
+    dz = motion[p, 2] - motion[q, 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@nb.njit(**JIT)
 def _pair_buffers(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Room for `size` candidate pairs: the pairs (size, 2) int64, their proximity flags (size,)
     and their rest distances (size,)."""
@@ -152,13 +161,14 @@ def vf_candidates(
     x: np.ndarray, rest: np.ndarray, qlo: np.ndarray, qhi: np.ndarray, tlo: np.ndarray, thi: np.ndarray,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
     triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
-    wander: np.ndarray, thickness: float, capacity: int,
+    motion: np.ndarray, span: float, reach: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The VF pairs to keep for the coming substeps, straight from the grid of triangle boxes
     tlo, thi (T, 3) (`broad_phase.grid_for`) queried with each vertex's box qlo, qhi (V, 3): the
-    vertex no corner of the triangle, and its distance in x (V, 3) within the thickness plus
-    what the vertex and the triangle's corners may still travel (`wander` (V,), m) while the
-    list holds. Returns the pairs (P, 2) (vertex, triangle) by vertex, then in the grid's order;
+    vertex no corner of the triangle, and its distance in x (V, 3) within `reach` (m) plus
+    `span` substeps of the vertex's motion relative to the triangle's corners (`motion` (V, 3),
+    m per substep: how much closer the pair may come while the list holds). Returns the pairs
+    (P, 2) (vertex, triangle) by vertex, then in the grid's order;
     whether each takes proximity repulsion (its origin neither a corner's origin nor a rest
     neighbour of one), (P,) bool; and its distance (m) in the rest positions (P,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
@@ -172,8 +182,9 @@ def vf_candidates(
             a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
             if v in (a, b, c):
                 continue
-            reach = thickness + wander[v] + max(wander[a], max(wander[b], wander[c]))
-            if _vf_far(x, v, a, b, c, reach) or _vf_gap(x, v, a, b, c)[0] > reach:
+            closing = max(_apart(motion, v, a), max(_apart(motion, v, b), _apart(motion, v, c)))
+            limit = reach + span * closing
+            if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
                 continue
             if count == pairs.shape[0]:
                 pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
@@ -193,11 +204,11 @@ def ee_candidates(
     x: np.ndarray, rest: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
     edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
-    wander: np.ndarray, thickness: float, capacity: int,
+    motion: np.ndarray, span: float, reach: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The EE pairs to keep, from the grid of edge boxes elo, ehi (E, 3) queried with themselves
     (each pair once, the second edge the higher): no shared vertex, and the distance in x within
-    the thickness plus what the four ends may still travel (`wander`). Returns the pairs (Q, 2),
+    `reach` plus `span` substeps of the ends' relative motion (as `vf_candidates`). Returns the pairs (Q, 2),
     whether each takes proximity repulsion (no end's origin equal to or a rest neighbour of an
     end's origin of the other), (Q,) bool, and the distance (m) in the rest positions (Q,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
@@ -206,14 +217,16 @@ def ee_candidates(
     for e in range(elo.shape[0]):
         n, found = query_grown(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e, found)
         p0, p1 = edges[e, 0], edges[e, 1]
-        e_wander = max(wander[p0], wander[p1])
         for j in range(n):
             f = found[j]
             q0, q1 = edges[f, 0], edges[f, 1]
             if p0 in (q0, q1) or p1 in (q0, q1):
                 continue
-            reach = thickness + e_wander + max(wander[q0], wander[q1])
-            if _ee_far(x, p0, p1, q0, q1, reach) or _ee_gap(x, p0, p1, q0, q1)[0] > reach:
+            closing = max(
+                max(_apart(motion, p0, q0), _apart(motion, p0, q1)), max(_apart(motion, p1, q0), _apart(motion, p1, q1))
+            )
+            limit = reach + span * closing
+            if _ee_far(x, p0, p1, q0, q1, limit) or _ee_gap(x, p0, p1, q0, q1)[0] > limit:
                 continue
             if count == pairs.shape[0]:
                 pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
