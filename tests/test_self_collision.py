@@ -285,3 +285,37 @@ def test_every_solver_keeps_the_collapsing_sheet_free_of_intersections(solver: s
 
     assert worst(False) > 0
     assert worst(True) == 0
+
+
+def test_a_spinning_pair_of_layers_keeps_its_pairs_and_never_crosses() -> None:
+    """Two 24 x 24 sheets of 0.5 m, 7 mm apart, spinning together in their plane at 12 rad/s
+    without gravity (3 m/s at the corners, 6 mm a substep, a quarter of an edge), the upper one
+    sinking onto the lower at 0.2 m/s. Every vertex moves fast, but each with its neighbours and
+    the layer below: the pairs are searched again in under 30 % of the substeps (with boxes and
+    a cull by each vertex's own motion: 156 of 264), and no two triangles ever intersect."""
+    lower = grid_sheet(24, plane="xz", size=0.5, triangles=True, centred=True)
+    upper = grid_sheet(24, plane="xz", size=0.5, triangles=True, centred=True, offset=(0.0, 0.007, 0.0))
+    count = lower.positions.shape[0]
+    mesh = Mesh(
+        positions=np.concatenate([lower.positions, upper.positions]),
+        face_indices=np.concatenate([lower.face_indices, upper.face_indices + count]),
+        face_offsets=np.concatenate([lower.face_offsets, upper.face_offsets[1:] + lower.face_indices.shape[0]]),
+    )
+    model = SpringModel.from_mesh(mesh)
+    state = State.at_rest(model)
+    x = state.positions.copy()
+    spin = 12.0
+    state.velocities[:, 0] = -spin * x[:, 2]
+    state.velocities[:, 2] = spin * x[:, 0]
+    state.velocities[count:, 1] = -0.2
+    settings = Settings(frames=12)
+    state.previous[:] = x - state.velocities * settings.dt
+    contact = SelfCollision(SelfCollisionSettings(thickness=THICKNESS))
+    frames = list(simulate(model, Scene(gravity=(0.0, 0.0, 0.0), self_collision=contact), settings, state=state))
+    assert [intersecting_pairs(f.welded_positions, model.triangles) for f in frames] == [0] * len(frames)
+    turned = np.arctan2(frames[-1].welded_positions[0, 2], frames[-1].welded_positions[0, 0]) - np.arctan2(
+        x[0, 2], x[0, 0]
+    )
+    assert abs(turned) > 1.0  # it did spin (12 rad/s for half a second, less what the springs take)
+    builds = sum(f.contact.pair_builds for f in frames)
+    assert builds < 0.3 * settings.substeps * len(frames)

@@ -304,23 +304,24 @@ def swept_boxes(
 
 
 @nb.njit(**JIT)
-def follows(x: np.ndarray, base: np.ndarray, motion: np.ndarray, steps: float, slack: float) -> bool:
-    """Whether every row of x (V, 3) lies within `slack` (m, Euclidean) of base + steps * motion
-    (V, 3 each: a start and a motion per step), once the rows' mean departure from those points
-    is taken out (a common translation brings no two points closer)."""
+def strays(
+    x: np.ndarray, base: np.ndarray, motion: np.ndarray, steps: np.ndarray, slack: float, out: np.ndarray
+) -> np.ndarray:
+    """The mean departure (3,) of the rows of x (V, 3) from their carried-on points
+    base + steps * motion (base, motion (V, 3), steps (V,)); out (V,) bool is set where a row's
+    departure is more than `slack` (m, Euclidean) from that mean (a common translation brings
+    no two points closer, so only the departures from a common one count)."""
     n = x.shape[0]
-    if n == 0:
-        return True
     mean = np.zeros(3)
     for v in range(n):
         for axis in range(3):
-            mean[axis] += x[v, axis] - base[v, axis] - steps * motion[v, axis]
-    mean /= n
+            mean[axis] += x[v, axis] - base[v, axis] - steps[v] * motion[v, axis]
+    if n:
+        mean /= n
     limit = slack * slack
     for v in range(n):
-        dx = x[v, 0] - base[v, 0] - steps * motion[v, 0] - mean[0]
-        dy = x[v, 1] - base[v, 1] - steps * motion[v, 1] - mean[1]
-        dz = x[v, 2] - base[v, 2] - steps * motion[v, 2] - mean[2]
-        if dx * dx + dy * dy + dz * dz > limit:
-            return False
-    return True
+        dx = x[v, 0] - base[v, 0] - steps[v] * motion[v, 0] - mean[0]
+        dy = x[v, 1] - base[v, 1] - steps[v] * motion[v, 1] - mean[1]
+        dz = x[v, 2] - base[v, 2] - steps[v] * motion[v, 2] - mean[2]
+        out[v] = dx * dx + dy * dy + dz * dz > limit
+    return mean

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshdeform.contact import self_kernels
-from meshdeform.contact.broad_phase import follows, grid_for, swept_boxes
+from meshdeform.contact.broad_phase import grid_for, strays, swept_boxes
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 
@@ -108,46 +108,58 @@ def _rings(edges: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.cumsum(start), np.ascontiguousarray(both[:, 1], dtype=np.int64)
 
 
-@dataclass(frozen=True)
+@dataclass
 class _Pairs:
     """Candidate pairs kept over several substeps (a Verlet list): VF (P, 2) and EE (Q, 2), each
     pair's proximity flag, rest distance (m) and a lower bound (m) of its current distance that
     the continuous check keeps up to date (`self_kernels.colliding_pairs`).
 
-    Gathered in substep `built`, which ended at `base` (V, 3) after each vertex moved by `motion`
-    (V, 3, m). The list covers the substeps while every vertex stays within `slack` (m) of its
-    path carried on at that motion (`base + k motion` after k more substeps, `follows`: a
-    common translation taken out, as it brings no pair closer), for at most `LIST_SUBSTEPS`.
-    Over that span two vertices come closer by at most `LIST_SUBSTEPS` times their relative
-    motion plus twice the slack (and a triangle's or an edge's points by at most their
-    corners' largest such figure), so the pairs further apart than the thickness plus that
-    reach cannot come within the thickness or touch and are left out: the reach is relative,
-    so parts of the cloth that move together (a falling or sliding sheet, neighbours anywhere)
-    keep only the pairs within the thickness, however fast they go.
+    Each vertex has a carried-on path: after substep `built` (V,) it is at `base` (V, 3) and
+    moves on by `motion` (V, 3, m) a substep. The list covers a vertex for `LIST_SUBSTEPS`
+    substeps from its `built` while it stays within the slack (m) of that path (`stale`: the
+    departure common to all vertices taken out, as a common translation brings no pair closer).
+    Over such a span two points come closer by at most `LIST_SUBSTEPS` times their relative
+    motion plus twice the slack (and a triangle's or an edge's points by at most their corners'
+    largest such figure), so the pairs further apart than the thickness plus that reach cannot
+    come within the thickness or touch and are left out. The reach is relative, so parts of the
+    cloth that move together (a falling or sliding sheet, neighbours anywhere) keep only the
+    pairs within the thickness, however fast they go. A vertex the list no longer covers gets
+    a new path and its pairs are searched again (`SelfCollision._regather`).
     """
 
     vf: np.ndarray
     vf_near: np.ndarray
     vf_rest: np.ndarray
+    vf_lower: np.ndarray
     ee: np.ndarray
     ee_near: np.ndarray
     ee_rest: np.ndarray
-    vf_lower: np.ndarray
     ee_lower: np.ndarray
     base: np.ndarray
     motion: np.ndarray
-    built: int
-    slack: float
+    built: np.ndarray
 
-    def hold(self, x0: np.ndarray, x1: np.ndarray, substep: int) -> bool:
-        """Whether these pairs cover substep number `substep`, from x0 to x1 (V, 3): both ends
-        within the slack of the carried-on paths (then every point between them is too)."""
-        ahead = substep - self.built
-        if self.base.shape[0] != x0.shape[0] or ahead > LIST_SUBSTEPS:
-            return False
-        return follows(x1, self.base, self.motion, ahead, self.slack) and follows(
-            x0, self.base, self.motion, ahead - 1, self.slack
+    @classmethod
+    def empty(cls, n: int) -> _Pairs:
+        """No pairs, and no vertex covered, for n vertices."""
+        none, flags = np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.bool_)
+        return cls(
+            none, flags, np.zeros(0), np.zeros(0), none, flags, np.zeros(0), np.zeros(0),
+            np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, -(2 * LIST_SUBSTEPS + 2), dtype=np.int64),
         )
+
+    def stale(
+        self, x0: np.ndarray, x1: np.ndarray, substep: int, slack: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The vertices (V,) bool this list does not cover in substep number `substep`, from x0
+        to x1 (V, 3): past their span, or an end of the substep further than `slack` (m) from
+        their path after the common departure (then every point between the ends is within it
+        too); and those common departures at x0 and x1 (3,) each."""
+        age = (substep - self.built).astype(np.float64)
+        at_end, at_start = np.empty(x1.shape[0], dtype=np.bool_), np.empty(x1.shape[0], dtype=np.bool_)
+        common_end = strays(x1, self.base, self.motion, age, slack, at_end)
+        common_start = strays(x0, self.base, self.motion, age - 1.0, slack, at_start)
+        return at_end | at_start | (age > LIST_SUBSTEPS), common_start, common_end
 
 
 class SelfCollision(Constraint, Remappable):
@@ -201,43 +213,85 @@ class SelfCollision(Constraint, Remappable):
         return self._topology
 
     def _pairs(self, model: SpringModel, topology: _Topology, x0: np.ndarray, x1: np.ndarray) -> _Pairs:
-        """The candidate pairs for a substep from x0 to x1: the kept list while it holds, else
-        gathered afresh around x1 for the substeps to come (`_Pairs`)."""
+        """The candidate pairs for a substep from x0 to x1: the kept list where it covers the
+        vertices, the pairs of the others searched again (all of them where most strayed)."""
         held = self._held
-        if held is not None and held.hold(x0, x1, self._substep):
-            return held
-        self.work.pair_builds += 1
         slack = 0.5 * self._margin
+        n = x0.shape[0]
+        if held is not None and held.base.shape[0] == n:
+            stale, common_start, common_end = held.stale(x0, x1, self._substep, slack)
+            if not stale.any():
+                return held
+            if np.count_nonzero(stale) > REGATHER_FRACTION * n:
+                held = None
+        if held is None:
+            held = _Pairs.empty(n)
+            stale, common_start, common_end = np.ones(n, dtype=np.bool_), np.zeros(3), np.zeros(3)
+        self.work.pair_builds += 1
+        self._held = self._regather(model, topology, held, stale, x0 - common_start, x1 - common_end, slack)
+        return self._held
+
+    def _regather(
+        self, model: SpringModel, topology: _Topology, pairs: _Pairs, stale: np.ndarray,
+        x0: np.ndarray, x1: np.ndarray, slack: float,
+    ) -> _Pairs:
+        """`pairs` with new paths for the `stale` vertices (V,) bool, from their motion x0 -> x1
+        (V, 3, the common departures taken out), and every pair touching one of them searched
+        again: a stale vertex against all triangles, a triangle with a stale corner against the
+        other vertices, an edge with a stale end against all edges."""
+        fresh = np.flatnonzero(stale)
+        now = self._substep
+        pairs.base[fresh] = x1[fresh]
+        pairs.motion[fresh] = x1[fresh] - x0[fresh]
+        pairs.built[fresh] = now
+        age = (now - pairs.built).astype(np.float64)[:, None]
+        carried = pairs.base + age * pairs.motion  # every vertex on its path, now
+        # the boxes hold each vertex's path from the start of this substep to the end of its span,
+        # in a frame moving with the cloth's mean motion (a common motion changes no distance): a
+        # pair that comes within the thickness while the list holds has its paths within `reach`
+        # of each other at that moment, so its boxes overlap
+        drift = pairs.motion - pairs.motion.mean(axis=0)
+        first, last = carried - drift, carried + (LIST_SUBSTEPS - age) * drift
         reach = self.thickness + 2.0 * slack
-        motion = x1 - x0
-        # the boxes hold each vertex's path carried on over the list's span, from the start of
-        # this substep, in a frame moving with the cloth's mean motion (a common motion changes
-        # no distance): a pair that comes within the thickness while the list holds has its
-        # carried-on paths within `reach` of each other at that moment, so its boxes overlap
-        drift = motion - motion.mean(axis=0)
-        first, last = x1 - drift, x1 + LIST_SUBSTEPS * drift
         vertices = np.arange(x0.shape[0], dtype=np.int64)[:, None]
         qlo, qhi = swept_boxes(first, last, vertices, reach)
         tlo, thi = swept_boxes(first, last, topology.triangles, 0.0)
+        elo, ehi = swept_boxes(first, last, topology.edges, 0.5 * reach)
+        triangle_fresh = stale[topology.triangles].any(axis=1)
+        edge_fresh = stale[topology.edges].any(axis=1)
+        keep_vf = ~(stale[pairs.vf[:, 0]] | triangle_fresh[pairs.vf[:, 1]])
+        keep_ee = ~(edge_fresh[pairs.ee[:, 0]] | edge_fresh[pairs.ee[:, 1]])
         ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
-        inv_cell, start, element, cell, box = grid_for(qlo, qhi, tlo, thi)
-        vf, vf_near, vf_rest = self_kernels.vf_candidates(
-            x1, rest, qlo, qhi, tlo, thi, inv_cell, start, element, cell, box,
-            topology.triangles, self._origin, ring_start, ring, motion, LIST_SUBSTEPS, reach, self._capacity[0],
-        )  # fmt: skip
-        elo, ehi = swept_boxes(first, last, topology.edges, 0.5 * reach)
-        inv_cell, start, element, cell, box = grid_for(elo, ehi, elo, ehi)
-        ee, ee_near, ee_rest = self_kernels.ee_candidates(
-            x1, rest, elo, ehi, inv_cell, start, element, cell, box,
-            topology.edges, self._origin, ring_start, ring, motion, LIST_SUBSTEPS, reach, self._capacity[1],
-        )  # fmt: skip
-        self._capacity = (int(1.25 * vf.shape[0]), int(1.25 * ee.shape[0]))
-        vf_lower, ee_lower = np.zeros(vf.shape[0]), np.zeros(ee.shape[0])  # unknown: computed when checked
-        self._held = _Pairs(
-            vf, vf_near, vf_rest, ee, ee_near, ee_rest, vf_lower, ee_lower, x1.copy(), motion, self._substep, slack
+        common = (topology.triangles, self._origin, ring_start, ring, pairs.motion, LIST_SUBSTEPS, reach)
+        everyone = fresh.shape[0] == x0.shape[0]
+        capacity = self._capacity if everyone else (0, 0)
+        found_vf = [
+            self_kernels.vf_candidates(
+                carried, rest, fresh, np.zeros(x0.shape[0], dtype=np.bool_), qlo, qhi, tlo, thi, False,
+                *grid_for(qlo, qhi, tlo, thi), *common, capacity[0],
+            )
+        ]
+        if not everyone:
+            found_vf.append(self_kernels.vf_candidates(
+                carried, rest, np.flatnonzero(triangle_fresh), stale, qlo, qhi, tlo, thi, True,
+                *grid_for(tlo, thi, qlo, qhi), *common, 0,
+            ))  # fmt: skip
+        found_ee = self_kernels.ee_candidates(
+            carried, rest, np.flatnonzero(edge_fresh), edge_fresh, elo, ehi, *grid_for(elo, ehi, elo, ehi),
+            topology.edges, *common[1:], capacity[1],
         )
-        return self._held
+        if everyone:
+            self._capacity = (int(1.25 * found_vf[0][0].shape[0]), int(1.25 * found_ee[0].shape[0]))
+        vf_parts = [(pairs.vf[keep_vf], pairs.vf_near[keep_vf], pairs.vf_rest[keep_vf])] + found_vf
+        vf, vf_near, vf_rest = (np.concatenate(part) for part in zip(*vf_parts, strict=True))
+        ee_parts = [(pairs.ee[keep_ee], pairs.ee_near[keep_ee], pairs.ee_rest[keep_ee]), found_ee]
+        ee, ee_near, ee_rest = (np.concatenate(part) for part in zip(*ee_parts, strict=True))
+        vf_lower = np.concatenate([pairs.vf_lower[keep_vf], np.zeros(vf.shape[0] - int(keep_vf.sum()))])
+        ee_lower = np.concatenate([pairs.ee_lower[keep_ee], np.zeros(ee.shape[0] - int(keep_ee.sum()))])
+        return _Pairs(
+            vf, vf_near, vf_rest, vf_lower, ee, ee_near, ee_rest, ee_lower, pairs.base, pairs.motion, pairs.built
+        )
 
     def _impact_zones(
         self, model: SpringModel, topology: _Topology, x0: np.ndarray, x: np.ndarray, inv_mass: np.ndarray,
@@ -329,6 +383,9 @@ MARGIN_FRACTION = 0.25
 #: how many substeps a list of candidate pairs covers at most (`_Pairs`): a longer span keeps
 #: the pairs whose relative motion could close their gap within it
 LIST_SUBSTEPS = 4
+#: when more than this fraction of the vertices strayed from their paths, the whole list is
+#: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone
+REGATHER_FRACTION = 0.5
 
 
 #: the thickness self-collision keeps is at most this fraction of the median rest edge length

@@ -157,68 +157,97 @@ def _grow(
 
 
 @nb.njit(**JIT)
+def _keep_vf(
+    x: np.ndarray, rest: np.ndarray, v: int, t: int, triangles: np.ndarray, origin: np.ndarray,
+    ring_start: np.ndarray, ring: np.ndarray, motion: np.ndarray, span: float, reach: float,
+    pairs: np.ndarray, near: np.ndarray, rest_gap: np.ndarray, count: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Append the VF pair (v, t) to the buffers unless v is a corner of t or the pair is further
+    apart in x than `reach` plus `span` substeps of v's motion relative to the corners; the
+    buffers (grown when full) and the new count."""
+    a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+    if v in (a, b, c):
+        return pairs, near, rest_gap, count
+    closing = max(_apart(motion, v, a), max(_apart(motion, v, b), _apart(motion, v, c)))
+    limit = reach + span * closing
+    if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
+        return pairs, near, rest_gap, count
+    if count == pairs.shape[0]:
+        pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
+    ov = origin[v]
+    pairs[count, 0] = v
+    pairs[count, 1] = t
+    near[count] = not (
+        _adjacent(ring_start, ring, ov, origin[a]) or _adjacent(ring_start, ring, ov, origin[b])
+        or _adjacent(ring_start, ring, ov, origin[c])
+    )
+    rest_gap[count] = _vf_gap(rest, v, a, b, c)[0]
+    return pairs, near, rest_gap, count + 1
+
+
+@nb.njit(**JIT)
 def vf_candidates(
-    x: np.ndarray, rest: np.ndarray, qlo: np.ndarray, qhi: np.ndarray, tlo: np.ndarray, thi: np.ndarray,
+    x: np.ndarray, rest: np.ndarray, queries: np.ndarray, skip: np.ndarray,
+    qlo: np.ndarray, qhi: np.ndarray, tlo: np.ndarray, thi: np.ndarray, by_triangle: bool,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
     triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
     motion: np.ndarray, span: float, reach: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The VF pairs to keep for the coming substeps, straight from the grid of triangle boxes
-    tlo, thi (T, 3) (`broad_phase.grid_for`) queried with each vertex's box qlo, qhi (V, 3): the
-    vertex no corner of the triangle, and its distance in x (V, 3) within `reach` (m) plus
-    `span` substeps of the vertex's motion relative to the triangle's corners (`motion` (V, 3),
-    m per substep: how much closer the pair may come while the list holds). Returns the pairs
-    (P, 2) (vertex, triangle) by vertex, then in the grid's order;
-    whether each takes proximity repulsion (its origin neither a corner's origin nor a rest
-    neighbour of one), (P,) bool; and its distance (m) in the rest positions (P,)."""
+    """The VF pairs to keep for the coming substeps, straight from a grid (`broad_phase.grid_for`)
+    of the vertex boxes qlo, qhi (V, 3) or the triangle boxes tlo, thi (T, 3): each of `queries`
+    (vertices, or triangles when `by_triangle`) asks the grid of the other kind, and a found
+    vertex flagged in `skip` (V,) is passed over (its pairs come from a query of its own). A pair
+    is kept when the vertex is no corner of the triangle and their distance in x (V, 3) is within
+    `reach` (m) plus `span` substeps of the vertex's motion relative to the triangle's corners
+    (`motion` (V, 3), m per substep: how much closer the pair may come while the list holds).
+    Returns the pairs (P, 2) (vertex, triangle) by query, then in the grid's order; whether each
+    takes proximity repulsion (its origin neither a corner's origin nor a rest neighbour of one),
+    (P,) bool; and its distance (m) in the rest positions (P,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = 0
-    for v in range(qlo.shape[0]):
-        n, found = query_grown(qlo, qhi, v, tlo, thi, inv_cell, start, element, cell, box, -1, found)
-        ov = origin[v]
+    for k in range(queries.shape[0]):
+        q = queries[k]
+        if by_triangle:
+            n, found = query_grown(tlo, thi, q, qlo, qhi, inv_cell, start, element, cell, box, -1, found)
+        else:
+            n, found = query_grown(qlo, qhi, q, tlo, thi, inv_cell, start, element, cell, box, -1, found)
         for j in range(n):
-            t = found[j]
-            a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
-            if v in (a, b, c):
+            v, t = (found[j], q) if by_triangle else (q, found[j])
+            if skip[v]:
                 continue
-            closing = max(_apart(motion, v, a), max(_apart(motion, v, b), _apart(motion, v, c)))
-            limit = reach + span * closing
-            if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
-                continue
-            if count == pairs.shape[0]:
-                pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
-            pairs[count, 0] = v
-            pairs[count, 1] = t
-            near[count] = not (
-                _adjacent(ring_start, ring, ov, origin[a]) or _adjacent(ring_start, ring, ov, origin[b])
-                or _adjacent(ring_start, ring, ov, origin[c])
+            pairs, near, rest_gap, count = _keep_vf(
+                x, rest, v, t, triangles, origin, ring_start, ring, motion, span, reach, pairs, near, rest_gap, count
             )
-            rest_gap[count] = _vf_gap(rest, v, a, b, c)[0]
-            count += 1
     return pairs[:count], near[:count], rest_gap[:count]
 
 
 @nb.njit(**JIT)
 def ee_candidates(
-    x: np.ndarray, rest: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
+    x: np.ndarray, rest: np.ndarray, queries: np.ndarray, fresh: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
     edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
     motion: np.ndarray, span: float, reach: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The EE pairs to keep, from the grid of edge boxes elo, ehi (E, 3) queried with themselves
-    (each pair once, the second edge the higher): no shared vertex, and the distance in x within
-    `reach` plus `span` substeps of the ends' relative motion (as `vf_candidates`). Returns the pairs (Q, 2),
-    whether each takes proximity repulsion (no end's origin equal to or a rest neighbour of an
-    end's origin of the other), (Q,) bool, and the distance (m) in the rest positions (Q,)."""
+    """The EE pairs to keep, from the grid of edge boxes elo, ehi (E, 3) asked by each edge of
+    `queries`, each pair once (lower edge first): a found edge that is `fresh` (E,) too (itself
+    among the queries) pairs only with the lower of the two. Kept when the edges share no vertex
+    and their distance in x is within `reach` plus `span` substeps of the ends' relative motion
+    (as `vf_candidates`). Returns the pairs (Q, 2), whether each takes proximity repulsion (no
+    end's origin equal to or a rest neighbour of an end's origin of the other), (Q,) bool, and
+    the distance (m) in the rest positions (Q,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = 0
-    for e in range(elo.shape[0]):
-        n, found = query_grown(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e, found)
+    every = queries.shape[0] == elo.shape[0]  # all fresh: the grid reports the higher edges only
+    for k in range(queries.shape[0]):
+        e = queries[k]
+        n, found = query_grown(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e if every else -1, found)
         p0, p1 = edges[e, 0], edges[e, 1]
         for j in range(n):
             f = found[j]
+            if f == e or (fresh[f] and f < e):
+                continue
             q0, q1 = edges[f, 0], edges[f, 1]
             if p0 in (q0, q1) or p1 in (q0, q1):
                 continue
@@ -230,8 +259,8 @@ def ee_candidates(
                 continue
             if count == pairs.shape[0]:
                 pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
-            pairs[count, 0] = e
-            pairs[count, 1] = f
+            pairs[count, 0] = min(e, f)
+            pairs[count, 1] = max(e, f)
             a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
             near[count] = not (
                 _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
