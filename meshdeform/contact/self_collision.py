@@ -66,8 +66,8 @@ class SelfCollisionSettings:
 @dataclass
 class ContactWork:
     """What self-collision did in a span of substeps: proximity projections, pairs flagged by the
-    continuous check, impact-zone rounds, the largest zone (vertices) and how often the
-    candidate pairs were searched afresh."""
+    continuous check, impact-zone rounds, the largest zone (vertices) and how often candidate
+    pairs were searched afresh (all of them, or those of the vertices that strayed: `_Pairs`)."""
 
     projections: int = 0
     flagged_pairs: int = 0
@@ -263,23 +263,23 @@ class SelfCollision(Constraint, Remappable):
         keep_ee = ~(edge_fresh[pairs.ee[:, 0]] | edge_fresh[pairs.ee[:, 1]])
         ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
-        common = (topology.triangles, self._origin, ring_start, ring, pairs.motion, LIST_SUBSTEPS, reach)
+        shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, LIST_SUBSTEPS, reach)
         everyone = fresh.shape[0] == x0.shape[0]
         capacity = self._capacity if everyone else (0, 0)
         found_vf = [
             self_kernels.vf_candidates(
                 carried, rest, fresh, np.zeros(x0.shape[0], dtype=np.bool_), qlo, qhi, tlo, thi, False,
-                *grid_for(qlo, qhi, tlo, thi), *common, capacity[0],
+                *grid_for(qlo, qhi, tlo, thi), *shared, capacity[0],
             )
         ]
         if not everyone:
             found_vf.append(self_kernels.vf_candidates(
                 carried, rest, np.flatnonzero(triangle_fresh), stale, qlo, qhi, tlo, thi, True,
-                *grid_for(tlo, thi, qlo, qhi), *common, 0,
+                *grid_for(tlo, thi, qlo, qhi), *shared, 0,
             ))  # fmt: skip
         found_ee = self_kernels.ee_candidates(
             carried, rest, np.flatnonzero(edge_fresh), edge_fresh, elo, ehi, *grid_for(elo, ehi, elo, ehi),
-            topology.edges, *common[1:], capacity[1],
+            topology.edges, *shared[1:], capacity[1],
         )
         if everyone:
             self._capacity = (int(1.25 * found_vf[0][0].shape[0]), int(1.25 * found_ee[0].shape[0]))
