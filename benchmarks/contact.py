@@ -1,8 +1,8 @@
 """Contact side by side: meshdeform with and without self-collision and Blender's cloth, in one run.
 
-    python benchmarks/contact.py --blender-python /path/to/venv-with-bpy/bin/python [--frames 60] [--repeats 3]
+    python benchmarks/contact.py --blender-python /path/to/venv-with-bpy/bin/python [--frames 60] [--repeats 3] [--n 40]
 
-Three scenes, each a 40 x 40 vertex sheet of 1 x 1 m (quads), 24 fps, gravity only (Y up here):
+Three scenes, each a 40 x 40 (`--n`) vertex sheet of 1 x 1 m (quads), 24 fps, gravity only (Y up here):
 
 - drop: the sheet held flat 0.5 m up, dropped onto a sphere (r 0.15 m) resting on the ground;
 - collapse: the sheet standing upright on the ground with a 1 cm ripple (two waves up its height),
@@ -387,7 +387,10 @@ def main() -> None:
     parser.add_argument("--scenes", default="drop,collapse,fold", help="comma-separated scene names")
     parser.add_argument("--save", type=Path, help="write each side's frames (Y up) to DIR/<scene>_<side>.npy")
     parser.add_argument("--solvers", default="xpbd", help="comma-separated meshdeform solvers, each at its defaults")
+    parser.add_argument("--n", type=int, default=N, help="vertices along each side of the sheet (a finer cloth)")
     args = parser.parse_args()
+    global N
+    N = args.n
     oracle = _load_oracle()
     wanted = args.scenes.split(",")
     chosen = [s for s in scenes() if s.name in wanted]
