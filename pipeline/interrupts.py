@@ -8,7 +8,11 @@ number (130 for Ctrl-C, 143 for `kill`). Further signals are ignored while that 
 second Ctrl-C cannot leave it half done.
 
 The renames that put a finished folder into place (`publishing`) are never cut in two: a signal
-that arrives inside waits until the folder is in place (or the old one is back).
+that arrives inside waits until the folder is in place (or the old one is back). Nor is Numba's
+compiler: a signal that arrives while the main thread holds its compiler lock (loading a kernel
+from the cache, compiling, saving) waits until the lock is released (`_CompilerWatch`). Raised
+inside, the exception left llvmlite's half-built objects behind: the run then failed with
+"no compiled object yet" instead of its one line, or crashed on the way out (SIGSEGV).
 
 Pool workers (`watch_parent` in their initializer) die with the batch process: on Linux the kernel
 sends them SIGTERM when it dies (PR_SET_PDEATHSIG, even after SIGKILL); everywhere a watchdog
@@ -41,6 +45,8 @@ from contextvars import ContextVar
 from pathlib import Path
 from types import FrameType
 from typing import Any
+
+import numba.core.event
 
 #: the signals that interrupt a run (SIGHUP: the terminal went away), where the platform has them
 INTERRUPT_SIGNALS = tuple(
@@ -102,6 +108,8 @@ class _State:
         self.mode: str | None = None
         #: depth of `publishing` blocks (signals arriving inside wait for the block's end)
         self.deferring = 0
+        #: depth of the main thread's holds of Numba's compiler lock (signals wait for its release)
+        self.compiling = 0
         #: a signal that arrived inside `publishing`, delivered at its end
         self.pending: int | None = None
         #: the signal of the Interrupted raised, if one was: further signals are ignored while the
@@ -157,11 +165,39 @@ def _log_unraisable(unraisable: Any) -> None:
 
 
 def _handler(signum: int, frame: FrameType | None) -> None:
-    if _state.deferring:
+    if _state.deferring or _state.compiling:
         if _state.pending is None:
             _state.pending = signum
         return
     _deliver(signum)
+
+
+def _deliver_pending() -> None:
+    """Act on the signal that waited for a `publishing` block or the compiler, once neither holds it."""
+    if _state.deferring or _state.compiling:
+        return
+    pending, _state.pending = _state.pending, None
+    if pending is not None:
+        _deliver(pending)
+
+
+class _CompilerWatch(numba.core.event.Listener):
+    """Counts the main thread's holds of Numba's compiler lock ("numba:compiler_lock" events: the
+    lock is taken after the start event and released before the end event, and nests), and
+    delivers a signal that arrived meanwhile once the outermost hold is released."""
+
+    def on_start(self, event: numba.core.event.Event) -> None:
+        if threading.current_thread() is threading.main_thread():
+            _state.compiling += 1
+
+    def on_end(self, event: numba.core.event.Event) -> None:
+        if threading.current_thread() is threading.main_thread():
+            _state.compiling = max(0, _state.compiling - 1)
+            _deliver_pending()
+
+
+_compiler_watch = _CompilerWatch()
+_COMPILER_LOCK_EVENT = "numba:compiler_lock"
 
 
 @contextlib.contextmanager
@@ -176,14 +212,16 @@ def handling_signals() -> Iterator[None]:
     for signum in INTERRUPT_SIGNALS:
         with contextlib.suppress(OSError, ValueError):
             previous[signum] = signal.signal(signum, _handler)
-    _state.mode, _state.pending, _state.raised = "raise", None, None
+    _state.mode, _state.pending, _state.raised, _state.compiling = "raise", None, None, 0
+    numba.core.event.register(_COMPILER_LOCK_EVENT, _compiler_watch)
     try:
         yield
     finally:
+        numba.core.event.unregister(_COMPILER_LOCK_EVENT, _compiler_watch)
         for signum, handler in previous.items():
             with contextlib.suppress(OSError, ValueError, TypeError):
                 signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
-        _state.mode, _state.pending, _state.raised = None, None, None
+        _state.mode, _state.pending, _state.raised, _state.compiling = None, None, None, 0
 
 
 # -- putting a folder into place -----------------------------------------------------------------
@@ -212,9 +250,7 @@ def publishing(stage: Path | None = None) -> Iterator[None]:
         _state.deferring -= 1
         for signum, handler in caught.items():
             signal.signal(signum, handler)
-    pending, _state.pending = _state.pending, None
-    if pending is not None and not _state.deferring:
-        _deliver(pending)
+    _deliver_pending()
 
 
 def _catch_deadly_signals() -> dict[int, Any]:
@@ -294,6 +330,7 @@ def watch_parent(parent: int) -> None:
     """In a pool worker (its initializer): die with the batch process `parent`, handle SIGTERM,
     SIGINT and SIGHUP as described in the module doc. Exits at once if `parent` is already gone."""
     _state.mode, _state.parent = "worker", parent
+    numba.core.event.register(_COMPILER_LOCK_EVENT, _compiler_watch)  # for the job's SIGINT
     with contextlib.suppress(OSError, ValueError):
         signal.signal(signal.SIGINT, _handler)
         for signum in _DEADLY:  # (a spawned process starts with these at their default already)

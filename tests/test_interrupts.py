@@ -225,6 +225,44 @@ def test_a_signal_inside_publishing_waits_for_its_end() -> None:
     assert steps == ["renamed"] and raised.value.exit_code == 130
 
 
+def test_a_signal_while_numba_holds_its_compiler_lock_waits_for_the_release() -> None:
+    """A signal while the main thread loads, compiles or saves a kernel (Numba's compiler lock,
+    nested as a kernel compiles its callees) is raised once the outermost hold is released:
+    raised inside, it left llvmlite's half-built objects behind, and an interrupted cold-cache run
+    failed with "no compiled object yet" or crashed on its way out (SIGSEGV, in CI)."""
+    from numba.core.compiler_lock import global_compiler_lock
+
+    steps = []
+    with handling_signals(), pytest.raises(Interrupted) as raised:
+        with global_compiler_lock:
+            with global_compiler_lock:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)  # the handler runs at the next bytecode
+                steps.append("compiled")
+            time.sleep(0.05)
+            steps.append("saved")
+        steps.append("after")
+    assert steps == ["compiled", "saved"] and raised.value.exit_code == 143
+
+
+def test_a_cold_cache_run_interrupted_while_it_compiles_ends_with_its_one_line(tmp_path: Path) -> None:
+    """With an empty kernel cache the run compiles for seconds before its first frame; a signal
+    then ends it as any other (once the compiler lets go), never with an error or a crash."""
+    out = tmp_path / "out" / "x"
+    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONFAULTHANDLER": "1", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    command = [sys.executable, "-c", "from pipeline.cli import app; app()", "simulate", str(SHEET), "-o", str(out)]
+    process = subprocess.Popen(
+        [*command, "--frames", "100000", "-q"], cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True,
+    )
+    wait_for(lambda: any((tmp_path / "cache").rglob("*.nbi")), "the run compiles kernels into its cache", process)
+    process.send_signal(signal.SIGTERM)
+    lines = finish(process)
+    assert process.returncode == 143, lines
+    assert lines == [f"error: interrupted by SIGTERM; nothing was written to {out}"], lines
+    assert not out.exists()
+
+
 def test_signals_during_the_cleanup_of_an_interrupt_are_ignored() -> None:
     cleaned = False
     with handling_signals():
