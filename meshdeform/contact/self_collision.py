@@ -180,6 +180,8 @@ class SelfCollision(Constraint, Remappable):
         self._substep = 0  # substeps projected so far: the age of the kept pairs
         self._margin = 0.0
         self._capacity = (0, 0)
+        #: the grid cells (1/m) of the last whole search, for the VF and the EE grid
+        self._cells: tuple[float, float] | None = None
         #: the thickness kept on the model last prepared (`contact_thickness`), metres
         self.thickness = self.settings.thickness
         self.work = ContactWork()
@@ -266,23 +268,28 @@ class SelfCollision(Constraint, Remappable):
         shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, LIST_SUBSTEPS, reach)
         everyone = fresh.shape[0] == x0.shape[0]
         capacity = self._capacity if everyone else (0, 0)
+        # a partial search keeps the cells of the last whole one (`grid_for`)
+        vf_cell, ee_cell = (None, None) if everyone or self._cells is None else self._cells
+        vf_grid = grid_for(qlo, qhi, tlo, thi, inv_cell=vf_cell)
         found_vf = [
             self_kernels.vf_candidates(
                 carried, rest, fresh, np.zeros(x0.shape[0], dtype=np.bool_), qlo, qhi, tlo, thi, False,
-                *grid_for(qlo, qhi, tlo, thi), *shared, capacity[0],
+                *vf_grid, *shared, capacity[0],
             )
         ]
         if not everyone:
             found_vf.append(self_kernels.vf_candidates(
                 carried, rest, np.flatnonzero(triangle_fresh), stale, qlo, qhi, tlo, thi, True,
-                *grid_for(tlo, thi, qlo, qhi), *shared, 0,
+                *grid_for(tlo, thi, qlo, qhi, inv_cell=vf_grid[0]), *shared, 0,
             ))  # fmt: skip
+        ee_grid = grid_for(elo, ehi, elo, ehi, inv_cell=ee_cell)
         found_ee = self_kernels.ee_candidates(
-            carried, rest, np.flatnonzero(edge_fresh), edge_fresh, elo, ehi, *grid_for(elo, ehi, elo, ehi),
+            carried, rest, np.flatnonzero(edge_fresh), edge_fresh, elo, ehi, *ee_grid,
             topology.edges, *shared[1:], capacity[1],
         )
         if everyone:
             self._capacity = (int(1.25 * found_vf[0][0].shape[0]), int(1.25 * found_ee[0].shape[0]))
+            self._cells = (vf_grid[0], ee_grid[0])
         vf_parts = [(pairs.vf[keep_vf], pairs.vf_near[keep_vf], pairs.vf_rest[keep_vf])] + found_vf
         vf, vf_near, vf_rest = (np.concatenate(part) for part in zip(*vf_parts, strict=True))
         ee_parts = [(pairs.ee[keep_ee], pairs.ee_near[keep_ee], pairs.ee_rest[keep_ee]), found_ee]
