@@ -380,6 +380,7 @@ def structural_stretch(scene: ContactScene, positions: np.ndarray) -> float:
 
 
 def main() -> None:
+    global N  # the sheet's side, `--n`
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--blender-python", help="a Python with `bpy` installed (Blender skipped when not given)")
     parser.add_argument("--frames", type=int, default=60)
@@ -389,7 +390,6 @@ def main() -> None:
     parser.add_argument("--solvers", default="xpbd", help="comma-separated meshdeform solvers, each at its defaults")
     parser.add_argument("--n", type=int, default=N, help="vertices along each side of the sheet (a finer cloth)")
     args = parser.parse_args()
-    global N
     N = args.n
     oracle = _load_oracle()
     wanted = args.scenes.split(",")

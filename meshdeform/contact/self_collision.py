@@ -141,11 +141,11 @@ class _Pairs:
 
     @classmethod
     def empty(cls, n: int) -> _Pairs:
-        """No pairs, and no vertex covered, for n vertices."""
+        """No pairs, for n vertices whose paths are yet to be set (`SelfCollision._regather`)."""
         none, flags = np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.bool_)
         return cls(
             none, flags, np.zeros(0), np.zeros(0), none, flags, np.zeros(0), np.zeros(0),
-            np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, -(2 * LIST_SUBSTEPS + 2), dtype=np.int64),
+            np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, dtype=np.int64),
         )
 
     def stale(
