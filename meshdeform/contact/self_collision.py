@@ -165,7 +165,8 @@ class _Pairs:
 class SelfCollision(Constraint, Remappable):
     """The cloth's contact with itself, as the last Constraint of a substep (see the module
     docstring). `colliders`: the scene's colliders, projected again between the proximity step
-    and the continuous check (a layer pushed by the cloth above it stays out of the collider).
+    and the continuous check where the proximity step moved something (a layer pushed by the
+    cloth above it stays out of the collider).
     `work` accumulates what it did (`take_work` hands it over per frame)."""
 
     def __init__(self, settings: SelfCollisionSettings | None = None, colliders: Sequence[Constraint] = ()) -> None:
@@ -357,9 +358,11 @@ class SelfCollision(Constraint, Remappable):
         )
 
         _settle(state, x1, dt)
-        # the colliders again, on what the proximity step moved (it may push a layer into them)
-        for collider in self.colliders:
-            collider.project(model, state, time, dt)
+        # the colliders again, where the proximity step moved something (it may push a layer into
+        # them); where it moved nothing they already hold the positions they left
+        if work.projections:
+            for collider in self.colliders:
+                collider.project(model, state, time, dt)
         x2 = x.copy()
 
         # 2. and 3. the continuous check along x0 -> x, impact zones until nothing is flagged
