@@ -14,8 +14,7 @@ Sides, each on the same vertices and quads:
 
 - meshdeform through its CLI (`simulate` with a recipe written to a temporary folder, `npz` output
   read back), each of `--solvers` (default xpbd) at its defaults, `[self_collision]` off and on;
-  the same process runs once untimed first so that Numba's cache is warm. Until the recipe
-  loader knows `[self_collision]`, the 'on' side is reported as refused and the rest still runs.
+  the same process runs once untimed first so that Numba's cache is warm.
 - Blender's cloth modifier through `bpy` (pip install bpy, in a venv of its own: it is never a
   dependency of meshdeform) with self-collision on; the colliders are meshes with a collision
   modifier (a 50 m plane, a 64 x 32 UV sphere, an 8-vertex box), Blender's default cloth otherwise.
@@ -180,7 +179,6 @@ class Side:
     label: str
     frames_per_second: list[float]
     positions: np.ndarray | None  # (frames, V, 3) Y up
-    refused: str | None = None
     #: self-collision's work in the first timed run, summed over its frames (report.json's
     #: `self_collision` lists: pair_builds, projections, flagged_pairs, zone_rounds), the
     #: largest zone its largest
@@ -232,10 +230,6 @@ def run_meshdeform(
             [*command, "-r", str(toml), "-o", str(out), "-q"], capture_output=True, text=True, env=env, check=False
         )
         if proc.returncode != 0:
-            message = (proc.stderr.strip().splitlines() or [f"exit status {proc.returncode}"])[-1]
-            if proc.returncode == 2 and "self_collision" in proc.stderr:
-                reason = message.split("; allowed keys")[0]
-                return Side(label, [], None, refused=f"refused by the recipe loader: {reason}")
             raise SystemExit(f"meshdeform failed on {scene.name} ({proc.returncode}): {proc.stderr.strip()[-2000:]}")
         if run == 0:
             continue
@@ -358,8 +352,6 @@ def describe(
 ) -> str:
     """One table row: frames/s, x Blender, worst structural stretch over the frames, max
     intersecting pairs (frame), clearance per collider."""
-    if side.refused is not None:
-        return f"  {side.label:40s} {side.refused}"
     assert side.positions is not None
     triangles = scene.triangles()
     counts = [oracle(frame, triangles) for frame in side.positions]
@@ -419,10 +411,9 @@ def main() -> None:
                     np.save(args.save / f"{scene.name}_{key}.npy", side.positions)
             for solver in args.solvers.split(","):
                 off, on = runs[f"{solver}_off"], runs[f"{solver}_on"]
-                if on.refused is None:
-                    print(f"  {solver}: self-collision cost (frames/s off / on): {off.median / on.median:.2f}x")
-                    done = ", ".join(f"{key} {value}" for key, value in on.work.items())
-                    print(f"  {solver}: self-collision work over the {args.frames} frames: {done}")
+                print(f"  {solver}: self-collision cost (frames/s off / on): {off.median / on.median:.2f}x")
+                done = ", ".join(f"{key} {value}" for key, value in on.work.items())
+                print(f"  {solver}: self-collision work over the {args.frames} frames: {done}")
             sys.stdout.flush()
 
 
