@@ -59,7 +59,7 @@ sys.path.insert(0, str(REPO))
 from meshdeform.io import write_obj  # noqa: E402
 from meshdeform.mesh import Mesh, grid_mesh  # noqa: E402
 
-N = 40  # vertices along each side of the sheet
+N = 40  # vertices along each side of the sheet (`--n`)
 FPS = 24
 COLLIDER_THICKNESS = 0.01  # m, kept by the cloth from every collider
 COLLIDER_FRICTION = 0.3
@@ -138,18 +138,18 @@ def _z_up(value: object) -> list[float]:
     return [x, -z, y]
 
 
-def _sheet(plane: str) -> tuple[np.ndarray, np.ndarray]:
-    """The N x N grid over 1 m in `plane` ("xz" flat, "xy" upright) and its quads."""
-    mesh = grid_mesh(N, N, size=(1.0, 1.0), plane=plane)
+def _sheet(plane: str, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The n x n grid over 1 m in `plane` ("xz" flat, "xy" upright) and its quads."""
+    mesh = grid_mesh(n, n, size=(1.0, 1.0), plane=plane)
     return mesh.positions.copy(), mesh.face_indices.reshape(-1, 4)
 
 
-def scenes() -> tuple[ContactScene, ...]:
+def scenes(n: int = N) -> tuple[ContactScene, ...]:
     """The three scenes of the module docstring."""
     ground = Collider("ground", {"height": 0.0})
-    flat, quads = _sheet("xz")
+    flat, quads = _sheet("xz", n)
     drop = flat + [-0.5, 0.5, -0.5]
-    upright, _ = _sheet("xy")
+    upright, _ = _sheet("xy", n)
     collapse = upright + [-0.5, 0.02, 0.0]
     collapse[:, 2] = 0.01 * np.sin(4.0 * np.pi * upright[:, 1])
     fold = flat + [-0.4, 0.8, -0.5]
@@ -372,7 +372,6 @@ def structural_stretch(scene: ContactScene, positions: np.ndarray) -> float:
 
 
 def main() -> None:
-    global N  # the sheet's side, `--n`
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--blender-python", help="a Python with `bpy` installed (Blender skipped when not given)")
     parser.add_argument("--frames", type=int, default=60)
@@ -382,11 +381,10 @@ def main() -> None:
     parser.add_argument("--solvers", default="xpbd", help="comma-separated meshdeform solvers, each at its defaults")
     parser.add_argument("--n", type=int, default=N, help="vertices along each side of the sheet (a finer cloth)")
     args = parser.parse_args()
-    N = args.n
     oracle = _load_oracle()
     wanted = args.scenes.split(",")
-    chosen = [s for s in scenes() if s.name in wanted]
-    print(f"{N} x {N} sheet, 1 m, {args.frames} frames at {FPS} fps, median of {args.repeats} runs")
+    chosen = [s for s in scenes(args.n) if s.name in wanted]
+    print(f"{args.n} x {args.n} sheet, 1 m, {args.frames} frames at {FPS} fps, median of {args.repeats} runs")
     print(f"collider thickness {1000 * COLLIDER_THICKNESS:g} mm, self-collision thickness {1000 * SELF_THICKNESS:g} mm")
     with tempfile.TemporaryDirectory(prefix="meshdeform-contact-") as tmp:
         folder = Path(tmp)

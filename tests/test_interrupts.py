@@ -37,9 +37,10 @@ START_TIMEOUT = 60.0
 END_TIMEOUT = 45.0
 
 
-def meshdeform(*args: object) -> subprocess.Popen[str]:
-    """The `meshdeform` command in a subprocess (stderr captured), from this checkout."""
-    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONFAULTHANDLER": "1"}
+def meshdeform(*args: object, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
+    """The `meshdeform` command in a subprocess (stderr captured), from this checkout; `env` adds
+    to the environment."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONFAULTHANDLER": "1", **(env or {})}
     command = [sys.executable, "-c", "from pipeline.cli import app; app()", *map(str, args)]
     return subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
@@ -249,12 +250,8 @@ def test_a_cold_cache_run_interrupted_while_it_compiles_ends_with_its_one_line(t
     """With an empty kernel cache the run compiles for seconds before its first frame; a signal
     then ends it as any other (once the compiler lets go), never with an error or a crash."""
     out = tmp_path / "out" / "x"
-    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONFAULTHANDLER": "1", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-    command = [sys.executable, "-c", "from pipeline.cli import app; app()", "simulate", str(SHEET), "-o", str(out)]
-    process = subprocess.Popen(
-        [*command, "--frames", "100000", "-q"], cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-        text=True,
-    )
+    cache = {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    process = meshdeform("simulate", SHEET, "-o", out, "--frames", 100000, "-q", env=cache)
     wait_for(lambda: any((tmp_path / "cache").rglob("*.nbi")), "the run compiles kernels into its cache", process)
     process.send_signal(signal.SIGTERM)
     lines = finish(process)
