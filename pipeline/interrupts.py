@@ -23,9 +23,12 @@ SIGINT (Ctrl-C reaches the whole process group) stops the running job, which rem
 folder, and then the worker.
 
 Which output folder an error or interrupt kept from being written (the CLI's line names it) is noted
-by the job's staging folder as it removes itself (`note_unwritten`) in a registry keyed by the
-exception, and read at the CLI edge (`unwritten_target`) inside the `noting_unwritten` block that
-`cli_errors` opens; nothing is set on the exception itself.
+by the job's staging folder as it removes itself (`note_unwritten`), and by the job around all its
+work (`unwritten_on_failure`: an interrupt while the mesh is read or kernels compile, before any
+staging folder exists), in a registry keyed by the exception, and read at the CLI edge
+(`unwritten_target`) inside the `noting_unwritten` block that `cli_errors` opens; nothing is set on
+the exception itself. A signal that waited for the renames is delivered after them: the folder is
+then noted as written (`note_written`), and the line says so.
 """
 
 from __future__ import annotations
@@ -266,10 +269,12 @@ def _catch_deadly_signals() -> dict[int, Any]:
 
 # -- what an error kept from being written --------------------------------------------------------
 
-#: the output folders that errors and interrupts kept from being written, while a `noting_unwritten`
-#: block listens: id of the exception -> (the exception, the folder). Holding the exception keeps its
-#: id its own. Per thread (a ContextVar): jobs in threads of a Dask worker do not see each other's.
-_unwritten: ContextVar[dict[int, tuple[BaseException, Path]] | None] = ContextVar("unwritten", default=None)
+#: the output folders that errors and interrupts kept from being written (or that were written in
+#: full before the exception: an interrupt delivered once the renames were done), while a
+#: `noting_unwritten` block listens: id of the exception -> (the exception, the folder, written).
+#: Holding the exception keeps its id its own. Per thread (a ContextVar): jobs in threads of a Dask
+#: worker do not see each other's.
+_unwritten: ContextVar[dict[int, tuple[BaseException, Path, bool]] | None] = ContextVar("unwritten", default=None)
 
 
 @contextlib.contextmanager
@@ -285,20 +290,52 @@ def noting_unwritten() -> Iterator[None]:
         _unwritten.reset(token)
 
 
-def note_unwritten(exc: BaseException, target: Path) -> None:
-    """Record that `exc` kept `target` from being written (the job's staging folder, removing itself,
-    says so), when a `noting_unwritten` block listens. The first folder noted for an exception stays."""
+def _note(exc: BaseException, target: Path, written: bool) -> None:
     noted = _unwritten.get()
     if noted is not None:
-        noted.setdefault(id(exc), (exc, Path(target)))
+        noted.setdefault(id(exc), (exc, Path(target), written))
+
+
+def note_unwritten(exc: BaseException, target: Path) -> None:
+    """Record that `exc` kept `target` from being written (the job's staging folder, removing itself,
+    says so), when a `noting_unwritten` block listens. The first note for an exception stays."""
+    _note(exc, target, written=False)
+
+
+def note_written(exc: BaseException, target: Path) -> None:
+    """Record that `target` was put into place in full before `exc` (a signal that waited for the
+    renames is delivered after them), so that no outer `unwritten_on_failure` says otherwise."""
+    _note(exc, target, written=True)
+
+
+@contextlib.contextmanager
+def unwritten_on_failure(target: Path) -> Iterator[None]:
+    """Note `target` as not written for any error or interrupt leaving the block, also one raised
+    before its staging folder exists (reading the mesh, building the model, compiling kernels)."""
+    try:
+        yield
+    except BaseException as exc:
+        note_unwritten(exc, target)
+        raise
+
+
+def _noted(exc: BaseException) -> tuple[BaseException, Path, bool] | None:
+    noted = _unwritten.get()
+    entry = noted.get(id(exc)) if noted is not None else None
+    return entry if entry is not None and entry[0] is exc else None
 
 
 def unwritten_target(exc: BaseException) -> Path | None:
     """The output folder `exc` kept from being written, as noted in the current `noting_unwritten`
     block; None if none was."""
-    noted = _unwritten.get()
-    entry = noted.get(id(exc)) if noted is not None else None
-    return entry[1] if entry is not None and entry[0] is exc else None
+    entry = _noted(exc)
+    return entry[1] if entry is not None and not entry[2] else None
+
+
+def written_target(exc: BaseException) -> Path | None:
+    """The output folder put into place in full just before `exc`, as noted (`note_written`); None if none was."""
+    entry = _noted(exc)
+    return entry[1] if entry is not None and entry[2] else None
 
 
 # -- pool workers ------------------------------------------------------------------------------------

@@ -25,7 +25,7 @@ from meshdeform.errors import MeshdeformError
 from meshdeform.mesh import Mesh
 from pipeline import __version__
 from pipeline.hashing import file_sha256
-from pipeline.interrupts import raise_if_lost
+from pipeline.interrupts import raise_if_lost, unwritten_on_failure
 from pipeline.output_folder import REPORT_NAME, check_output_folder, staged_directory
 from pipeline.recipe import Recipe, recipe_hash, resolve_path
 
@@ -85,6 +85,20 @@ def run_job(
     meshdeform did not write unless `overwrite`); nothing is left in `out_dir` when it does. Two runs
     on one folder at once are the caller's to prevent (`output_lock`, as `meshdeform simulate` does).
     """
+    with unwritten_on_failure(Path(out_dir)):  # also before the staging folder exists: the CLI's line names it
+        return _run_job(mesh_path, recipe, out_dir, on_frame=on_frame, mesh=mesh, overwrite=overwrite)
+
+
+def _run_job(
+    mesh_path: Path,
+    recipe: Recipe,
+    out_dir: Path,
+    *,
+    on_frame: FrameCallback | None,
+    mesh: Mesh | None,
+    overwrite: bool,
+) -> JobResult:
+    """`run_job`'s work."""
     from meshdeform.export import ExportContext, ExportSession, FrameData
     from meshdeform.io import load
     from meshdeform.preview.colliders import scene_colliders

@@ -24,7 +24,7 @@ from pathlib import Path, PurePosixPath
 from meshdeform.atomic import write_text_atomic
 from meshdeform.errors import MeshdeformError
 from pipeline import __version__
-from pipeline.interrupts import note_unwritten, publishing
+from pipeline.interrupts import note_unwritten, note_written, publishing
 
 #: the job's report in every result folder (a marker of its own for results older than MARKER_NAME)
 REPORT_NAME = "report.json"
@@ -466,12 +466,17 @@ def staged_directory(target: Path, *, overwrite: bool = False) -> Iterator[Path]
         raise OutputFolderError(
             f"{label}: cannot create a staging folder in {real.parent}: {exc.strerror or exc}"
         ) from None
+    committed = False
     try:
         yield stage
         write_marker(stage, _files_under(stage))
         with publishing(stage):  # a signal waits for the renames; a pool worker whose batch died stops here
             _commit(stage, real, label, overwrite)
+            committed = True
     except BaseException as exc:
+        if committed:  # a signal that waited for the renames: the folder is in place, in full
+            note_written(exc, target)
+            raise
         shutil.rmtree(stage, ignore_errors=True)
         _remove_if_empty(created)
         note_unwritten(exc, target)  # the CLI's one line names the folder that was not written

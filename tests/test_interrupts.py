@@ -25,6 +25,7 @@ from pipeline.interrupts import (
     publishing,
     raise_if_lost,
     unwritten_target,
+    written_target,
 )
 
 REPO = Path(__file__).resolve().parents[1]
@@ -321,3 +322,44 @@ def test_the_unwritten_folder_is_noted_only_where_someone_listens(tmp_path: Path
             assert unwritten_target(other) == tmp_path / "job" and unwritten_target(error) is None
         assert unwritten_target(error) == tmp_path / "out" and unwritten_target(other) is None
     assert unwritten_target(error) is None
+
+
+def test_an_error_before_the_staging_folder_names_the_output_not_written(tmp_path: Path) -> None:
+    """A job that stops before its staging folder exists (reading the mesh, building the model,
+    compiling kernels: where a cold-cache run spends its first seconds) still names the folder
+    it did not write, for the CLI's line."""
+    from meshdeform.errors import MeshLoadError
+    from pipeline.job import run_job
+    from pipeline.recipe import load_recipe
+
+    broken = tmp_path / "broken.obj"
+    broken.write_text("v 0 0 0\nf 1 2 3\n")
+    out = tmp_path / "out" / "x"
+    with noting_unwritten():
+        with pytest.raises(MeshLoadError) as raised:
+            run_job(broken, load_recipe(None), out)
+        assert unwritten_target(raised.value) == out and written_target(raised.value) is None
+    assert not out.exists()
+
+
+def test_a_signal_that_waited_for_the_renames_says_the_folder_was_written(tmp_path: Path, monkeypatch) -> None:
+    """A signal during the renames is delivered once the folder is in place: the line then says
+    it was written in full, never that nothing was."""
+    import pipeline.output_folder as output_folder
+    from pipeline.commands.errors import interrupted_message
+
+    commit = output_folder._commit
+
+    def commit_with_a_signal(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)  # the handler runs at the next bytecode, and waits for the block's end
+        return commit(*args, **kwargs)
+
+    monkeypatch.setattr(output_folder, "_commit", commit_with_a_signal)
+    out = tmp_path / "out"
+    with handling_signals(), noting_unwritten():
+        with pytest.raises(Interrupted) as raised, output_folder.staged_directory(out) as stage:
+            (stage / "a.txt").write_text("a")
+        assert written_target(raised.value) == out and unwritten_target(raised.value) is None
+        assert interrupted_message(raised.value) == f"interrupted by SIGTERM; {out} had been written in full"
+    assert (out / "a.txt").read_text() == "a"

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import typer
 
 from meshdeform.errors import MeshdeformError, SimulationDiverged
-from pipeline.interrupts import Interrupted, exit_code_of, noting_unwritten, unwritten_target
+from pipeline.interrupts import Interrupted, exit_code_of, noting_unwritten, unwritten_target, written_target
 
 #: exit codes: 0 ok, 1 a run failed (simulation diverged, some assets failed), 2 bad input or usage,
 #: or the output cannot be written (no space left, quota, file too large); 128 + N stopped by signal N
@@ -32,8 +32,11 @@ def interrupted_message(exc: BaseException, consequence: str | None = None) -> s
     written to the command's output folder (its staging folder is removed on the way out)."""
     name = exc.name if isinstance(exc, Interrupted) else "SIGINT"
     if consequence is None:
-        target = unwritten_target(exc)
-        consequence = f"nothing was written to {target}" if target is not None else None
+        target, written = unwritten_target(exc), written_target(exc)
+        if target is not None:
+            consequence = f"nothing was written to {target}"
+        elif written is not None:
+            consequence = f"{written} had been written in full"
     return f"interrupted by {name}" + (f"; {consequence}" if consequence else "")
 
 
