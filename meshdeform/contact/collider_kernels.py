@@ -3,10 +3,10 @@
 The cloth is a list of primitives, rows (i0, i1, i2) of vertex indices: a triangle, an edge
 (a, b, b) or a vertex (a, a, a). Every query works in the collider's rest frame ("local"):
 positions (V, 3) at the start (x0) and at the end (x1) of the substep, the path between them
-linear. A shape is a `ShapeArrays`: a plane, a sphere, a capsule or a triangle mesh (`Surface`,
-with its BVH); boxes are 12-triangle closed meshes.
+linear. A shape is a `ShapeArrays`: a plane, a sphere, a capsule, an axis-aligned box (exact
+closest points by `box_distance`) or a triangle mesh (`Surface`, with its BVH).
 
-`closest_simple` (planes, spheres, capsules) and `closest_mesh` give, for one primitive in one
+`closest_simple` (planes, spheres, capsules), `closest_box` and `closest_mesh` give, for one primitive in one
 configuration, the signed clearance d (negative: inside a solid, or on the far side of an open
 sheet from the side it keeps), the contact point on the cloth as weights (w0, w1, w2) on its
 vertices, the surface point q and the outward unit normal n, with d = n . (p - q) for the
@@ -40,6 +40,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from meshdeform.contact.box_distance import primitive_box_closest
 from meshdeform.contact.bvh import closest_to_point, closest_to_triangle, new_stack
 from meshdeform.contact.primitives import point_triangle_weights
 from meshdeform.contact.surface import FEATURE_EPS, Surface, pseudo_normal
@@ -51,6 +52,7 @@ PLANE = 0
 SPHERE = 1
 CAPSULE = 2
 MESH = 3
+BOX = 4
 
 #: a Gauss-Seidel sweep that moves no contact by more than this fraction of h ends the solve
 SETTLED = 1e-4
@@ -63,12 +65,13 @@ class ShapeArrays(NamedTuple):
     kernel here (`contact(*shape, ...)`; one by one, since Numba passes a tuple of arrays to a
     compiled call at a cost far above a sphere's query).
 
-    kind: PLANE, SPHERE, CAPSULE or MESH. params (5, 3): the plane's point and unit normal (or
-    the sphere's centre), the capsule's fallback normal (row 1: a unit vector across the axis,
-    for a cloth point on the axis), the capsule's ends (rows 2, 3), the radius (row 4, column 0).
-    closed .. tri_bounds: a mesh (`Surface` and its `TriangleBVH`; a one-triangle placeholder
-    for the other kinds): closed, vertices, triangles, normals, then the BVH's bounds, nodes,
-    order and tri_bounds.
+    kind: PLANE, SPHERE, CAPSULE, BOX or MESH. params (5, 3): the plane's point and unit normal
+    (or the sphere's centre), the capsule's fallback normal (row 1: a unit vector across the
+    axis, for a cloth point on the axis), the capsule's ends or the box's lo and hi corners
+    (rows 2, 3), the radius (row 4, column 0). closed .. tri_bounds: a mesh (`Surface` and its
+    `TriangleBVH`; a box's 12 triangles, whose vertices are its corners in
+    `box_distance`'s order; a one-triangle placeholder for the other kinds): closed, vertices,
+    triangles, normals, then the BVH's bounds, nodes, order and tri_bounds.
     """
 
     kind: int
@@ -264,6 +267,35 @@ def closest_mesh(
     if du > TOUCH:
         return du, w0, w1, w2, qx, qy, qz, vx / du, vy / du, vz / du, side
     return 0.0, w0, w1, w2, qx, qy, qz, side * gx, side * gy, side * gz, side
+
+
+@numba.njit(**_JIT)
+def closest_box(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    tri: np.ndarray,
+    i0: int,
+    i1: int,
+    i2: int,
+    hint: float,
+    limit: float,
+    stack: np.ndarray,
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
+    """`closest_simple` for an axis-aligned box (`box_distance.primitive_box_closest`; its
+    corners are `vertices`, its bounds params rows 2 and 3): exact closest points in a few dozen
+    operations where the box as a 12-triangle mesh took a BVH walk of triangle pairs."""
+    corners = 1 if (i0 == i1 and i1 == i2) else (2 if i1 == i2 else 3)
+    d, w0, w1, w2, qx, qy, qz, nx, ny, nz = primitive_box_closest(tri, corners, vertices, params[2], params[3])
+    w0, w1, w2 = _merge(i0, i1, i2, w0, w1, w2)
+    return d, w0, w1, w2, qx, qy, qz, nx, ny, nz, 0.0
 
 
 #: the query the pipeline below (`_advance`, `_solve`, `_evaluate`, `contact`: plain Python
@@ -926,14 +958,17 @@ def _family(suffix: str, query: Callable[..., tuple]) -> Callable[..., tuple]:
     return env["contact"]
 
 
-#: `contact` for planes, spheres and capsules, and for meshes (boxes included)
+#: `contact` for planes, spheres and capsules, for boxes and for meshes
 contact_simple = _family("simple", closest_simple)
+contact_box = _family("box", closest_box)
 contact_mesh = _family("mesh", closest_mesh)
 
 
 def contact_kernel(kind: int) -> Callable[..., tuple]:
     """The compiled `contact` for a shape kind."""
-    return contact_mesh if kind == MESH else contact_simple
+    if kind == MESH:
+        return contact_mesh
+    return contact_box if kind == BOX else contact_simple
 
 
 @numba.njit(**_JIT)

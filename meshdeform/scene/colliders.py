@@ -18,8 +18,8 @@ triangle (ropes) and every vertex (`meshdeform.contact.collider_kernels`):
 
 Planes are tested at the vertices only: a half-space is convex and a triangle's distance to a
 plane is linear over it, so its nearest point is always a vertex, and a vertex's path is a
-straight line in the plane's frame. Boxes are closed 12-triangle meshes for contact (their
-`query` stays analytic). Mesh colliders find exact closest points with a BVH over their
+straight line in the plane's frame. Boxes have exact closest points of their own
+(`meshdeform.contact.box_distance`). Mesh colliders find exact closest points with a BVH over their
 triangles; closed meshes are solids (inside: behind the nearest surface point by its
 angle-weighted pseudo-normal), open ones two-sided sheets (each vertex keeps the side it was
 last seen on; they keep at least `MIN_SHEET_GAP`). Colliders can follow keyframes (rigid motion
@@ -211,7 +211,8 @@ class Box(Shape):
         return np.where(bits == 1, self.hi, self.lo)
 
     def _make_arrays(self) -> ck.ShapeArrays:
-        return _arrays(ck.MESH, surface=surface_of(self.corners(), _BOX_TRIANGLES))
+        corners = self.corners()
+        return _arrays(ck.BOX, axis=np.stack([self.lo, self.hi]), surface=surface_of(corners, _BOX_TRIANGLES))
 
 
 class Capsule(Shape):
@@ -337,7 +338,8 @@ class _ClothPrimitives:
     `surface`: the vertices in no triangle or edge, the edges, the triangles (spheres, capsules:
     a triangle's closest point covers its edges and corners); `every`: all vertices first (row i
     is vertex i), then the edges and triangles (meshes: the vertices carry the inside test and a
-    sheet's side)."""
+    sheet's side; boxes and meshes: a triangle lying flat on a face has its corners tied, and its
+    contact falls on one of them only)."""
 
     points: np.ndarray
     surface: np.ndarray
@@ -449,7 +451,7 @@ class Collider(Constraint, Remappable):
         kind = self.shape.arrays().kind
         if kind == ck.PLANE:
             return self._prims.points
-        if kind == ck.MESH:
+        if kind in (ck.MESH, ck.BOX):  # flat faces: a triangle's corners tie, each vertex has a row of its own
             return self._prims.every
         return self._prims.surface
 
