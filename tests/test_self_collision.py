@@ -161,6 +161,30 @@ def test_runs_are_byte_identical() -> None:
     assert all(a.tobytes() == b.tobytes() for a, b in zip(first, second, strict=True))
 
 
+def test_searches_split_over_two_threads_give_the_same_bytes(monkeypatch) -> None:
+    """The candidate searches run their queries in two halves on two threads where they are
+    long (`contact.halves`): the run is byte for byte the one-thread run, and the halves did run."""
+    import meshdeform.contact.halves as halves
+    import meshdeform.contact.self_collision as self_collision
+
+    model = SpringModel.from_mesh(_collapsing_sheet(12))
+    monkeypatch.setattr(self_collision, "search_threads", lambda: 1)
+    one = _run(model, True, 24)  # the sheet lies folded on itself from frame 12 or so
+    split = []
+    search = halves.in_halves
+
+    def counted(*args, **kwargs):
+        split.append(args[2].shape[0] >= halves.MIN_QUERIES and args[5] >= 2)
+        return search(*args, **kwargs)
+
+    monkeypatch.setattr(self_collision, "search_threads", lambda: 2)
+    monkeypatch.setattr(self_collision, "in_halves", counted)
+    monkeypatch.setattr(halves, "MIN_QUERIES", 8)
+    two = _run(model, True, 24)
+    assert sum(split) >= 10  # whole and partial searches, split in two
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(one, two, strict=True))
+
+
 @pytest.mark.parametrize("dense_factor", [0.0, 1e9])  # always hashed, always dense
 def test_broad_phase_finds_exactly_the_overlapping_boxes(dense_factor: float) -> None:
     rng = np.random.default_rng(7)

@@ -44,6 +44,7 @@ import numpy as np
 
 from meshdeform.contact import self_kernels
 from meshdeform.contact.broad_phase import grid_for, strays, swept_boxes
+from meshdeform.contact.halves import in_halves, search_threads
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 
@@ -181,6 +182,7 @@ class SelfCollision(Constraint, Remappable):
         self._substep = 0  # substeps projected so far: the age of the kept pairs
         self._margin = 0.0
         self._capacity = (0, 0)
+        self._threads = 1  # threads a candidate search may use (`halves.search_threads`)
         #: the grid cells (1/m) of the last whole search, for the VF and the EE grid
         self._cells: tuple[float, float] | None = None
         #: the thickness kept on the model last prepared (`contact_thickness`), metres
@@ -210,6 +212,7 @@ class SelfCollision(Constraint, Remappable):
             self._rings = _rings(self._topology.edges, n)
             self._start = None
         self._held = None
+        self._threads = search_threads()  # in the thread that prepares the model, as the solvers' builds
         edge = median_edge(model)
         self.thickness = contact_thickness(self.settings.thickness, edge)
         self._margin = MARGIN_FRACTION * edge if edge > 0 else self.thickness
@@ -272,22 +275,26 @@ class SelfCollision(Constraint, Remappable):
         # a partial search keeps the cells of the last whole one (`grid_for`)
         vf_cell, ee_cell = (None, None) if everyone or self._cells is None else self._cells
         vf_grid = grid_for(qlo, qhi, tlo, thi, inv_cell=vf_cell)
+        threads = self._threads
         found_vf = [
-            self_kernels.vf_candidates(
-                carried, rest, fresh, np.zeros(x0.shape[0], dtype=np.bool_), qlo, qhi, tlo, thi, False,
-                *vf_grid, *shared, capacity[0],
+            in_halves(
+                self_kernels.vf_candidates, (carried, rest), fresh,
+                (np.zeros(x0.shape[0], dtype=np.bool_), qlo, qhi, tlo, thi, False, *vf_grid, *shared),
+                capacity[0], threads,
             )
-        ]
+        ]  # fmt: skip
         if not everyone:
-            found_vf.append(self_kernels.vf_candidates(
-                carried, rest, np.flatnonzero(triangle_fresh), stale, qlo, qhi, tlo, thi, True,
-                *grid_for(tlo, thi, qlo, qhi, inv_cell=vf_grid[0]), *shared, 0,
+            found_vf.append(in_halves(
+                self_kernels.vf_candidates, (carried, rest), np.flatnonzero(triangle_fresh),
+                (stale, qlo, qhi, tlo, thi, True, *grid_for(tlo, thi, qlo, qhi, inv_cell=vf_grid[0]), *shared),
+                0, threads,
             ))  # fmt: skip
         ee_grid = grid_for(elo, ehi, elo, ehi, inv_cell=ee_cell)
-        found_ee = self_kernels.ee_candidates(
-            carried, rest, np.flatnonzero(edge_fresh), edge_fresh, elo, ehi, *ee_grid,
-            topology.edges, *shared[1:], capacity[1],
-        )
+        found_ee = in_halves(
+            self_kernels.ee_candidates, (carried, rest), np.flatnonzero(edge_fresh),
+            (edge_fresh, elo, ehi, *ee_grid, topology.edges, *shared[1:], bool(edge_fresh.all())),
+            capacity[1], threads,
+        )  # fmt: skip
         if everyone:
             self._capacity = (int(1.25 * found_vf[0][0].shape[0]), int(1.25 * found_ee[0].shape[0]))
             self._cells = (vf_grid[0], ee_grid[0])

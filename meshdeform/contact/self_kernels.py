@@ -227,11 +227,12 @@ def ee_candidates(
     x: np.ndarray, rest: np.ndarray, queries: np.ndarray, fresh: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
     edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
-    motion: np.ndarray, span: float, reach: float, capacity: int,
+    motion: np.ndarray, span: float, reach: float, every: bool, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The EE pairs to keep, from the grid of edge boxes elo, ehi (E, 3) asked by each edge of
     `queries`, each pair once (lower edge first): a found edge that is `fresh` (E,) too (itself
-    among the queries) pairs only with the lower of the two. Kept when the edges share no vertex
+    among the queries) pairs only with the lower of the two. `every`: every edge is fresh (some
+    query asks for each: the grid then reports the higher edges only). Kept when the edges share no vertex
     and their distance in x is within `reach` plus `span` substeps of the ends' relative motion
     (as `vf_candidates`). Returns the pairs (Q, 2), whether each takes proximity repulsion (no
     end's origin equal to or a rest neighbour of an end's origin of the other), (Q,) bool, and
@@ -239,7 +240,6 @@ def ee_candidates(
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = 0
-    every = queries.shape[0] == elo.shape[0]  # all fresh: the grid reports the higher edges only
     for k in range(queries.shape[0]):
         e = queries[k]
         n, found = query_grown(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e if every else -1, found)
