@@ -162,8 +162,9 @@ def test_runs_are_byte_identical() -> None:
 
 
 def test_searches_split_over_two_threads_give_the_same_bytes(monkeypatch) -> None:
-    """The candidate searches run their queries in two halves on two threads where they are
-    long (`contact.halves`): the run is byte for byte the one-thread run, and the halves did run."""
+    """The candidate searches, the proximity step's sides and the continuous check run in two
+    halves on two threads where they are long (`contact.halves`): the run is byte for byte the
+    one-thread run, and the halves did run."""
     import meshdeform.contact.halves as halves
     import meshdeform.contact.self_collision as self_collision
 
@@ -180,6 +181,7 @@ def test_searches_split_over_two_threads_give_the_same_bytes(monkeypatch) -> Non
     monkeypatch.setattr(self_collision, "search_threads", lambda: 2)
     monkeypatch.setattr(self_collision, "in_halves", counted)
     monkeypatch.setattr(halves, "MIN_QUERIES", 8)
+    monkeypatch.setattr(halves, "MIN_ROWS", 8)  # proximity and the continuous check too
     two = _run(model, True, 24)
     assert sum(split) >= 10  # whole and partial searches, split in two
     assert all(a.tobytes() == b.tobytes() for a, b in zip(one, two, strict=True))
@@ -246,7 +248,7 @@ def test_the_continuous_check_misses_no_crossing() -> None:
         near = _sampled_min_distance(x0, x1) < 0.05 * start
         no_pairs = np.zeros((0, 2), dtype=np.int64)
         hit, _ = self_kernels.colliding_pairs(
-            x0, x1, triangles, edges, pairs, no_pairs, np.arange(4), 0.0, np.zeros(1), np.zeros(0)
+            x0, x1, triangles, edges, np.arange(4), 0.0, pairs, np.zeros(1), no_pairs, np.zeros(0)
         )
         if near:
             crossings += 1

@@ -1,15 +1,20 @@
-"""A candidate search over its queries in two halves at once, on two threads.
+"""Self-collision's per-pair and per-query kernels over two halves at once, on two threads.
 
-The searches of `self_kernels` (`vf_candidates`, `ee_candidates`) report their pairs query by
-query, so the pairs of the first half of the queries followed by those of the second half are
-the pairs of one call over all of them, in the same order: the split never changes a result,
-whatever the thread count. The kernels are compiled with `nogil` (`solvers.jit.JIT`), so the
-second half runs on a pool thread while the calling thread runs the first.
+- `in_halves`: the searches of `self_kernels` (`vf_candidates`, `ee_candidates`) report their
+  pairs query by query, so the pairs of the first half of the queries followed by those of the
+  second half are the pairs of one call over all of them, in the same order.
+- `by_rows`: a kernel whose work is row by row over pair lists (`proximity_sides`,
+  `colliding_pairs`: each row read and written alone) gives, over the first halves of its lists
+  and then the second halves, the rows of one call; rows updated in place are views of the
+  caller's arrays.
+So a split never changes a result, whatever the thread count. The kernels are compiled with
+`nogil` (`solvers.jit.JIT`), so the second half runs on a pool thread while the calling thread
+runs the first.
 
-Splitting pays only where a search is long next to handing work to a thread (tens of
-microseconds): `MIN_QUERIES` queries or more; and only with two Numba threads or more in the
-thread that prepares the model (a batch gives each job its share of the cores; the
-`MESHDEFORM_PARALLEL_SUBSTEPS=0` pin asks for one). Figures in docs/performance.md.
+Splitting pays only where a kernel is long next to handing work to a thread (tens of
+microseconds): `MIN_QUERIES` queries or `MIN_ROWS` rows or more; and only with two Numba threads
+or more in the thread that prepares the model (a batch gives each job its share of the cores;
+the `MESHDEFORM_PARALLEL_SUBSTEPS=0` pin asks for one). Figures in docs/performance.md.
 """
 
 from __future__ import annotations
@@ -25,6 +30,8 @@ from meshdeform.solvers.dispatch import requested_mode
 
 #: a search with fewer queries runs in one call
 MIN_QUERIES = 512
+#: a per-pair kernel over fewer rows (all its lists together) runs in one call
+MIN_ROWS = 2048
 
 _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
@@ -64,3 +71,23 @@ def in_halves(
     second = _worker().submit(search, *before, queries[half:], *after, capacity // 2)
     first = search(*before, queries[:half], *after, capacity // 2)
     return tuple(np.concatenate([a, b]) for a, b in zip(first, second.result(), strict=True))
+
+
+def by_rows(
+    kernel: Callable[..., tuple[np.ndarray, ...]],
+    groups: tuple[tuple[np.ndarray, ...], ...],
+    threads: int,
+) -> tuple[np.ndarray, ...]:
+    """`kernel(*arrays of every group)`, each group's arrays (rows along axis 0, alike in length
+    within a group) split at the group's half, where `threads` >= 2 and the groups hold MIN_ROWS
+    rows or more together: the kernel's per-row outputs (one per group's rows, in its return
+    order) joined (the same arrays as one call: module docstring)."""
+    rows = sum(group[0].shape[0] for group in groups)
+    if threads < 2 or rows < MIN_ROWS:
+        return kernel(*(array for group in groups for array in group))
+    halves = [group[0].shape[0] // 2 for group in groups]
+    first = [array[:half] for group, half in zip(groups, halves, strict=True) for array in group]
+    second = [array[half:] for group, half in zip(groups, halves, strict=True) for array in group]
+    later = _worker().submit(kernel, *second)
+    done = kernel(*first)
+    return tuple(np.concatenate([a, b]) for a, b in zip(done, later.result(), strict=True))

@@ -37,6 +37,7 @@ through each other, and new boundary edges take part like any other.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -44,7 +45,7 @@ import numpy as np
 
 from meshdeform.contact import self_kernels
 from meshdeform.contact.broad_phase import grid_for, strays, swept_boxes
-from meshdeform.contact.halves import in_halves, search_threads
+from meshdeform.contact.halves import by_rows, in_halves, search_threads
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 
@@ -323,9 +324,13 @@ class SelfCollision(Constraint, Remappable):
         for round_ in range(settings.max_rounds + 1):
             pairs = self._pairs(model, topology, x0, x)
             vf, ee = pairs.vf, pairs.ee
-            hit_vf, hit_ee = self_kernels.colliding_pairs(
-                x0, x, topology.triangles, topology.edges, vf, ee, self._origin, SEAM_FRACTION * self.thickness,
-                pairs.vf_lower, pairs.ee_lower,
+            hit_vf, hit_ee = by_rows(
+                functools.partial(
+                    self_kernels.colliding_pairs, x0, x, topology.triangles, topology.edges, self._origin,
+                    SEAM_FRACTION * self.thickness,
+                ),
+                ((vf, pairs.vf_lower), (ee, pairs.ee_lower)),
+                self._threads,
             )
             flagged = int(hit_vf.sum() + hit_ee.sum())
             if flagged == 0:
@@ -357,11 +362,16 @@ class SelfCollision(Constraint, Remappable):
 
         # 1. proximity: pairs within the thickness, pushed apart along their start side
         pairs = self._pairs(model, topology, x0, x1)
+        vf_gap = np.minimum(self.thickness, pairs.vf_rest)
+        ee_gap = np.minimum(self.thickness, pairs.ee_rest)
+        active_vf, side_vf, active_ee, side_ee = by_rows(
+            functools.partial(self_kernels.proximity_sides, x, x0, topology.triangles, topology.edges),
+            ((pairs.vf, pairs.vf_near, vf_gap, pairs.vf_lower), (pairs.ee, pairs.ee_near, ee_gap, pairs.ee_lower)),
+            self._threads,
+        )
         work.projections = self_kernels.project_proximity(
-            x, x0, inv_mass, topology.triangles, topology.edges,
-            pairs.vf, pairs.vf_near, np.minimum(self.thickness, pairs.vf_rest),
-            pairs.ee, pairs.ee_near, np.minimum(self.thickness, pairs.ee_rest),
-            pairs.vf_lower, pairs.ee_lower, settings.sweeps, settings.friction,
+            x, x0, inv_mass, topology.triangles, topology.edges, pairs.vf, vf_gap, active_vf, side_vf,
+            pairs.ee, ee_gap, active_ee, side_ee, settings.sweeps, settings.friction,
         )
 
         _settle(state, x1, dt)

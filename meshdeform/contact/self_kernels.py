@@ -301,6 +301,57 @@ def _tangential(rel: np.ndarray, nx: float, ny: float, nz: float, limit: float) 
 
 
 @nb.njit(**JIT)
+def proximity_sides(
+    x: np.ndarray,
+    x0: np.ndarray,
+    triangles: np.ndarray,
+    edges: np.ndarray,
+    vf: np.ndarray,
+    vf_near: np.ndarray,
+    vf_gap: np.ndarray,
+    vf_lower: np.ndarray,
+    ee: np.ndarray,
+    ee_near: np.ndarray,
+    ee_gap: np.ndarray,
+    ee_lower: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Which pairs `project_proximity` treats, and the side each keeps: a pair flagged `near`
+    (the others are rest neighbours) whose distance may come within twice its gap (m) (the
+    lower bound at x0, `vf_lower`/`ee_lower` as `colliding_pairs` keeps them, less the pair's
+    relative travel to x); the unit direction from the triangle to the vertex, or from the
+    second edge to the first, at x0. Returns active_vf (P,) bool, side_vf (P, 3), active_ee
+    (Q,), side_ee (Q, 3) (sides of inactive pairs undefined). Row by row: `halves.by_rows`."""
+    ids = np.empty(4, dtype=np.int64)
+    active_vf = np.zeros(vf.shape[0], dtype=np.bool_)
+    side_vf = np.empty((vf.shape[0], 3))
+    for k in range(vf.shape[0]):
+        if not vf_near[k]:
+            continue
+        t = vf[k, 1]
+        ids[0], ids[1], ids[2], ids[3] = vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        if vf_lower[k] - _relative_travel(x0, x, ids, True) > 2.0 * vf_gap[k]:
+            continue
+        active_vf[k] = True
+        nx, ny, nz = _vf_side(x0, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])
+        side_vf[k, 0], side_vf[k, 1], side_vf[k, 2] = nx, ny, nz
+    active_ee = np.zeros(ee.shape[0], dtype=np.bool_)
+    side_ee = np.empty((ee.shape[0], 3))
+    for k in range(ee.shape[0]):
+        if not ee_near[k]:
+            continue
+        e, f = ee[k, 0], ee[k, 1]
+        ids[0], ids[1], ids[2], ids[3] = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
+        if ee_lower[k] - _relative_travel(x0, x, ids, False) > 2.0 * ee_gap[k]:
+            continue
+        active_ee[k] = True
+        dist, _, _, dx, dy, dz = _ee_gap(x0, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])
+        if dist == 0.0:
+            dx, dy, dz = 0.0, 0.0, 1.0
+        side_ee[k, 0], side_ee[k, 1], side_ee[k, 2] = dx, dy, dz
+    return active_vf, side_vf, active_ee, side_ee
+
+
+@nb.njit(**JIT)
 def project_proximity(
     x: np.ndarray,
     x0: np.ndarray,
@@ -308,55 +359,23 @@ def project_proximity(
     triangles: np.ndarray,
     edges: np.ndarray,
     vf: np.ndarray,
-    vf_near: np.ndarray,
     vf_gap: np.ndarray,
+    active_vf: np.ndarray,
+    side_vf: np.ndarray,
     ee: np.ndarray,
-    ee_near: np.ndarray,
     ee_gap: np.ndarray,
-    vf_lower: np.ndarray,
-    ee_lower: np.ndarray,
+    active_ee: np.ndarray,
+    side_ee: np.ndarray,
     sweeps: int,
     friction: float,
 ) -> int:
-    """Gauss-Seidel sweeps (in pair order) pushing each pair apart to its gap (m, per pair) along
-    the side it had at the start of the substep, inverse-mass and barycentric weighted (only
-    the pairs flagged `near`: the others are rest neighbours); x is
-    changed in place. Friction (position-based Coulomb, Macklin et al. 2014): the pair's
-    relative tangential travel this substep shrinks by up to `friction` times the normal
-    correction. Pairs whose distance provably stays above twice their gap (a lower bound at x0,
-    `vf_lower`/`ee_lower` as `colliding_pairs` keeps them, less their relative travel to x) are
-    skipped. Returns how many pair projections moved something."""
+    """Gauss-Seidel sweeps (in pair order) pushing each active pair (`proximity_sides`) apart to
+    its gap (m, per pair) along the side it had at the start of the substep, inverse-mass and
+    barycentric weighted; x is changed in place. Friction (position-based Coulomb, Macklin et
+    al. 2014): the pair's relative tangential travel this substep shrinks by up to `friction`
+    times the normal correction. Returns how many pair projections moved something."""
     moved = 0
     rel = np.empty(3)
-    ids = np.empty(4, dtype=np.int64)
-    active_vf = np.zeros(vf.shape[0], dtype=np.bool_)
-    for k in range(vf.shape[0]):
-        if vf_near[k]:
-            t = vf[k, 1]
-            ids[0], ids[1], ids[2], ids[3] = vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2]
-            active_vf[k] = vf_lower[k] - _relative_travel(x0, x, ids, True) <= 2.0 * vf_gap[k]
-    active_ee = np.zeros(ee.shape[0], dtype=np.bool_)
-    for k in range(ee.shape[0]):
-        if ee_near[k]:
-            e, f = ee[k, 0], ee[k, 1]
-            ids[0], ids[1], ids[2], ids[3] = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
-            active_ee[k] = ee_lower[k] - _relative_travel(x0, x, ids, False) <= 2.0 * ee_gap[k]
-    side_vf = np.empty((vf.shape[0], 3))
-    for k in range(vf.shape[0]):
-        if not active_vf[k]:
-            continue
-        t = vf[k, 1]
-        nx, ny, nz = _vf_side(x0, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])
-        side_vf[k, 0], side_vf[k, 1], side_vf[k, 2] = nx, ny, nz
-    side_ee = np.empty((ee.shape[0], 3))
-    for k in range(ee.shape[0]):
-        if not active_ee[k]:
-            continue
-        e, f = ee[k, 0], ee[k, 1]
-        dist, s, tt, dx, dy, dz = _ee_gap(x0, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])
-        if dist == 0.0:
-            dx, dy, dz = 0.0, 0.0, 1.0
-        side_ee[k, 0], side_ee[k, 1], side_ee[k, 2] = dx, dy, dz
     for _ in range(sweeps):
         for k in range(vf.shape[0]):
             if not active_vf[k]:
@@ -529,17 +548,17 @@ def colliding_pairs(
     x1: np.ndarray,
     triangles: np.ndarray,
     edges: np.ndarray,
-    vf: np.ndarray,
-    ee: np.ndarray,
     origin: np.ndarray,
     seam: float,
+    vf: np.ndarray,
     vf_lower: np.ndarray,
+    ee: np.ndarray,
     ee_lower: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Masks (P,), (Q,) of the VF and EE pairs that may come into contact moving linearly from x0
     to x1 (conservative: no pair that touches is missed). vf_lower (P,), ee_lower (Q,): lower
     bounds (m) of the pairs' distances at x0, replaced in place by lower bounds at x1 (so the
-    next substep skips the pairs that stay clear)."""
+    next substep skips the pairs that stay clear). Row by row: `halves.by_rows`."""
     buf = np.empty((4, 3))
     ids = np.empty(4, dtype=np.int64)
     hit_vf = np.zeros(vf.shape[0], dtype=np.bool_)
