@@ -266,8 +266,6 @@ class SelfCollision(Constraint, Remappable):
         elo, ehi = swept_boxes(first, last, topology.edges, 0.5 * reach)
         triangle_fresh = stale[topology.triangles].any(axis=1)
         edge_fresh = stale[topology.edges].any(axis=1)
-        keep_vf = ~(stale[pairs.vf[:, 0]] | triangle_fresh[pairs.vf[:, 1]])
-        keep_ee = ~(edge_fresh[pairs.ee[:, 0]] | edge_fresh[pairs.ee[:, 1]])
         ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
         shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, LIST_SUBSTEPS, reach)
@@ -299,12 +297,16 @@ class SelfCollision(Constraint, Remappable):
         if everyone:
             self._capacity = (int(1.25 * found_vf[0][0].shape[0]), int(1.25 * found_ee[0].shape[0]))
             self._cells = (vf_grid[0], ee_grid[0])
-        vf_parts = [(pairs.vf[keep_vf], pairs.vf_near[keep_vf], pairs.vf_rest[keep_vf])] + found_vf
-        vf, vf_near, vf_rest = (np.concatenate(part) for part in zip(*vf_parts, strict=True))
-        ee_parts = [(pairs.ee[keep_ee], pairs.ee_near[keep_ee], pairs.ee_rest[keep_ee]), found_ee]
-        ee, ee_near, ee_rest = (np.concatenate(part) for part in zip(*ee_parts, strict=True))
-        vf_lower = np.concatenate([pairs.vf_lower[keep_vf], np.zeros(vf.shape[0] - int(keep_vf.sum()))])
-        ee_lower = np.concatenate([pairs.ee_lower[keep_ee], np.zeros(ee.shape[0] - int(keep_ee.sum()))])
+        new_vf = found_vf[0] if len(found_vf) == 1 else tuple(np.concatenate(p) for p in zip(*found_vf, strict=True))
+        # the kept pairs (those touching no stale vertex), in order, then the new ones
+        vf, vf_near, vf_rest, vf_lower = self_kernels.merge_kept(
+            pairs.vf, pairs.vf_near, pairs.vf_rest, pairs.vf_lower,
+            self_kernels.vf_dropped(pairs.vf, stale, triangle_fresh), *new_vf,
+        )  # fmt: skip
+        ee, ee_near, ee_rest, ee_lower = self_kernels.merge_kept(
+            pairs.ee, pairs.ee_near, pairs.ee_rest, pairs.ee_lower,
+            self_kernels.ee_dropped(pairs.ee, edge_fresh), *found_ee,
+        )  # fmt: skip
         return _Pairs(
             vf, vf_near, vf_rest, vf_lower, ee, ee_near, ee_rest, ee_lower, pairs.base, pairs.motion, pairs.built
         )
