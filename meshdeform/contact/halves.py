@@ -1,15 +1,16 @@
-"""Self-collision's per-pair and per-query kernels over two halves at once, on two threads.
+"""Self-collision's per-pair and per-query kernels in parts, on two threads at once.
 
 - `in_halves`: the searches of `self_kernels` (`vf_candidates`, `ee_candidates`) report their
-  pairs query by query, so the pairs of the first half of the queries followed by those of the
-  second half are the pairs of one call over all of them, in the same order.
+  pairs query by query, so the pairs of the first part of the queries followed by those of the
+  next parts are the pairs of one call over all of them, in the same order.
 - `by_rows`: a kernel whose work is row by row over pair lists (`proximity_sides`,
-  `colliding_pairs`: each row read and written alone) gives, over the first halves of its lists
-  and then the second halves, the rows of one call; rows updated in place are views of the
-  caller's arrays.
-So a split never changes a result, whatever the thread count. The kernels are compiled with
-`nogil` (`solvers.jit.JIT`), so the second half runs on a pool thread while the calling thread
-runs the first.
+  `colliding_pairs`: each row read and written alone) gives, over consecutive parts of its lists,
+  the rows of one call; rows updated in place are views of the caller's arrays.
+So a split never changes a result, whatever the thread count or which thread ran which part. The
+kernels are compiled with `nogil` (`solvers.jit.JIT`): the calling thread and a pool thread take
+the parts in turn, `PARTS` of them (more parts than threads, so that a thread whose parts are
+quick takes more: the queries of a pile are far from alike; two halves left one thread waiting
+a tenth of a search for the other).
 
 Splitting pays only where a kernel is long next to handing work to a thread (tens of
 microseconds): `MIN_QUERIES` queries or `MIN_ROWS` rows or more; and only with two Numba threads
@@ -19,6 +20,8 @@ the `MESHDEFORM_PARALLEL_SUBSTEPS=0` pin asks for one). Figures in docs/performa
 
 from __future__ import annotations
 
+import functools
+import itertools
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -32,13 +35,16 @@ from meshdeform.solvers.dispatch import requested_mode
 MIN_QUERIES = 512
 #: a per-pair kernel over fewer rows (all its lists together) runs in one call
 MIN_ROWS = 2048
+#: how many parts a split kernel runs in (taken in turn by two threads)
+PARTS = 8
 
 _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
 
 
 def _worker() -> ThreadPoolExecutor:
-    """The pool thread that runs second halves (made on first use; shared by every search)."""
+    """The pool whose thread takes parts beside the caller (made on first use; shared by every
+    split, so two jobs in threads of one process each get a pool thread)."""
     global _pool
     with _pool_lock:
         if _pool is None:
@@ -54,6 +60,29 @@ def search_threads() -> int:
     return 2 if numba.get_num_threads() >= 2 else 1
 
 
+def _take(parts: list[Callable[[], tuple]], results: list, counter: itertools.count) -> None:
+    """Run parts in turn, the next one not taken yet each time (`next` on a count is atomic)."""
+    while (index := next(counter)) < len(parts):
+        results[index] = parts[index]()
+
+
+def _joined(parts: list[Callable[[], tuple[np.ndarray, ...]]]) -> tuple[np.ndarray, ...]:
+    """Every part run by this thread and a pool thread, whichever is free; their outputs joined
+    in part order."""
+    results: list = [None] * len(parts)
+    counter = itertools.count()
+    helper = _worker().submit(_take, parts, results, counter)
+    _take(parts, results, counter)
+    helper.result()
+    return tuple(np.concatenate(pieces) for pieces in zip(*results, strict=True))
+
+
+def _bounds(length: int, parts: int) -> list[tuple[int, int]]:
+    """`parts` consecutive ranges (start, stop) covering 0..length, alike in size."""
+    cuts = [length * k // parts for k in range(parts + 1)]
+    return list(itertools.pairwise(cuts))
+
+
 def in_halves(
     search: Callable[..., tuple[np.ndarray, ...]],
     before: tuple,
@@ -62,15 +91,17 @@ def in_halves(
     capacity: int,
     threads: int,
 ) -> tuple[np.ndarray, ...]:
-    """`search(*before, queries, *after, capacity)`, its queries (Q,) split in two halves run at
-    once where `threads` >= 2 and Q >= MIN_QUERIES; the arrays it returns, the halves' joined
-    (the same arrays as one call: module docstring). capacity: the expected pair count."""
+    """`search(*before, queries, *after, capacity)`, its queries (Q,) split in `PARTS` parts run
+    on two threads where `threads` >= 2 and Q >= MIN_QUERIES; the arrays it returns, the parts'
+    joined (the same arrays as one call: module docstring). capacity: the expected pair count."""
     if threads < 2 or queries.shape[0] < MIN_QUERIES:
         return search(*before, queries, *after, capacity)
-    half = queries.shape[0] // 2
-    second = _worker().submit(search, *before, queries[half:], *after, capacity // 2)
-    first = search(*before, queries[:half], *after, capacity // 2)
-    return tuple(np.concatenate([a, b]) for a, b in zip(first, second.result(), strict=True))
+    share = capacity // PARTS
+    parts = [
+        functools.partial(search, *before, queries[start:stop], *after, share)
+        for start, stop in _bounds(queries.shape[0], PARTS)
+    ]
+    return _joined(parts)
 
 
 def by_rows(
@@ -79,15 +110,22 @@ def by_rows(
     threads: int,
 ) -> tuple[np.ndarray, ...]:
     """`kernel(*arrays of every group)`, each group's arrays (rows along axis 0, alike in length
-    within a group) split at the group's half, where `threads` >= 2 and the groups hold MIN_ROWS
-    rows or more together: the kernel's per-row outputs (one per group's rows, in its return
-    order) joined (the same arrays as one call: module docstring)."""
+    within a group) split in `PARTS` consecutive parts, where `threads` >= 2 and the groups hold
+    MIN_ROWS rows or more together: the kernel's per-row outputs (one per group's rows, in its
+    return order) joined (the same arrays as one call: module docstring)."""
     rows = sum(group[0].shape[0] for group in groups)
     if threads < 2 or rows < MIN_ROWS:
         return kernel(*(array for group in groups for array in group))
-    halves = [group[0].shape[0] // 2 for group in groups]
-    first = [array[:half] for group, half in zip(groups, halves, strict=True) for array in group]
-    second = [array[half:] for group, half in zip(groups, halves, strict=True) for array in group]
-    later = _worker().submit(kernel, *second)
-    done = kernel(*first)
-    return tuple(np.concatenate([a, b]) for a, b in zip(done, later.result(), strict=True))
+    ranges = [_bounds(group[0].shape[0], PARTS) for group in groups]
+    parts = [
+        functools.partial(
+            kernel,
+            *(
+                array[spans[part][0] : spans[part][1]]
+                for group, spans in zip(groups, ranges, strict=True)
+                for array in group
+            ),
+        )
+        for part in range(PARTS)
+    ]
+    return _joined(parts)
