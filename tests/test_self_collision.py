@@ -163,25 +163,25 @@ def test_runs_are_byte_identical() -> None:
 
 def test_searches_split_over_two_threads_give_the_same_bytes(monkeypatch) -> None:
     """The candidate searches, the proximity step's sides and the continuous check run in two
-    halves on two threads where they are long (`contact.halves`): the run is byte for byte the
-    one-thread run, and the halves did run."""
-    import meshdeform.contact.halves as halves
+    parts on two threads where they are long (`contact.parts`): the run is byte for byte the
+    one-thread run, and the splits did run."""
+    import meshdeform.contact.parts as parts
     import meshdeform.contact.self_collision as self_collision
 
     model = SpringModel.from_mesh(_collapsing_sheet(12))
     monkeypatch.setattr(self_collision, "search_threads", lambda: 1)
     one = _run(model, True, 24)  # the sheet lies folded on itself from frame 12 or so
     split = []
-    search = halves.in_halves
+    search = parts.search_in_parts
 
     def counted(*args, **kwargs):
-        split.append(args[2].shape[0] >= halves.MIN_QUERIES and args[5] >= 2)
+        split.append(args[2].shape[0] >= parts.MIN_QUERIES and args[5] >= 2)
         return search(*args, **kwargs)
 
     monkeypatch.setattr(self_collision, "search_threads", lambda: 2)
-    monkeypatch.setattr(self_collision, "in_halves", counted)
-    monkeypatch.setattr(halves, "MIN_QUERIES", 8)
-    monkeypatch.setattr(halves, "MIN_ROWS", 8)  # proximity and the continuous check too
+    monkeypatch.setattr(self_collision, "search_in_parts", counted)
+    monkeypatch.setattr(parts, "MIN_QUERIES", 8)
+    monkeypatch.setattr(parts, "MIN_ROWS", 8)  # proximity and the continuous check too
     two = _run(model, True, 24)
     assert sum(split) >= 10  # whole and partial searches, split in two
     assert all(a.tobytes() == b.tobytes() for a, b in zip(one, two, strict=True))

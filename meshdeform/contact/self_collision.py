@@ -45,7 +45,7 @@ import numpy as np
 
 from meshdeform.contact import self_kernels
 from meshdeform.contact.broad_phase import grid_for, strays, swept_boxes
-from meshdeform.contact.halves import by_rows, in_halves, search_threads
+from meshdeform.contact.parts import by_rows, search_in_parts, search_threads
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 
@@ -183,7 +183,7 @@ class SelfCollision(Constraint, Remappable):
         self._substep = 0  # substeps projected so far: the age of the kept pairs
         self._margin = 0.0
         self._capacity = (0, 0)
-        self._threads = 1  # threads a candidate search may use (`halves.search_threads`)
+        self._threads = 1  # threads a candidate search may use (`parts.search_threads`)
         #: the grid cells (1/m) of the last whole search, for the VF and the EE grid
         self._cells: tuple[float, float] | None = None
         #: the thickness kept on the model last prepared (`contact_thickness`), metres
@@ -276,20 +276,20 @@ class SelfCollision(Constraint, Remappable):
         vf_grid = grid_for(qlo, qhi, tlo, thi, inv_cell=vf_cell)
         threads = self._threads
         found_vf = [
-            in_halves(
+            search_in_parts(
                 self_kernels.vf_candidates, (carried, rest), fresh,
                 (np.zeros(x0.shape[0], dtype=np.bool_), qlo, qhi, tlo, thi, False, *vf_grid, *shared),
                 capacity[0], threads,
             )
         ]  # fmt: skip
         if not everyone:
-            found_vf.append(in_halves(
+            found_vf.append(search_in_parts(
                 self_kernels.vf_candidates, (carried, rest), np.flatnonzero(triangle_fresh),
                 (stale, qlo, qhi, tlo, thi, True, *grid_for(tlo, thi, qlo, qhi, inv_cell=vf_grid[0]), *shared),
                 0, threads,
             ))  # fmt: skip
         ee_grid = grid_for(elo, ehi, elo, ehi, inv_cell=ee_cell)
-        found_ee = in_halves(
+        found_ee = search_in_parts(
             self_kernels.ee_candidates, (carried, rest), np.flatnonzero(edge_fresh),
             (edge_fresh, elo, ehi, *ee_grid, topology.edges, *shared[1:], bool(edge_fresh.all())),
             capacity[1], threads,

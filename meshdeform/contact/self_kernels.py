@@ -383,7 +383,7 @@ def proximity_sides(
     lower bound at x0, `vf_lower`/`ee_lower` as `colliding_pairs` keeps them, less the pair's
     relative travel to x); the unit direction from the triangle to the vertex, or from the
     second edge to the first, at x0. Returns active_vf (P,) bool, side_vf (P, 3), active_ee
-    (Q,), side_ee (Q, 3) (sides of inactive pairs undefined). Row by row: `halves.by_rows`."""
+    (Q,), side_ee (Q, 3) (sides of inactive pairs undefined). Row by row: `parts.by_rows`."""
     ids = np.empty(4, dtype=np.int64)
     active_vf = np.zeros(vf.shape[0], dtype=np.bool_)
     side_vf = np.empty((vf.shape[0], 3))
@@ -621,7 +621,7 @@ def colliding_pairs(
     """Masks (P,), (Q,) of the VF and EE pairs that may come into contact moving linearly from x0
     to x1 (conservative: no pair that touches is missed). vf_lower (P,), ee_lower (Q,): lower
     bounds (m) of the pairs' distances at x0, replaced in place by lower bounds at x1 (so the
-    next substep skips the pairs that stay clear). Row by row: `halves.by_rows`."""
+    next substep skips the pairs that stay clear). Row by row: `parts.by_rows`."""
     buf = np.empty((4, 3))
     ids = np.empty(4, dtype=np.int64)
     hit_vf = np.zeros(vf.shape[0], dtype=np.bool_)

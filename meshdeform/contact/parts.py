@@ -1,6 +1,6 @@
 """Self-collision's per-pair and per-query kernels in parts, on two threads at once.
 
-- `in_halves`: the searches of `self_kernels` (`vf_candidates`, `ee_candidates`) report their
+- `search_in_parts`: the searches of `self_kernels` (`vf_candidates`, `ee_candidates`) report their
   pairs query by query, so the pairs of the first part of the queries followed by those of the
   next parts are the pairs of one call over all of them, in the same order.
 - `by_rows`: a kernel whose work is row by row over pair lists (`proximity_sides`,
@@ -9,8 +9,7 @@
 So a split never changes a result, whatever the thread count or which thread ran which part. The
 kernels are compiled with `nogil` (`solvers.jit.JIT`): the calling thread and a pool thread take
 the parts in turn, `PARTS` of them (more parts than threads, so that a thread whose parts are
-quick takes more: the queries of a pile are far from alike; two halves left one thread waiting
-a tenth of a search for the other).
+quick takes more: the queries of a pile are far from alike).
 
 Splitting pays only where a kernel is long next to handing work to a thread (tens of
 microseconds): `MIN_QUERIES` queries or `MIN_ROWS` rows or more; and only with two Numba threads
@@ -83,7 +82,7 @@ def _bounds(length: int, parts: int) -> list[tuple[int, int]]:
     return list(itertools.pairwise(cuts))
 
 
-def in_halves(
+def search_in_parts(
     search: Callable[..., tuple[np.ndarray, ...]],
     before: tuple,
     queries: np.ndarray,
