@@ -264,8 +264,9 @@ class SelfCollision(Constraint, Remappable):
         qlo, qhi = swept_boxes(first, last, vertices, reach)
         tlo, thi = swept_boxes(first, last, topology.triangles, 0.0)
         elo, ehi = swept_boxes(first, last, topology.edges, 0.5 * reach)
-        triangle_fresh = stale[topology.triangles].any(axis=1)
-        edge_fresh = stale[topology.edges].any(axis=1)
+        corners, ends = stale[topology.triangles], stale[topology.edges]  # (or-ed by column: any(axis=1) is 5x slower)
+        triangle_fresh = corners[:, 0] | corners[:, 1] | corners[:, 2]
+        edge_fresh = ends[:, 0] | ends[:, 1]
         ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
         shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, LIST_SUBSTEPS, reach)
@@ -443,7 +444,8 @@ def _settle(state: State, before: np.ndarray, dt: float) -> None:
     """Velocities follow the positions contact moved since `before` (position-based dynamics:
     v += dx / dt), and previous positions follow the velocities, as the colliders keep them."""
     x = state.positions
-    moved = np.flatnonzero(np.any(x != before, axis=1))
+    changed = x != before
+    moved = np.flatnonzero(changed[:, 0] | changed[:, 1] | changed[:, 2])
     if moved.size and dt > 0:
         state.velocities[moved] += (x[moved] - before[moved]) / dt
         state.previous[moved] = x[moved] - state.velocities[moved] * dt
