@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -38,16 +39,18 @@ MIN_ROWS = 2048
 PARTS = 8
 
 _pool: ThreadPoolExecutor | None = None
+_pool_pid = 0  # the process that made `_pool`: a forked child has none of its threads
 _pool_lock = threading.Lock()
 
 
 def _worker() -> ThreadPoolExecutor:
-    """The pool whose thread takes parts beside the caller (made on first use; shared by every
-    split, so two jobs in threads of one process each get a pool thread)."""
-    global _pool
+    """The pool whose thread takes parts beside the caller (made on first use in each process;
+    shared by every split, so two jobs in threads of one process each get a pool thread)."""
+    global _pool, _pool_pid
     with _pool_lock:
-        if _pool is None:
+        if _pool is None or _pool_pid != os.getpid():
             _pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="meshdeform-search")
+            _pool_pid = os.getpid()
         return _pool
 
 

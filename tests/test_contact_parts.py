@@ -1,0 +1,56 @@
+"""`meshdeform.contact.parts`: kernels split in parts over two threads give one call's result,
+and keep working in a process forked after the split's pool thread was made."""
+
+from __future__ import annotations
+
+import multiprocessing
+import sys
+
+import numpy as np
+import pytest
+
+from meshdeform.contact import parts
+
+
+def _doubled(values: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A row-by-row kernel stand-in over two lists, one updated in place."""
+    rows += 1
+    return 2 * values, rows.copy()
+
+
+def test_parts_joined_in_order_are_one_call() -> None:
+    """Row-by-row kernels split in parts give one call's rows; in-place updates reach the caller.
+    (A search's pairs are reported query by query: `search_in_parts` joins whole parts, which is
+    one call only for searches whose output is ordered by query: tested on the real searches in
+    tests/test_self_collision.py.)"""
+    queries = np.arange(3000)
+    one = parts.search_in_parts(lambda q, c: (q * q,), (), queries, (), 0, 1)
+    split = parts.search_in_parts(lambda q, c: (q * q,), (), queries, (), 0, 2)
+    assert np.array_equal(one[0], split[0])
+    values, rows = np.arange(5000.0), np.zeros(2500, dtype=np.int64)
+    doubled, updated = parts.by_rows(_doubled, ((values,), (rows,)), 2)
+    assert np.array_equal(doubled, 2 * np.arange(5000.0)) and np.array_equal(updated, np.ones(2500))
+    assert np.all(rows == 1)  # the parts were views of the caller's array
+
+
+def _child(connection) -> None:
+    result = parts.search_in_parts(lambda q, c: (q * q,), (), np.arange(4000), (), 0, 2)[0]
+    connection.send(int(result.sum()))
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="fork is the default start method on Linux only")
+def test_a_forked_process_gets_a_pool_of_its_own() -> None:
+    """A library user forking after a split ran (multiprocessing's default on Linux) must not
+    inherit the parent's pool: its thread does not exist in the child, and a part handed to it
+    would never run (the child hung before)."""
+    parts.search_in_parts(lambda q, c: (q * q,), (), np.arange(4000), (), 0, 2)  # the parent's pool
+    context = multiprocessing.get_context("fork")
+    receive, send = context.Pipe(duplex=False)
+    child = context.Process(target=_child, args=(send,))
+    child.start()
+    child.join(30)
+    hung = child.is_alive()
+    if hung:
+        child.kill()
+    assert not hung, "the forked process hung on the parent's pool"
+    assert receive.recv() == int((np.arange(4000) ** 2).sum())
