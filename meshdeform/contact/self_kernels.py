@@ -129,12 +129,13 @@ def _ee_far(x: np.ndarray, p0: int, p1: int, q0: int, q1: int, reach: float) -> 
 
 
 @nb.njit(**JIT)
-def _apart(motion: np.ndarray, p: int, q: int) -> float:
-    """|motion[p] - motion[q]|: how fast (m per substep) points p and q move relative to each other."""
+def _apart2(motion: np.ndarray, p: int, q: int) -> float:
+    """|motion[p] - motion[q]|^2: how fast (m per substep, squared) points p and q move relative to
+    each other (callers take the root of the largest: the same bits as the largest root)."""
     dx = motion[p, 0] - motion[q, 0]
     dy = motion[p, 1] - motion[q, 1]
     dz = motion[p, 2] - motion[q, 2]
-    return np.sqrt(dx * dx + dy * dy + dz * dz)
+    return dx * dx + dy * dy + dz * dz
 
 
 @nb.njit(**JIT)
@@ -168,7 +169,7 @@ def _keep_vf(
     a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
     if v in (a, b, c):
         return pairs, near, rest_gap, count
-    closing = max(_apart(motion, v, a), max(_apart(motion, v, b), _apart(motion, v, c)))
+    closing = np.sqrt(max(_apart2(motion, v, a), max(_apart2(motion, v, b), _apart2(motion, v, c))))
     limit = reach + span * closing
     if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
         return pairs, near, rest_gap, count
@@ -251,8 +252,11 @@ def ee_candidates(
             q0, q1 = edges[f, 0], edges[f, 1]
             if p0 in (q0, q1) or p1 in (q0, q1):
                 continue
-            closing = max(
-                max(_apart(motion, p0, q0), _apart(motion, p0, q1)), max(_apart(motion, p1, q0), _apart(motion, p1, q1))
+            closing = np.sqrt(
+                max(
+                    max(_apart2(motion, p0, q0), _apart2(motion, p0, q1)),
+                    max(_apart2(motion, p1, q0), _apart2(motion, p1, q1)),
+                )
             )
             limit = reach + span * closing
             if _ee_far(x, p0, p1, q0, q1, limit) or _ee_gap(x, p0, p1, q0, q1)[0] > limit:
