@@ -4,7 +4,6 @@ and keep working in a process forked after the split's pool thread was made."""
 from __future__ import annotations
 
 import multiprocessing
-import sys
 
 import numpy as np
 import pytest
@@ -19,10 +18,9 @@ def _doubled(values: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def test_parts_joined_in_order_are_one_call() -> None:
-    """Row-by-row kernels split in parts give one call's rows; in-place updates reach the caller.
-    (A search's pairs are reported query by query: `search_in_parts` joins whole parts, which is
-    one call only for searches whose output is ordered by query: tested on the real searches in
-    tests/test_self_collision.py.)"""
+    """A per-query search and a row-by-row kernel split in parts give one call's arrays, and the
+    row kernel's in-place updates reach the caller's array (the real searches and kernels:
+    tests/test_self_collision.py::test_searches_split_over_two_threads_give_the_same_bytes)."""
     queries = np.arange(3000)
     one = parts.search_in_parts(lambda q, c: (q * q,), (), queries, (), 0, 1)
     split = parts.search_in_parts(lambda q, c: (q * q,), (), queries, (), 0, 2)
@@ -38,7 +36,7 @@ def _child(connection) -> None:
     connection.send(int(result.sum()))
 
 
-@pytest.mark.skipif(sys.platform != "linux", reason="fork is the default start method on Linux only")
+@pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods(), reason="no fork on this platform")
 def test_a_forked_process_gets_a_pool_of_its_own() -> None:
     """A library user forking after a split ran (multiprocessing's default on Linux) must not
     inherit the parent's pool: its thread does not exist in the child, and a part handed to it

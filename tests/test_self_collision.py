@@ -162,8 +162,8 @@ def test_runs_are_byte_identical() -> None:
 
 
 def test_searches_split_over_two_threads_give_the_same_bytes(monkeypatch) -> None:
-    """The candidate searches, the proximity step's sides and the continuous check run in two
-    parts on two threads where they are long (`contact.parts`): the run is byte for byte the
+    """The candidate searches, the proximity step's sides and the continuous check run in parts
+    on two threads where they are long (`contact.parts`): the run is byte for byte the
     one-thread run, and the splits did run."""
     import meshdeform.contact.parts as parts
     import meshdeform.contact.self_collision as self_collision
@@ -183,7 +183,7 @@ def test_searches_split_over_two_threads_give_the_same_bytes(monkeypatch) -> Non
     monkeypatch.setattr(parts, "MIN_QUERIES", 8)
     monkeypatch.setattr(parts, "MIN_ROWS", 8)  # proximity and the continuous check too
     two = _run(model, True, 24)
-    assert sum(split) >= 10  # whole and partial searches, split in two
+    assert sum(split) >= 10  # whole and partial searches, split in parts
     assert all(a.tobytes() == b.tobytes() for a, b in zip(one, two, strict=True))
 
 
