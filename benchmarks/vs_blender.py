@@ -244,7 +244,7 @@ def meshdeform_inputs(n: int, scene: str, stretch_modulus: float | None = None):
 def run_meshdeform(spec: str, n: int, frames: int, scene: str) -> Run:
     """The same scene with meshdeform at the setting `spec` (see `parse_config`; `stretch_modulus`
     is the material's, every other key a field of the solver's options)."""
-    from meshdeform.simulate import Scene, Settings, simulate
+    from meshdeform.simulate import Scene, Settings, simulate, steps_for
     from meshdeform.solvers.registry import solver_class
     from meshdeform.topology import SpringKind
 
@@ -256,7 +256,8 @@ def run_meshdeform(spec: str, n: int, frames: int, scene: str) -> Run:
         raise SystemExit(f"{spec}: {solver} has no option {sorted(unknown)}")
     options = replace(defaults, **option_changes)
     modulus = changes.get("stretch_modulus")
-    settings = Settings(solver=solver, fps=24, frames=frames, substeps=substeps, options=options)
+    # the steps a run of this scene takes (a solver's calm steps where both counts are its defaults)
+    settings = steps_for(Settings(solver=solver, fps=24, frames=frames, substeps=substeps, options=options), Scene())
     # compile / load the kernels on a model of its own, so the timed run prepares its model afresh
     list(simulate(meshdeform_inputs(n, scene, modulus), Scene(), replace(settings, frames=1)))
     model = meshdeform_inputs(n, scene, modulus)

@@ -62,7 +62,7 @@ force, and the springs broken, vertices added and connected pieces.
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -88,7 +88,9 @@ class Settings:
     substeps: solver steps per frame; None (the default) takes the solver's `default_substeps`
         and is resolved on construction, so `settings.substeps` is always an int afterwards.
         Iterations likewise come from `options.iterations` or the solver's default (see
-        `Settings.iterations`).
+        `Settings.iterations`). Where both are the defaults and the scene lets the cloth touch
+        nothing, `steps_for` gives the solver's calm steps instead (`Solver.calm_steps`):
+        `simulate` runs with what it returns.
     options: the solver's own options (its `Solver.options_class`); None (the default) takes
         that class's defaults, resolved on construction like substeps. Options of another
         solver's class raise MeshdeformError.
@@ -105,9 +107,12 @@ class Settings:
     options: SolverOptions | None = None
     rest_speed: float = 1e-4
     subframes: int = 1
+    #: substeps were left to the solver's default (set on construction)
+    default_substeps: bool = field(init=False, default=False)
 
     def __post_init__(self) -> None:
         cls = solver_class(self.solver)
+        object.__setattr__(self, "default_substeps", self.substeps is None)
         if self.substeps is None:
             object.__setattr__(self, "substeps", int(cls.default_substeps))
         object.__setattr__(self, "options", solver_options(cls, self.options))
@@ -295,6 +300,24 @@ def _speed_hint(hint: str) -> str:
     )
 
 
+def calm(scene: Scene) -> bool:
+    """Nothing in the scene touches the cloth: no constraint (a collider, an attachment, ...), no
+    self-collision, no tearing; forces, impacts and pin animation may act."""
+    return not scene.constraints and scene.self_collision is None and scene.tearing is None
+
+
+def steps_for(settings: Settings, scene: Scene) -> Settings:
+    """The settings a run of the scene uses: the solver's calm steps (`Solver.calm_steps`) where the
+    scene is `calm` and neither the substeps nor the iterations were given, else `settings` itself."""
+    steps = solver_class(settings.solver).calm_steps
+    if steps is None or not settings.default_substeps or settings.options.iterations is not None or not calm(scene):
+        return settings
+    substeps, iterations = steps
+    if int(settings.subframes) > substeps:  # the in-between states kept need as many steps
+        return settings
+    return replace(settings, substeps=substeps, options=replace(settings.options, iterations=iterations))
+
+
 def simulate(
     model: SpringModel,
     scene: Scene | None = None,
@@ -304,7 +327,7 @@ def simulate(
 ) -> Iterator[Frame]:
     """Yield `settings.frames` frames of the model moving under the scene, starting at rest."""
     scene = scene or Scene()
-    settings = settings or Settings()
+    settings = steps_for(settings or Settings(), scene)
     solver = solver or make_solver(settings.solver, settings.options)
     name, hint = solver.name, solver.hint
     state = state or State.at_rest(model)

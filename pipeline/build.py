@@ -25,7 +25,7 @@ from meshdeform.scene.effects import NearestPinTethers, Plasticity, Pressure
 from meshdeform.scene.forces import Impact, Wind, ray_hit
 from meshdeform.scene.pins import HardPinMotion, Keyframes, Motion, SoftPins, pivot_of
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
-from meshdeform.simulate import Settings
+from meshdeform.simulate import Settings, steps_for
 from meshdeform.solvers.options import SweepOptions
 from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
 from meshdeform.topology import SpringKind, Springs, Welding, boundary_edge_count, build_springs
@@ -468,7 +468,7 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     return BuiltSimulation(
         model=model,
         scene=scene,
-        settings=settings,
+        settings=steps_for(settings, scene),
         selections=dict(res.counts),
         warnings=tuple(warnings),
         start_frame=sim.start_frame,

@@ -14,11 +14,13 @@ from meshdeform.errors import SimulationDiverged
 from meshdeform.material import KindMaterial, Material
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
-from meshdeform.simulate import Scene, Settings, simulate
+from meshdeform.scene.colliders import Collider, Plane
+from meshdeform.simulate import Scene, Settings, simulate, steps_for
 from meshdeform.solvers import (
     SOLVERS,
     AnchorOptions,
     Control,
+    ImplicitOptions,
     SpringsOptions,
     XPBDOptions,
     make_solver,
@@ -276,6 +278,45 @@ def test_implicit_swinging_cloth_comes_to_rest() -> None:
     assert min(f.welded_positions[:, 1].min() for f in frames) < -0.9  # it did fall and swing down
     assert frames[-1].max_speed < 1e-4
     assert frames[-1].rest_frame is not None
+
+
+def _falling_sheet(solver: str, **options: object) -> np.ndarray:
+    """Positions (F, V, 3) of a 16 x 16 sheet lying flat, two corners of one edge pinned, falling
+    and swinging down for 1.5 s, at the solver's defaults but for `options`."""
+    model = grid_cloth(16, pins=TOP_CORNERS, plane="xz").model
+    settings = Settings(solver=solver, frames=36, options=solver_class(solver).options_class(**options))
+    return np.array([f.welded_positions for f in simulate(model, Scene(), settings)])
+
+
+def test_implicit_calm_steps_follow_a_falling_sheet() -> None:
+    """With nothing to touch, implicit takes 2 steps of 4 iterations a frame (its calm steps), which
+    its coarse-space Newton steps keep on the path of `springs` (explicit Hooke springs in short
+    stable steps: a different integrator); without the coarse space the same steps turn the sheet
+    down like a strong damping (0.46 m behind, measured), which is what the coarse space is for."""
+    reference = _falling_sheet("springs")
+    calm = _falling_sheet("implicit")
+    lagging = _falling_sheet("implicit", coarse=0)
+    assert np.linalg.norm(calm - reference, axis=2).max() < 0.2
+    assert np.linalg.norm(lagging - reference, axis=2).max() > 0.3
+    # half a second in, the sheet hangs about 0.9 m down on both, where the lagging one is near 0.7
+    assert abs(calm[11][:, 1].min() - reference[11][:, 1].min()) < 0.03
+
+
+def test_calm_steps_only_where_nothing_touches_the_cloth() -> None:
+    """`steps_for` gives implicit 2 x 4 where the scene is calm and both counts are the defaults; a
+    collider, given substeps or iterations, and more in-between states than 2 keep 8 x 3."""
+    calm = steps_for(Settings(solver="implicit"), Scene())
+    assert (calm.substeps, calm.iterations) == (2, 4)
+    assert steps_for(calm, Scene()) == calm
+    ground = Collider(Plane((0.0, -2.0, 0.0), (0.0, 1.0, 0.0)))
+    touching = steps_for(Settings(solver="implicit"), Scene(constraints=[ground]))
+    assert (touching.substeps, touching.iterations) == (8, 3)
+    given = steps_for(Settings(solver="implicit", substeps=8), Scene())
+    assert (given.substeps, given.iterations) == (8, 3)
+    given = steps_for(Settings(solver="implicit", options=ImplicitOptions(iterations=3)), Scene())
+    assert (given.substeps, given.iterations) == (8, 3)
+    assert steps_for(Settings(solver="implicit", subframes=4), Scene()).substeps == 8
+    assert steps_for(Settings(solver="xpbd"), Scene()).substeps == 22  # no calm steps of its own
 
 
 class PoisonAfter:

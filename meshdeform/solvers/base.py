@@ -44,6 +44,11 @@ class Solver(ABC):
     hint: what to try when a run with this solver diverges (quoted by `simulate`'s guard).
     default_substeps: substeps per frame when `Settings.substeps` is None.
     default_iterations: iterations when `options.iterations` is None (0: the solver has none).
+    calm_steps: (substeps, iterations) per frame that replace both defaults where nothing touches
+        the cloth (no constraint such as a collider, no self-collision, no tearing) and neither
+        was given (`meshdeform.simulate.steps_for`); None: the defaults everywhere. A solver
+        whose defaults are set by contact (implicit: a long step that stops part of the cloth
+        needs more iterations than a few give) runs a calm scene in fewer, longer steps.
     options_class: the options it takes (`meshdeform.solvers.options`).
 
     `state.time` is the caller's: `simulate` sets it after every `step` and after `advance`.
@@ -54,6 +59,7 @@ class Solver(ABC):
     hint: ClassVar[str]
     default_substeps: ClassVar[int]
     default_iterations: ClassVar[int] = 0
+    calm_steps: ClassVar[tuple[int, int] | None] = None
     options_class: ClassVar[type[SolverOptions]]
 
     def __init__(self, options: SolverOptions) -> None:

@@ -103,10 +103,15 @@ class ImplicitOptions(SolverOptions):
         springs act through the energy and its gradient and L-BFGS's history supplies their
         curvature; "all" every spring, as the local/global iterations need (their matrix must be
         exact: "local_global" always uses every spring).
+    coarse: lattice nodes along the longest side of the cloth of the coarse space whose Newton
+        steps precede each step's L-BFGS iterations (`meshdeform.solvers.implicit.coarse`): they
+        carry the smooth turning motions (a fall about a pinned edge, a swing) that the
+        prefactored matrix slows like a strong damping. Values below 2 switch it off; "lbfgs" only.
     """
 
     method: Literal["lbfgs", "local_global"] = "lbfgs"
     preconditioner: Literal["in_plane", "all"] = "in_plane"
+    coarse: Annotated[int, Ge(0)] = 5
 
 
 @dataclass(frozen=True)

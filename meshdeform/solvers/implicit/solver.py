@@ -53,10 +53,16 @@ with its full stiffness in every direction, so a swing or a fold (which turns sp
 than stretching them) moves each iteration only by about m / (b^2 k) of the way, and the rest
 of the way is lost like motion to a strong damping (a swinging cloth creeps towards rest).
 Shorter steps raise that fraction as 1 / dt^2 where more iterations add to it only linearly;
-L-BFGS recovers most of it. The defaults are 8 steps a frame of 3 iterations each: 4 steps
-settle and rest as well, but under collider contact a step that stops part of the cloth is too
-long for a few iterations to resolve (a sheet draped over a sphere flickered between 1.05 and
-1.7 stretch at 4 steps a frame; docs/performance.md has the figures).
+L-BFGS recovers most of it, and the coarse space (`coarse`, option `coarse`) more: before the
+L-BFGS iterations of a step without contact, up to `COARSE_STEPS` Newton steps move the cloth
+by smooth lattice fields with the springs' true stiffness, soft across a spring, so a turn is
+not lost. The defaults are 8 steps a frame of 3 iterations each: 4 steps settle and rest as
+well, but under collider contact a step that stops part of the cloth is too long for a few
+iterations to resolve (a sheet draped over a sphere flickered between 1.05 and 1.7 stretch at 4
+steps a frame; docs/performance.md has the figures). Where nothing touches the cloth (no
+constraint, self-collision or tearing) and neither count is given, 2 steps of 4 iterations run
+instead (`calm_steps`, `meshdeform.simulate.steps_for`): with the coarse steps they follow a
+falling, swinging sheet as closely as 8 x 3 without them did, at twice the speed.
 
 Constraints (colliders, self-collision, tethers) move vertices after the step; BDF2 would
 extrapolate those vertices' former path through the correction (a landed vertex still falling
@@ -81,7 +87,7 @@ from scipy.sparse import coo_matrix
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
-from meshdeform.solvers.implicit import kernels
+from meshdeform.solvers.implicit import coarse, kernels
 from meshdeform.solvers.options import ImplicitOptions
 from meshdeform.topology import SpringKind
 
@@ -95,6 +101,7 @@ class ImplicitSolver(ModelCache, Solver):
     options_class: ClassVar[type[ImplicitOptions]] = ImplicitOptions
     default_substeps: ClassVar[int] = 8
     default_iterations: ClassVar[int] = 3
+    calm_steps: ClassVar[tuple[int, int] | None] = (2, 4)
 
     def __init__(self, options: ImplicitOptions) -> None:
         super().__init__(options)
@@ -143,6 +150,12 @@ class ImplicitSolver(ModelCache, Solver):
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
             self.rho = np.zeros(HISTORY)
         self.factor: cholespy.CholeskySolverD | None = None
+        self.coarse = None
+        if self.options.method == "lbfgs":
+            self.coarse = coarse.coarse_space(
+                np.asarray(model.rest_positions, dtype=np.float64)[self.free_vertices], self.free, self.a, self.b,
+                kinds != SpringKind.BENDING, int(self.options.coarse),
+            )
         edges = rest[kinds == SpringKind.STRUCTURAL]
         edges = edges if edges.size else rest
         #: the longest move an L-BFGS iteration may give a vertex (m): a fraction of the median edge
@@ -186,6 +199,8 @@ class ImplicitSolver(ModelCache, Solver):
             )
         self.beta2 = beta2
         self._dt = dt
+        if self.coarse is not None:
+            self.coarse_inertia = self.coarse.inertia_matrix(self.inertia)
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         if not self._prepared(model):
@@ -264,6 +279,42 @@ class ImplicitSolver(ModelCache, Solver):
             self.free_vertices, self.inertia, y, grad,
         ))
 
+    def _coarse_correction(self, x: np.ndarray, y: np.ndarray) -> float:
+        """Up to `COARSE_STEPS` Newton steps on the coarse space's displacements (`coarse` module
+        docstring) from x, in place, each with an Armijo line search on the step's energy; its
+        matrix Z^T H Z is assembled once, at x. Returns the energy at the x it leaves, whose
+        gradient is in `self.grad` (the L-BFGS iterations start from both)."""
+        space = self.coarse
+        fv = self.free_vertices
+        matrix = self.coarse_inertia.copy()
+        coarse.spring_hessian(
+            x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, space.springs,
+            space.spring_nodes, space.spring_coefficients, space.group_start, matrix,
+        )
+        gradient = np.empty(3 * space.count)
+        energy = self._energy(x, y, self.grad)
+        for _ in range(COARSE_STEPS):
+            coarse.restrict(self.grad, space.vertex_nodes, space.vertex_weights, gradient)
+            move = coarse.solve_spd(matrix.copy(), -gradient)
+            coarse.prolong(move, space.vertex_nodes, space.vertex_weights, self.direction)
+            slope = kernels.dot(self.grad, self.direction)
+            if not slope < 0.0:
+                break
+            self.base[:] = x[fv]
+            step = 1.0
+            for _ in range(LINE_SEARCH_HALVINGS):
+                kernels.place(x, fv, self.base, self.direction, step)
+                trial = self._energy(x, y, self.trial_grad)
+                if trial <= energy + ARMIJO * step * slope:
+                    break
+                step *= 0.5
+            else:  # no decrease along the coarse direction: x stays where it was
+                kernels.place(x, fv, self.base, self.direction, 0.0)
+                break
+            energy = trial
+            self.grad, self.trial_grad = self.trial_grad, self.grad
+        return energy
+
     def _quasi_newton(self, x: np.ndarray, y: np.ndarray) -> None:
         """L-BFGS on the step's energy from x (= y on the free vertices), in place.
 
@@ -275,8 +326,11 @@ class ImplicitSolver(ModelCache, Solver):
         step 1, halved until the energy falls by the Armijo condition. The history is per step.
         """
         fv = self.free_vertices
+        if self.coarse is not None and not self.contact_rows.shape[0]:
+            energy = self._coarse_correction(x, y)
+        else:
+            energy = self._energy(x, y, self.grad)
         grad, trial_grad, direction, base = self.grad, self.trial_grad, self.direction, self.base
-        energy = self._energy(x, y, grad)
         trust = self.trust if self.contact_rows.shape[0] else np.inf  # only a step with contact is bounded
         slots: list[int] = []  # history slots, newest first
         alpha = np.zeros(HISTORY)
@@ -343,6 +397,8 @@ class ImplicitSolver(ModelCache, Solver):
 #: vertex across it in one step (29 m/s on the fold scene, then divergence); steps without
 #: contact are not bounded (at 256 x 256 the bound slowed a hanging cloth's convergence)
 TRUST_FRACTION = 0.25
+#: Newton steps on the coarse space before each step's L-BFGS iterations (`_coarse_correction`)
+COARSE_STEPS = 3
 #: L-BFGS history length (Liu, Bouaziz, Kavan 2017 use 5)
 HISTORY = 5
 #: sufficient decrease of the line search: the energy must fall by this fraction of the slope

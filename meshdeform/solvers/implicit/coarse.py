@@ -1,0 +1,346 @@
+"""A coarse space for the implicit solver: Newton steps on the displacements of a lattice.
+
+Why: the projective-dynamics matrix that preconditions `implicit`'s L-BFGS holds every spring at
+full stiffness in every direction, so where a cloth turns rather than stretches (a sheet falling
+about its pinned edge, a swing) each iteration moves it only a fraction m / (b^2 k) of the way,
+and a few iterations of a long step lose the rest like a strong damping: a 64 x 64 sheet falling
+from horizontal at one step a frame lagged up to 1 m behind the same solver at 32 steps a frame.
+Those turning motions are smooth over the cloth, so a handful of smooth displacement fields span
+them. Before the L-BFGS iterations, a few Newton steps are taken in that span: the step's energy
+E(x + Z c) is minimised over c, with the true spring Hessian (each spring's stiffness along it,
+and across it only as far as it is stretched: k (1 - L / l), which is what makes turning cheap)
+projected onto the span, Z^T H Z, and an Armijo line search on the full energy, so a step never
+raises the energy. This is the coarse correction of two-level (multigrid and domain
+decomposition) methods, here on the nonlinear energy; the fine iterations (L-BFGS with the
+prefactored matrix) then resolve what is local.
+
+The span: a lattice over the rest positions of the free vertices, `nodes` nodes along the
+longest side of their bounding box and as many along the others as keep its cells about cubic
+(one along a side with no extent: a flat sheet has a flat lattice); each free vertex moves with
+the trilinear interpolation of the displacements of its cell's corners. Nodes no free vertex
+depends on are dropped. The inertia part of Z^T H Z is fixed for a step size
+(`CoarseSpace.inertia_matrix`); the springs' part is assembled from the springs that are not
+bending springs (soft next to the in-plane ones, a third of the springs), at the positions where
+the correction starts, once a step. Everything runs serially in a fixed order (the dense solve
+too: `solve_spd`, not LAPACK, whose threads may sum in another order), so runs stay
+byte-identical on any thread count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from meshdeform.solvers.jit import JIT
+
+#: trilinear weights per vertex: the eight corners of its lattice cell (fewer are used on a flat lattice)
+CORNERS = 8
+
+
+@dataclass(frozen=True)
+class CoarseSpace:
+    """The lattice span of one model's free vertices (module docstring).
+
+    vertex_nodes, vertex_weights: (F, 8) lattice node (0 .. count - 1, -1 for none) and trilinear
+        weight of each free vertex's cell corners; the weights of a vertex sum to 1.
+    count: lattice nodes kept (C); the coarse unknowns are their (C, 3) displacements (m).
+    springs: (S',) indices into the solver's spring arrays of the springs assembled into Z^T H Z;
+    spring_nodes, spring_coefficients: (S', 16) the nodes (ascending) and coefficients of z_a - z_b
+        for each (a pinned end contributes nothing), -1 / 0 past the last.
+    group_start: (G + 1,) the springs are in groups with the same nodes; group g is rows
+        group_start[g] .. group_start[g + 1] - 1.
+    """
+
+    vertex_nodes: np.ndarray
+    vertex_weights: np.ndarray
+    count: int
+    springs: np.ndarray
+    spring_nodes: np.ndarray
+    spring_coefficients: np.ndarray
+    group_start: np.ndarray
+
+    def inertia_matrix(self, inertia: np.ndarray) -> np.ndarray:
+        """Z^T diag(inertia) Z (3C, 3C) for the free vertices' inertia (F,) (kg / s^2)."""
+        out = np.zeros((3 * self.count, 3 * self.count))
+        _inertia_matrix(self.vertex_nodes, self.vertex_weights, inertia, out)
+        return out
+
+
+def coarse_space(
+    rest_free: np.ndarray, free: np.ndarray, a: np.ndarray, b: np.ndarray, assembled: np.ndarray, nodes: int
+) -> CoarseSpace | None:
+    """The lattice span for free vertices at rest positions rest_free (F, 3) (free: (V,) vertex ->
+    free row or -1; a, b: (S,) spring ends; assembled: (S,) bool, the springs Z^T H Z sums),
+    `nodes` lattice nodes along the longest side; None where there is nothing to span (no free
+    vertex, or fewer than 2 nodes asked for)."""
+    if nodes < 2 or rest_free.shape[0] == 0:
+        return None
+    low = rest_free.min(axis=0)
+    extent = rest_free.max(axis=0) - low
+    longest = float(extent.max())
+    if not longest > 0.0:
+        return None
+    cell = longest / (nodes - 1)
+    dims = np.array([max(1, int(np.ceil(e / cell - 1e-9)) + 1) if e > 1e-9 * longest else 1 for e in extent])
+    base = np.zeros(rest_free.shape, dtype=np.int64)
+    frac = np.zeros(rest_free.shape)
+    for d in range(3):
+        if dims[d] > 1:
+            t = (rest_free[:, d] - low[d]) / cell
+            base[:, d] = np.clip(np.floor(t).astype(np.int64), 0, dims[d] - 2)
+            frac[:, d] = np.clip(t - base[:, d], 0.0, 1.0)
+    vertex_nodes = np.full((rest_free.shape[0], CORNERS), -1, dtype=np.int64)
+    vertex_weights = np.zeros((rest_free.shape[0], CORNERS))
+    corner = 0
+    for cx in (0, 1):
+        for cy in (0, 1):
+            for cz in (0, 1):
+                offset = (cx, cy, cz)
+                if any(offset[d] and dims[d] == 1 for d in range(3)):
+                    continue
+                weight = np.ones(rest_free.shape[0])
+                for d in range(3):
+                    if dims[d] > 1:
+                        weight *= frac[:, d] if offset[d] else 1.0 - frac[:, d]
+                node = ((base[:, 0] + cx) * dims[1] + (base[:, 1] + cy)) * dims[2] + (base[:, 2] + cz)
+                vertex_nodes[:, corner] = np.where(weight > 0.0, node, -1)
+                vertex_weights[:, corner] = np.where(weight > 0.0, weight, 0.0)
+                corner += 1
+    used = np.unique(vertex_nodes[vertex_nodes >= 0])
+    renumber = np.full(int(np.prod(dims)), -1, dtype=np.int64)
+    renumber[used] = np.arange(used.shape[0])
+    vertex_nodes = np.where(vertex_nodes >= 0, renumber[np.maximum(vertex_nodes, 0)], -1)
+    springs = np.flatnonzero(assembled & ((free[a] >= 0) | (free[b] >= 0))).astype(np.int64)
+    spring_nodes, spring_coefficients = _spring_stencils(springs, a, b, free, vertex_nodes, vertex_weights)
+    # springs with the same nodes (both ends in one lattice cell: most of them) side by side, so
+    # that `spring_hessian` sums a group in a small block of its own and adds it to the matrix once
+    order = np.lexsort(spring_nodes.T[::-1])
+    springs, spring_nodes, spring_coefficients = springs[order], spring_nodes[order], spring_coefficients[order]
+    new_group = np.ones(springs.shape[0], dtype=bool)
+    new_group[1:] = (spring_nodes[1:] != spring_nodes[:-1]).any(axis=1)
+    group_start = np.append(np.flatnonzero(new_group), springs.shape[0]).astype(np.int64)
+    return CoarseSpace(
+        vertex_nodes=vertex_nodes.astype(np.int32),
+        vertex_weights=vertex_weights,
+        count=int(used.shape[0]),
+        springs=springs,
+        spring_nodes=spring_nodes,
+        spring_coefficients=spring_coefficients,
+        group_start=group_start,
+    )
+
+
+@nb.njit(**JIT)
+def _spring_stencils(springs, a, b, free, vertex_nodes, vertex_weights):  # pragma: no cover - compiled
+    """(S', 16) nodes and coefficients of z_a - z_b per spring, each node once, in order of first use."""
+    nodes = np.full((springs.shape[0], 2 * CORNERS), -1, dtype=np.int32)
+    coefficients = np.zeros((springs.shape[0], 2 * CORNERS))
+    for k in range(springs.shape[0]):
+        s = springs[k]
+        count = 0
+        for side in range(2):
+            row = free[a[s]] if side == 0 else free[b[s]]
+            if row < 0:
+                continue
+            sign = 1.0 if side == 0 else -1.0
+            for j in range(CORNERS):
+                node = vertex_nodes[row, j]
+                if node < 0:
+                    continue
+                slot = -1
+                for t in range(count):
+                    if nodes[k, t] == node:
+                        slot = t
+                if slot < 0:
+                    slot = count
+                    nodes[k, slot] = node
+                    count += 1
+                coefficients[k, slot] += sign * vertex_weights[row, j]
+        for i in range(1, count):  # ascending nodes (insertion sort), so equal sets have equal rows
+            j = i
+            while j > 0 and nodes[k, j - 1] > nodes[k, j]:
+                nodes[k, j - 1], nodes[k, j] = nodes[k, j], nodes[k, j - 1]
+                coefficients[k, j - 1], coefficients[k, j] = coefficients[k, j], coefficients[k, j - 1]
+                j -= 1
+    return nodes, coefficients
+
+
+@nb.njit(**JIT)
+def _inertia_matrix(vertex_nodes, vertex_weights, inertia, out):  # pragma: no cover - compiled
+    """out (3C, 3C) += Z^T diag(inertia) Z."""
+    for j in range(vertex_nodes.shape[0]):
+        m = inertia[j]
+        for p in range(CORNERS):
+            np_ = vertex_nodes[j, p]
+            if np_ < 0:
+                continue
+            for q in range(CORNERS):
+                nq = vertex_nodes[j, q]
+                if nq < 0:
+                    continue
+                value = m * vertex_weights[j, p] * vertex_weights[j, q]
+                for d in range(3):
+                    out[3 * np_ + d, 3 * nq + d] += value
+
+
+@nb.njit(**JIT)
+def spring_hessian(
+    x, a, b, rest, stiff_t, stiff_c, modulus, springs, spring_nodes, spring_coefficients, group_start, out
+):  # pragma: no cover - compiled
+    """out (3C, 3C) += sum over `springs` of (z_a - z_b)(z_a - z_b)^T (x) H_s at positions x (V, 3),
+    H_s = k (n n^T + max(0, 1 - L / l) (I - n n^T)): a spring's Hessian with the part across it
+    that a compressed spring would make negative left out (positive semi-definite).
+
+    Each group of springs with the same nodes is summed into a block of its own (3m x 3m for its
+    m nodes, upper triangle), added to out's upper triangle once; out's lower triangle is
+    mirrored from it at the end."""
+    block = np.zeros((6 * CORNERS, 6 * CORNERS))
+    for g in range(group_start.shape[0] - 1):
+        first = group_start[g]
+        m = 0
+        while m < 2 * CORNERS and spring_nodes[first, m] >= 0:
+            m += 1
+        size = 3 * m
+        for i in range(size):
+            for j in range(i, size):
+                block[i, j] = 0.0
+        for k in range(first, group_start[g + 1]):
+            s = springs[k]
+            ia = a[s]
+            ib = b[s]
+            dx = x[ia, 0] - x[ib, 0]
+            dy = x[ia, 1] - x[ib, 1]
+            dz = x[ia, 2] - x[ib, 2]
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if length < 1e-12:
+                continue
+            stretch = length - rest[s]
+            stiffness = max(stiff_t[s] if stretch > 0.0 else stiff_c[s], 0.0) * modulus
+            if stiffness == 0.0:
+                continue
+            inv = 1.0 / length
+            nx, ny, nz = dx * inv, dy * inv, dz * inv
+            across = max(0.0, 1.0 - rest[s] * inv)
+            along = stiffness * (1.0 - across)
+            iso = stiffness * across
+            hxx = along * nx * nx + iso
+            hyy = along * ny * ny + iso
+            hzz = along * nz * nz + iso
+            hxy = along * nx * ny
+            hxz = along * nx * nz
+            hyz = along * ny * nz
+            for p in range(m):
+                cp = spring_coefficients[k, p]
+                r = 3 * p
+                c = cp * cp
+                block[r, r] += c * hxx
+                block[r + 1, r + 1] += c * hyy
+                block[r + 2, r + 2] += c * hzz
+                block[r, r + 1] += c * hxy
+                block[r, r + 2] += c * hxz
+                block[r + 1, r + 2] += c * hyz
+                for q in range(p + 1, m):
+                    c = cp * spring_coefficients[k, q]
+                    t = 3 * q
+                    block[r, t] += c * hxx
+                    block[r + 1, t + 1] += c * hyy
+                    block[r + 2, t + 2] += c * hzz
+                    block[r, t + 1] += c * hxy
+                    block[r + 1, t] += c * hxy
+                    block[r, t + 2] += c * hxz
+                    block[r + 2, t] += c * hxz
+                    block[r + 1, t + 2] += c * hyz
+                    block[r + 2, t + 1] += c * hyz
+        for p in range(m):
+            r = 3 * spring_nodes[first, p]
+            for q in range(p, m):
+                t = 3 * spring_nodes[first, q]
+                for i in range(3):
+                    for j in range(3):
+                        if p < q or j >= i:
+                            out[r + i, t + j] += block[3 * p + i, 3 * q + j]
+    for i in range(out.shape[0]):
+        for j in range(i + 1, out.shape[0]):
+            out[j, i] = out[i, j]
+
+
+@nb.njit(**JIT)
+def restrict(grad, vertex_nodes, vertex_weights, out):  # pragma: no cover - compiled
+    """out (3C,) = Z^T grad for grad (F, 3)."""
+    out[:] = 0.0
+    for j in range(vertex_nodes.shape[0]):
+        for p in range(CORNERS):
+            node = vertex_nodes[j, p]
+            if node < 0:
+                continue
+            w = vertex_weights[j, p]
+            out[3 * node] += w * grad[j, 0]
+            out[3 * node + 1] += w * grad[j, 1]
+            out[3 * node + 2] += w * grad[j, 2]
+
+
+@nb.njit(**JIT)
+def prolong(c, vertex_nodes, vertex_weights, out):  # pragma: no cover - compiled
+    """out (F, 3) = Z c for coarse displacements c (3C,)."""
+    for j in range(vertex_nodes.shape[0]):
+        ox = oy = oz = 0.0
+        for p in range(CORNERS):
+            node = vertex_nodes[j, p]
+            if node < 0:
+                continue
+            w = vertex_weights[j, p]
+            ox += w * c[3 * node]
+            oy += w * c[3 * node + 1]
+            oz += w * c[3 * node + 2]
+        out[j, 0] = ox
+        out[j, 1] = oy
+        out[j, 2] = oz
+
+
+@nb.njit(**JIT)
+def solve_spd(matrix, rhs):  # pragma: no cover - compiled
+    """x with matrix x = rhs for a symmetric positive semi-definite matrix (n, n), by Cholesky in
+    place (serial, fixed order); a pivot below 1e-12 of the largest diagonal entry (a direction
+    the matrix does not see) gets a zero there instead of a huge component."""
+    n = rhs.shape[0]
+    floor = 0.0
+    for i in range(n):
+        floor = max(floor, matrix[i, i])
+    floor *= 1e-12
+    lower = matrix  # overwritten by the factor, lower triangle
+    skip = np.zeros(n, dtype=np.bool_)
+    for j in range(n):
+        d = lower[j, j]
+        for k in range(j):
+            d -= lower[j, k] * lower[j, k]
+        if not d > floor:
+            skip[j] = True
+            for i in range(j, n):
+                lower[i, j] = 0.0
+            continue
+        d = np.sqrt(d)
+        lower[j, j] = d
+        for i in range(j + 1, n):
+            v = lower[i, j]
+            for k in range(j):
+                v -= lower[i, k] * lower[j, k]
+            lower[i, j] = v / d
+    y = np.zeros(n)
+    for i in range(n):
+        if skip[i]:
+            continue
+        v = rhs[i]
+        for k in range(i):
+            v -= lower[i, k] * y[k]
+        y[i] = v / lower[i, i]
+    x = np.zeros(n)
+    for i in range(n - 1, -1, -1):
+        if skip[i]:
+            continue
+        v = y[i]
+        for k in range(i + 1, n):
+            v -= lower[k, i] * x[k]
+        x[i] = v / lower[i, i]
+    return x
