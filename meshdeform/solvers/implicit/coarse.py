@@ -16,13 +16,14 @@ prefactored matrix) then resolve what is local.
 
 The span: a lattice over the rest positions of the free vertices, `nodes` nodes along the
 longest side of their bounding box and as many along the others as keep its cells about cubic
-(one along a side with no extent: a flat sheet has a flat lattice); each free vertex moves with
+(one along a side with no extent: a flat sheet has a flat lattice), fewer where that would make
+more than `MAX_NODES`; each free vertex moves with
 the trilinear interpolation of the displacements of its cell's corners. Nodes no free vertex
 depends on are dropped. The inertia part of Z^T H Z is fixed for a step size
 (`CoarseSpace.inertia_matrix`); the springs' part is assembled from the springs that are not
 bending springs (soft next to the in-plane ones, a third of the springs), at the positions where
 the correction starts, once a step. Everything runs serially in a fixed order (the dense solve
-too: `solve_spd`, not LAPACK, whose threads may sum in another order), so runs stay
+too: `factor_spd`, not LAPACK, whose threads may sum in another order), so runs stay
 byte-identical on any thread count.
 """
 
@@ -35,6 +36,9 @@ import numpy as np
 
 from meshdeform.solvers.jit import JIT
 
+#: at most this many lattice nodes (3 unknowns each; the dense solve costs their cube): a flat sheet
+#: keeps its `nodes` x `nodes`, a solid's lattice gets fewer along each side (3 x 3 x 3)
+MAX_NODES = 48
 #: trilinear weights per vertex: the eight corners of its lattice cell (fewer are used on a flat lattice)
 CORNERS = 8
 
@@ -82,8 +86,11 @@ def coarse_space(
     longest = float(extent.max())
     if not longest > 0.0:
         return None
-    cell = longest / (nodes - 1)
-    dims = np.array([max(1, int(np.ceil(e / cell - 1e-9)) + 1) if e > 1e-9 * longest else 1 for e in extent])
+    for along_longest in range(nodes, 1, -1):  # the most nodes along the longest side within MAX_NODES
+        cell = longest / (along_longest - 1)
+        dims = np.array([max(1, int(np.ceil(e / cell - 1e-9)) + 1) if e > 1e-9 * longest else 1 for e in extent])
+        if int(np.prod(dims)) <= MAX_NODES:
+            break
     base = np.zeros(rest_free.shape, dtype=np.int64)
     frac = np.zeros(rest_free.shape)
     for d in range(3):
@@ -300,33 +307,40 @@ def prolong(c, vertex_nodes, vertex_weights, out):  # pragma: no cover - compile
 
 
 @nb.njit(**JIT)
-def solve_spd(matrix, rhs):  # pragma: no cover - compiled
-    """x with matrix x = rhs for a symmetric positive semi-definite matrix (n, n), by Cholesky in
-    place (serial, fixed order); a pivot below 1e-12 of the largest diagonal entry (a direction
-    the matrix does not see) gets a zero there instead of a huge component."""
-    n = rhs.shape[0]
+def factor_spd(matrix):  # pragma: no cover - compiled
+    """The Cholesky factor of a symmetric positive semi-definite matrix (n, n), in place (lower
+    triangle; serial, fixed order), and the pivots (n,) left out: a pivot below 1e-12 of the
+    largest diagonal entry is a direction the matrix does not see, whose row and column the
+    solve passes over (`solve_factored`) instead of dividing by nearly zero."""
+    n = matrix.shape[0]
     floor = 0.0
     for i in range(n):
         floor = max(floor, matrix[i, i])
     floor *= 1e-12
-    lower = matrix  # overwritten by the factor, lower triangle
     skip = np.zeros(n, dtype=np.bool_)
     for j in range(n):
-        d = lower[j, j]
+        d = matrix[j, j]
         for k in range(j):
-            d -= lower[j, k] * lower[j, k]
+            d -= matrix[j, k] * matrix[j, k]
         if not d > floor:
             skip[j] = True
             for i in range(j, n):
-                lower[i, j] = 0.0
+                matrix[i, j] = 0.0
             continue
         d = np.sqrt(d)
-        lower[j, j] = d
+        matrix[j, j] = d
         for i in range(j + 1, n):
-            v = lower[i, j]
+            v = matrix[i, j]
             for k in range(j):
-                v -= lower[i, k] * lower[j, k]
-            lower[i, j] = v / d
+                v -= matrix[i, k] * matrix[j, k]
+            matrix[i, j] = v / d
+    return skip
+
+
+@nb.njit(**JIT)
+def solve_factored(lower, skip, rhs):  # pragma: no cover - compiled
+    """x with L L^T x = rhs for the factor of `factor_spd` (zero where a pivot was left out)."""
+    n = rhs.shape[0]
     y = np.zeros(n)
     for i in range(n):
         if skip[i]:

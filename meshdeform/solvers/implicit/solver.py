@@ -282,7 +282,7 @@ class ImplicitSolver(ModelCache, Solver):
     def _coarse_correction(self, x: np.ndarray, y: np.ndarray) -> float:
         """Up to `COARSE_STEPS` Newton steps on the coarse space's displacements (`coarse` module
         docstring) from x, in place, each with an Armijo line search on the step's energy; its
-        matrix Z^T H Z is assembled once, at x. Returns the energy at the x it leaves, whose
+        matrix Z^T H Z is assembled and factorised once, at x. Returns the energy at the x it leaves, whose
         gradient is in `self.grad` (the L-BFGS iterations start from both)."""
         space = self.coarse
         fv = self.free_vertices
@@ -291,11 +291,12 @@ class ImplicitSolver(ModelCache, Solver):
             x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, space.springs,
             space.spring_nodes, space.spring_coefficients, space.group_start, matrix,
         )
+        skip = coarse.factor_spd(matrix)
         gradient = np.empty(3 * space.count)
         energy = self._energy(x, y, self.grad)
         for _ in range(COARSE_STEPS):
             coarse.restrict(self.grad, space.vertex_nodes, space.vertex_weights, gradient)
-            move = coarse.solve_spd(matrix.copy(), -gradient)
+            move = coarse.solve_factored(matrix, skip, -gradient)
             coarse.prolong(move, space.vertex_nodes, space.vertex_weights, self.direction)
             slope = kernels.dot(self.grad, self.direction)
             if not slope < 0.0:
