@@ -74,7 +74,7 @@ from meshdeform.scene.base import Scene
 from meshdeform.solvers import guard_kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions
 from meshdeform.solvers.common import spring_constants, structural_mask
-from meshdeform.solvers.registry import make_solver, solver_class, solver_options
+from meshdeform.solvers.registry import DEFAULT_SOLVER, make_solver, solver_class, solver_options
 
 if TYPE_CHECKING:
     from meshdeform.contact.self_collision import ContactWork
@@ -100,7 +100,7 @@ class Settings:
         frame (`Frame.subframes`); 1 keeps none. At most `substeps`.
     """
 
-    solver: str = "xpbd"
+    solver: str = DEFAULT_SOLVER
     fps: float = 24.0
     frames: int = 120
     substeps: int | None = None

@@ -260,7 +260,8 @@ def test_a_cut_triangle_sheet_keeps_bending_only_across_edges_it_still_shares() 
     mesh, model, _ = grid_cloth(12, pins=("top",), triangles=True, uvs=False)
     tearer = Tearer(mesh, model, None, [Cut.plane(0.1, point=[0, 0.45, 0], normal=[0, 1, 0])])
     options = solver_class("xpbd").options_class(tethers=None)
-    frames = list(simulate(model, Scene(gravity=(0, -9.81, 0), tearing=tearer), Settings(frames=8, options=options)))
+    settings = Settings(solver="xpbd", frames=8, options=options)
+    frames = list(simulate(model, Scene(gravity=(0, -9.81, 0), tearing=tearer), settings))
     torn = frames[-1].model
     assert frames[-1].pieces == 2 and torn.vertex_count > model.vertex_count
     bending = {(int(a), int(b)) for a, b in np.sort(torn.springs[torn.kinds == SpringKind.BENDING], axis=1)}

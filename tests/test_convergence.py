@@ -263,7 +263,10 @@ def test_simulate_prints_the_not_converged_warning_under_its_summary(tmp_path: P
 
     mesh = write_grid(tmp_path / "cloth.obj", 12)
     recipe = tmp_path / "r.toml"
-    recipe.write_text("[simulation]\nframes = 80\n[[pins]]\nselect = { indices = [132, 143] }\n", encoding="utf-8")
+    # xpbd at its defaults does not converge on a 12 x 12 cloth (docs/performance.md, "Convergence")
+    recipe.write_text(
+        '[simulation]\nsolver = "xpbd"\nframes = 80\n[[pins]]\nselect = { indices = [132, 143] }\n', encoding="utf-8"
+    )
     result = CliRunner().invoke(app, ["simulate", str(mesh), "--recipe", str(recipe), "--out", str(tmp_path / "o")])
     assert result.exit_code == 0
     lines = result.output.strip().splitlines()

@@ -107,7 +107,9 @@ def test_a_thin_plate_shot_through_a_curtain_at_20_m_s_carries_it_and_never_tunn
 
     model = grid_cloth(12, size=1.0, plane="xy", centred=True, pins=TOP_CORNERS).model
     collider = DeformingCollider(body, friction=0.1, thickness=THICKNESS)
-    for frame in simulate(model, Scene(constraints=[collider]), Settings(fps=24, frames=4)):
+    # xpbd: 22 substeps a frame (the 3.8 cm above); implicit's cloth, which loses less of the blow,
+    # whips up over the plate and round behind it (its centre 1.1 m up, measured: no crossing)
+    for frame in simulate(model, Scene(constraints=[collider]), Settings(solver="xpbd", fps=24, frames=4)):
         check_frame(frame, body)
     # the cloth in the plate's path went with it, in front of the plate at the end (without the
     # swept test relative to the plate's motion it stays behind: the plate passes through it)

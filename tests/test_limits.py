@@ -146,10 +146,10 @@ def test_frames_message_is_the_one_line_of_the_issue() -> None:
 
 def test_substeps_times_iterations_uses_the_solver_defaults() -> None:
     # xpbd iterates twice per substep by default: 50000 substeps are 100000 sweeps, 50001 too many
-    parse_recipe("[simulation]\nsubsteps = 50000\n")
-    message = error_of("[simulation]\nsubsteps = 50001\n")
+    parse_recipe('[simulation]\nsolver = "xpbd"\nsubsteps = 50000\n')
+    message = error_of('[simulation]\nsolver = "xpbd"\nsubsteps = 50001\n')
     assert message == (
-        "r.toml: simulation.substeps (line 2): 50001 substeps x 2 iterations (xpbd's default) = 100002 "
+        "r.toml: simulation.substeps (line 3): 50001 substeps x 2 iterations (xpbd's default) = 100002 "
         "is above the limit of 100000 solver sweeps per frame"
     )
     # implicit: 8 substeps of 3 iterations by default
@@ -289,7 +289,7 @@ def test_every_option_of_every_solver_is_in_the_docs_table() -> None:
 
 def test_solver_options_within_range_reach_the_solver() -> None:
     text = (
-        "[simulation.xpbd]\ntethers = 0\npartitions = 1024\n"
+        '[simulation]\nsolver = "xpbd"\n[simulation.xpbd]\ntethers = 0\npartitions = 1024\n'
         '[simulation.anchor]\nanchor_frame = "centroid"\nstrain_iterations = 0\n'
     )
     xpbd = parse_recipe(text).simulation.solver_options()
@@ -344,7 +344,7 @@ def test_a_utf8_byte_order_mark_is_skipped(tmp_path: Path) -> None:
 
 def test_check_prints_the_estimate_without_and_with_a_mesh(tmp_path: Path) -> None:
     recipe = tmp_path / "r.toml"
-    recipe.write_text('[simulation]\nframes = 10\n[output]\nformats = ["obj", "pc2"]\n')
+    recipe.write_text('[simulation]\nsolver = "xpbd"\nframes = 10\n[output]\nformats = ["obj", "pc2"]\n')
     result = runner.invoke(app, ["check", str(recipe)])
     assert result.exit_code == 0, result.output
     lines = result.stdout.splitlines()

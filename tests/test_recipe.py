@@ -492,10 +492,13 @@ def test_the_solver_in_force_reads_its_table_and_the_others_are_validated_for_a_
             "solver in force): put it in [simulation.anchor]",
         ),
         (
-            "[simulation]\ntethers = 1.0\n[simulation.xpbd]\ntethers = 1.1\n",
-            "simulation.tethers (line 2): tethers is given twice, here and in [simulation.xpbd]",
+            '[simulation]\nsolver = "xpbd"\ntethers = 1.0\n[simulation.xpbd]\ntethers = 1.1\n',
+            "simulation.tethers (line 3): tethers is given twice, here and in [simulation.xpbd]",
         ),
-        ("[simulation]\ntethers = 0.5\n", "simulation.tethers (line 2): must be 0 (no tethers) or at least 1"),
+        (
+            '[simulation]\nsolver = "xpbd"\ntethers = 0.5\n',
+            "simulation.tethers (line 3): must be 0 (no tethers) or at least 1",
+        ),
     ],
 )
 def test_solver_table_mistakes_are_one_line_naming_the_key_and_where_it_belongs(text: str, expected: str) -> None:
@@ -539,11 +542,12 @@ def test_switching_solver_on_the_command_line_names_the_option_for_a_foreign_fla
 
 
 def test_tearing_runs_without_the_solvers_tethers_unless_the_table_asks_for_them() -> None:
+    xpbd = '[simulation]\nsolver = "xpbd"\n'
     tears = "[[tears]]\nmax_stretch = 1.5\n"
-    default = build_simulation(parse_recipe(tears), grid_sheet(4)).settings.options
-    asked = build_simulation(parse_recipe("[simulation.xpbd]\ntethers = 1.2\n" + tears), grid_sheet(4))
+    default = build_simulation(parse_recipe(xpbd + tears), grid_sheet(4)).settings.options
+    asked = build_simulation(parse_recipe(xpbd + "[simulation.xpbd]\ntethers = 1.2\n" + tears), grid_sheet(4))
     assert default.tethers is None and asked.settings.options.tethers == 1.2
-    assert build_simulation(parse_recipe(""), grid_sheet(4)).settings.options.tethers == 1.0
+    assert build_simulation(parse_recipe(xpbd), grid_sheet(4)).settings.options.tethers == 1.0
 
 
 def test_the_deprecation_line_goes_to_stderr_once_and_into_the_batch_log(tmp_path: Path) -> None:

@@ -328,7 +328,7 @@ def test_a_spinning_pair_of_layers_keeps_its_pairs_and_never_crosses() -> None:
     state.velocities[:, 0] = -spin * x[:, 2]
     state.velocities[:, 2] = spin * x[:, 0]
     state.velocities[count:, 1] = -0.2
-    settings = Settings(frames=12)
+    settings = Settings(solver="xpbd", frames=12)  # 22 substeps a frame: the motions above
     state.previous[:] = x - state.velocities * settings.dt
     contact = SelfCollision(SelfCollisionSettings(thickness=THICKNESS))
     frames = list(simulate(model, Scene(gravity=(0.0, 0.0, 0.0), self_collision=contact), settings, state=state))
@@ -359,7 +359,7 @@ def test_every_pair_within_the_thickness_is_in_the_substeps_list() -> None:
         return pairs
 
     contact._pairs = recording
-    list(simulate(model, Scene(constraints=[ground], self_collision=contact), Settings(frames=16)))
+    list(simulate(model, Scene(constraints=[ground], self_collision=contact), Settings(solver="xpbd", frames=16)))
     faces = np.asarray(model.triangles, dtype=np.int32)
     edges = np.asarray(contact._topology.edges, dtype=np.int32)
     mesh = ipctk.CollisionMesh(np.asarray(model.rest_positions, dtype=np.float64), edges, faces)

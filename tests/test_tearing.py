@@ -466,9 +466,9 @@ def test_build_makes_the_tearer_and_checks_selections() -> None:
     from pipeline.build import build_simulation
 
     mesh = grid_sheet(6)
-    built = build_simulation(parse_recipe("[[tears]]\nmax_stretch = 1.4\n"), mesh)
+    built = build_simulation(parse_recipe('[simulation]\nsolver = "xpbd"\n[[tears]]\nmax_stretch = 1.4\n'), mesh)
     assert built.scene.tearing is not None and built.scene.tearing.settings.tearable.all()
-    assert built.settings.options.tethers is None  # off by default when tearing
+    assert built.settings.options.tethers is None  # xpbd's tethers are off by default when tearing
     assert not built.warnings
     pinned_only = (
         "[[pins]]\nselect = { indices = [0, 1] }\n[[tears]]\nselect = { indices = [0, 1] }\nmax_stretch = 1.4\n"

@@ -24,7 +24,8 @@ def test_every_simulated_frame_is_counted_and_its_stretch_measured(scene: str) -
     """The run counts the frames asked for and reports the worst of every frame's stretch, which the
     simulation loop's own per-frame figure (its divergence guard's spring pass) confirms."""
     run = vs_blender.run_meshdeform("xpbd:substeps=4", 6, 5, scene)
-    frames = list(simulate(vs_blender.meshdeform_inputs(6, scene), Scene(), Settings(frames=5, substeps=4)))
+    settings = Settings(solver="xpbd", frames=5, substeps=4)
+    frames = list(simulate(vs_blender.meshdeform_inputs(6, scene), Scene(), settings))
     assert run.frames == 5
     assert run.max_stretch == pytest.approx(max(f.max_stretch for f in frames), rel=1e-12)
     assert run.last_stretch == pytest.approx(frames[-1].max_stretch, rel=1e-12)

@@ -15,6 +15,11 @@ from meshdeform.solvers.springs.solver import SpringsSolver
 from meshdeform.solvers.verlet.solver import VerletSolver
 from meshdeform.solvers.xpbd.solver import XPBDSolver
 
+#: the solver a run uses when none is named (`Settings`, a recipe's `[simulation] solver`): implicit,
+#: whose global solve keeps a production-resolution cloth at its material's stretch, smooth, where
+#: the position solvers' few sweeps leave it stretched and rough, at the same speed where nothing
+#: touches the cloth (docs/performance.md, "A coarse space for the implicit solver")
+DEFAULT_SOLVER = "implicit"
 #: solver name (`Solver.name`) -> class
 SOLVERS: dict[str, type[Solver]] = {
     cls.name: cls

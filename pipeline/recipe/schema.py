@@ -36,6 +36,7 @@ from meshdeform.scene.forces import AIR_DENSITY
 from meshdeform.scene.pins import Keyframe
 from meshdeform.solvers import SOLVERS, solver_class
 from meshdeform.solvers.options import SolverOptions
+from meshdeform.solvers.registry import DEFAULT_SOLVER
 from pipeline.recipe.limits import bounded, limited
 from pipeline.recipe.messages import close_match, show, toml_type
 from pipeline.recipe.selection import PlaneSpec, SelectSpec, SphereSpec
@@ -56,7 +57,7 @@ class SimulationSpec(Table):
     those tables before this model validates the rest; the options given are kept here, by solver.
     """
 
-    solver: StrictStr = "xpbd"
+    solver: StrictStr = DEFAULT_SOLVER
     fps: Annotated[Float, limited("simulation.fps")] = Field(24.0, gt=0)
     frames: Annotated[StrictInt, limited("simulation.frames")] = Field(120, ge=1)
     substeps: Annotated[StrictInt, limited("simulation.substeps")] | None = Field(None, ge=1)

@@ -96,7 +96,9 @@ class ImplicitSolver(ModelCache, Solver):
     """Projective dynamics with a prefactored global matrix and BDF2 time integration."""
 
     name: ClassVar[str] = "implicit"
-    summary: ClassVar[str] = "projective dynamics (Liu et al. 2013) with BDF2, prefactored: stiff springs in few steps"
+    summary: ClassVar[str] = (
+        "projective dynamics (Liu et al. 2013) with BDF2, prefactored: stiff springs in few steps, the default"
+    )
     hint: ClassVar[str] = "use more substeps or iterations, or check the forces for non-finite values"
     options_class: ClassVar[type[ImplicitOptions]] = ImplicitOptions
     default_substeps: ClassVar[int] = 8

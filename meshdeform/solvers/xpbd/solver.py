@@ -75,7 +75,7 @@ class XPBDSolver(SweepSolver, Solver):
     """Extended position-based dynamics with per-kind compliance and constraint damping."""
 
     name: ClassVar[str] = "xpbd"
-    summary: ClassVar[str] = "compliant distance constraints in small steps (Macklin et al. 2016/2019), the default"
+    summary: ClassVar[str] = "compliant distance constraints in small steps (Macklin et al. 2016/2019)"
     hint: ClassVar[str] = "use more substeps or check the forces for non-finite values"
     options_class: ClassVar[type[XPBDOptions]] = XPBDOptions
     default_substeps: ClassVar[int] = 22
