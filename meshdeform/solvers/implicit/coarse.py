@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from meshdeform.solvers.implicit.kernels import spring_constant
 from meshdeform.solvers.jit import JIT
 
 #: at most this many lattice nodes (3 unknowns each; the dense solve costs their cube): a flat sheet
@@ -223,8 +224,7 @@ def spring_hessian(
             length = np.sqrt(dx * dx + dy * dy + dz * dz)
             if length < 1e-12:
                 continue
-            stretch = length - rest[s]
-            stiffness = max(stiff_t[s] if stretch > 0.0 else stiff_c[s], 0.0) * modulus
+            stiffness = spring_constant(length - rest[s], stiff_t[s], stiff_c[s], modulus)
             if stiffness == 0.0:
                 continue
             inv = 1.0 / length
