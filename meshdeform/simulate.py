@@ -107,12 +107,12 @@ class Settings:
     options: SolverOptions | None = None
     rest_speed: float = 1e-4
     subframes: int = 1
-    #: substeps were left to the solver's default (set on construction)
-    default_substeps: bool = field(init=False, default=False)
+    #: substeps were None, left to the solver (set on construction: `steps_for` reads it)
+    substeps_defaulted: bool = field(init=False, default=False)
 
     def __post_init__(self) -> None:
         cls = solver_class(self.solver)
-        object.__setattr__(self, "default_substeps", self.substeps is None)
+        object.__setattr__(self, "substeps_defaulted", self.substeps is None)
         if self.substeps is None:
             object.__setattr__(self, "substeps", int(cls.default_substeps))
         object.__setattr__(self, "options", solver_options(cls, self.options))
@@ -310,7 +310,7 @@ def steps_for(settings: Settings, scene: Scene) -> Settings:
     """The settings a run of the scene uses: the solver's calm steps (`Solver.calm_steps`) where the
     scene is `calm` and neither the substeps nor the iterations were given, else `settings` itself."""
     steps = solver_class(settings.solver).calm_steps
-    if steps is None or not settings.default_substeps or settings.options.iterations is not None or not calm(scene):
+    if steps is None or not settings.substeps_defaulted or settings.options.iterations is not None or not calm(scene):
         return settings
     substeps, iterations = steps
     if int(settings.subframes) > substeps:  # the in-between states kept need as many steps
