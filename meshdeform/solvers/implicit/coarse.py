@@ -3,22 +3,21 @@
 Why: the projective-dynamics matrix that preconditions `implicit`'s L-BFGS holds every spring at
 full stiffness in every direction, so where a cloth turns rather than stretches (a sheet falling
 about its pinned edge, a swing) each iteration moves it only a fraction m / (b^2 k) of the way,
-and a few iterations of a long step lose the rest like a strong damping: a 64 x 64 sheet falling
-from horizontal at one step a frame lagged up to 1 m behind the same solver at 32 steps a frame.
-Those turning motions are smooth over the cloth, so a handful of smooth displacement fields span
-them. Before the L-BFGS iterations, a few Newton steps are taken in that span: the step's energy
-E(x + Z c) is minimised over c, with the true spring Hessian (each spring's stiffness along it,
-and across it only as far as it is stretched: k (1 - L / l), which is what makes turning cheap)
-projected onto the span, Z^T H Z, and an Armijo line search on the full energy, so a step never
-raises the energy. This is the coarse correction of two-level (multigrid and domain
-decomposition) methods, here on the nonlinear energy; the fine iterations (L-BFGS with the
-prefactored matrix) then resolve what is local.
+and a few iterations of a long step lose the rest like a strong damping (docs/performance.md, "A
+coarse space for the implicit solver", has the figures). Those turning motions are smooth over the
+cloth, so a handful of smooth displacement fields span them. Before the L-BFGS iterations, a few
+Newton steps are taken in that span: the step's energy E(x + Z c) is minimised over c, with the
+true spring Hessian (each spring's stiffness along it, and across it only as far as it is
+stretched: k (1 - L / l), which is what makes turning cheap) projected onto the span, Z^T H Z, and
+an Armijo line search on the full energy, so a step never raises the energy. This is the coarse
+correction of two-level (multigrid and domain decomposition) methods, here on the nonlinear
+energy; the fine iterations (L-BFGS with the prefactored matrix) then resolve what is local.
 
 The span: a lattice over the rest positions of the free vertices, `nodes` nodes along the
 longest side of their bounding box and as many along the others as keep its cells about cubic
 (one along a side with no extent: a flat sheet has a flat lattice), fewer where that would make
-more than `MAX_NODES`; each free vertex moves with
-the trilinear interpolation of the displacements of its cell's corners. Nodes no free vertex
+more than `MAX_NODES`; each free vertex moves with the trilinear interpolation of the
+displacements of its cell's corners. Nodes no free vertex
 depends on are dropped. The inertia part of Z^T H Z is fixed for a step size
 (`CoarseSpace.inertia_matrix`); the springs' part is assembled from the springs that are not
 bending springs (soft next to the in-plane ones, a third of the springs), at the positions where
