@@ -307,15 +307,17 @@ def calm(scene: Scene) -> bool:
 
 
 def steps_for(settings: Settings, scene: Scene) -> Settings:
-    """The settings a run of the scene uses: the solver's calm steps (`Solver.calm_steps`) where the
-    scene is `calm` and neither the substeps nor the iterations were given, else `settings` itself."""
+    """The settings a run of the scene uses: the solver's calm steps (`Solver.calm_steps`, with its
+    `calm_options`) where the scene is `calm` and neither the substeps nor the iterations were
+    given, else `settings` itself."""
     steps = solver_class(settings.solver).calm_steps
     if steps is None or not settings.substeps_defaulted or settings.options.iterations is not None or not calm(scene):
         return settings
     substeps, iterations = steps
     if int(settings.subframes) > substeps:  # the in-between states kept need as many steps
         return settings
-    return replace(settings, substeps=substeps, options=replace(settings.options, iterations=iterations))
+    options = solver_class(settings.solver).calm_options(replace(settings.options, iterations=iterations))
+    return replace(settings, substeps=substeps, options=options)
 
 
 def simulate(

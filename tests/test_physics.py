@@ -26,6 +26,7 @@ from meshdeform.solvers import (
     make_solver,
     solver_class,
 )
+from meshdeform.solvers.options import CALM_COARSE
 
 SOLVER_NAMES = sorted(SOLVERS)
 G = 9.81
@@ -303,14 +304,16 @@ def test_implicit_calm_steps_follow_a_falling_sheet() -> None:
 
 
 def test_calm_steps_only_where_nothing_touches_the_cloth() -> None:
-    """`steps_for` gives implicit 2 x 4 where the scene is calm and both counts are the defaults; a
-    collider, given substeps or iterations, and more in-between states than 2 keep 8 x 3."""
+    """`steps_for` gives implicit 2 x 4 with its coarse space where the scene is calm and both counts
+    are the defaults; a collider, given substeps or iterations, and more in-between states than 2
+    keep 8 x 3 (the coarse space off unless asked for)."""
     calm = steps_for(Settings(solver="implicit"), Scene())
-    assert (calm.substeps, calm.iterations) == (2, 4)
+    assert (calm.substeps, calm.iterations, calm.options.coarse) == (2, 4, CALM_COARSE)
     assert steps_for(calm, Scene()) == calm
     ground = Collider(Plane((0.0, -2.0, 0.0), (0.0, 1.0, 0.0)))
     touching = steps_for(Settings(solver="implicit"), Scene(constraints=[ground]))
-    assert (touching.substeps, touching.iterations) == (8, 3)
+    assert (touching.substeps, touching.iterations, touching.options.coarse) == (8, 3, None)  # no coarse space
+    assert steps_for(Settings(solver="implicit", options=ImplicitOptions(coarse=0)), Scene()).options.coarse == 0
     given = steps_for(Settings(solver="implicit", substeps=8), Scene())
     assert (given.substeps, given.iterations) == (8, 3)
     given = steps_for(Settings(solver="implicit", options=ImplicitOptions(iterations=3)), Scene())

@@ -69,6 +69,13 @@ class Solver(ABC):
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         """One substep of dt under the external accelerations of `control`."""
 
+    @classmethod
+    def calm_options(cls, options: SolverOptions) -> SolverOptions:
+        """The options of a run at the calm steps (`calm_steps`), from those in force with the calm
+        iterations set: these by default; a solver whose options depend on the step length fills
+        them in."""
+        return options
+
     def advance(self, model: SpringModel, state: State, dt: float, control: Control, count: int) -> None:
         """`count` substeps of dt with the same `control` (nothing runs between them), the same
         bytes as `count` calls of `step`; `simulate` calls it for scenes of gravity alone.

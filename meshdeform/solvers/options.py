@@ -22,6 +22,9 @@ from typing import Annotated, Literal
 
 from annotated_types import Ge, Gt, Interval
 
+#: the implicit solver's coarse lattice nodes (along the longest side) in a run at its calm steps
+#: (`ImplicitOptions.coarse`)
+CALM_COARSE = 5
 #: the frames the `anchor` solver can anchor its vertices in (see `AnchorOptions.anchor_frame`)
 ANCHOR_FRAMES = ("auto", "world", "centroid")
 AnchorFrame = Literal["auto", "world", "centroid"]
@@ -106,12 +109,15 @@ class ImplicitOptions(SolverOptions):
     coarse: lattice nodes along the longest side of the cloth of the coarse space whose Newton
         steps precede each step's L-BFGS iterations (`meshdeform.solvers.implicit.coarse`): they
         carry the smooth turning motions (a fall about a pinned edge, a swing) that the
-        prefactored matrix slows like a strong damping. Values below 2 switch it off; "lbfgs" only.
+        prefactored matrix slows like a strong damping in long steps. Values below 2 switch it
+        off; "lbfgs" only. None (default): `CALM_COARSE` in a run at the calm steps (2 a frame:
+        `ImplicitSolver.calm_options`), off otherwise (at 8 steps a frame the fine iterations lose
+        little of a turn, and the coarse steps would double a step's time).
     """
 
     method: Literal["lbfgs", "local_global"] = "lbfgs"
     preconditioner: Literal["in_plane", "all"] = "in_plane"
-    coarse: Annotated[int, Ge(0)] = 5
+    coarse: Annotated[int, Ge(0)] | None = None
 
 
 @dataclass(frozen=True)

@@ -53,10 +53,10 @@ with its full stiffness in every direction, so a swing or a fold (which turns sp
 than stretching them) moves each iteration only by about m / (b^2 k) of the way, and the rest
 of the way is lost like motion to a strong damping (a swinging cloth creeps towards rest).
 Shorter steps raise that fraction as 1 / dt^2 where more iterations add to it only linearly;
-L-BFGS recovers most of it, and the coarse space (`coarse`, option `coarse`) more: before the
-L-BFGS iterations of a step without contact, up to `COARSE_STEPS` Newton steps move the cloth
-by smooth lattice fields with the springs' true stiffness, soft across a spring, so a turn is
-not lost. The defaults are 8 steps a frame of 3 iterations each: 4 steps settle and rest as
+L-BFGS recovers most of it, and the coarse space (`coarse`, option `coarse`; on by default in
+runs at the calm steps) more: before the L-BFGS iterations of a step without contact, up to
+`COARSE_STEPS` Newton steps move the cloth by smooth lattice fields with the springs' true
+stiffness, soft across a spring, so a turn is not lost. The defaults are 8 steps a frame of 3 iterations each: 4 steps settle and rest as
 well, but under collider contact a step that stops part of the cloth is too long for a few
 iterations to resolve (a sheet draped over a sphere flickered between 1.05 and 1.7 stretch at 4
 steps a frame; docs/performance.md has the figures). Where nothing touches the cloth (no
@@ -78,6 +78,7 @@ a cloth stopped by a thin bar within a long step is not pulled through it or slu
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import ClassVar
 
 import cholespy
@@ -88,7 +89,7 @@ from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import coarse, kernels
-from meshdeform.solvers.options import ImplicitOptions
+from meshdeform.solvers.options import CALM_COARSE, ImplicitOptions
 from meshdeform.topology import SpringKind
 
 
@@ -104,6 +105,12 @@ class ImplicitSolver(ModelCache, Solver):
     default_substeps: ClassVar[int] = 8
     default_iterations: ClassVar[int] = 3
     calm_steps: ClassVar[tuple[int, int] | None] = (2, 4)
+
+    @classmethod
+    def calm_options(cls, options: ImplicitOptions) -> ImplicitOptions:
+        """At the calm steps (2 a frame) the coarse space is on unless the options say otherwise:
+        it is what keeps long steps from holding a turn back (`ImplicitOptions.coarse`)."""
+        return options if options.coarse is not None else replace(options, coarse=CALM_COARSE)
 
     def __init__(self, options: ImplicitOptions) -> None:
         super().__init__(options)
@@ -156,7 +163,7 @@ class ImplicitSolver(ModelCache, Solver):
         if self.options.method == "lbfgs":
             self.coarse = coarse.coarse_space(
                 np.asarray(model.rest_positions, dtype=np.float64)[self.free_vertices], self.free, self.a, self.b,
-                kinds != SpringKind.BENDING, int(self.options.coarse),
+                kinds != SpringKind.BENDING, int(self.options.coarse or 0),
             )
         edges = rest[kinds == SpringKind.STRUCTURAL]
         edges = edges if edges.size else rest
