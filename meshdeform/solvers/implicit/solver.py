@@ -56,13 +56,14 @@ Shorter steps raise that fraction as 1 / dt^2 where more iterations add to it on
 L-BFGS recovers most of it, and the coarse space (`coarse`, option `coarse`; on by default in
 runs at the calm steps) more: before the L-BFGS iterations of a step without contact, up to
 `COARSE_STEPS` Newton steps move the cloth by smooth lattice fields with the springs' true
-stiffness, soft across a spring, so a turn is not lost. The defaults are 8 steps a frame of 3 iterations each: 4 steps settle and rest as
-well, but under collider contact a step that stops part of the cloth is too long for a few
-iterations to resolve (a sheet draped over a sphere flickered between 1.05 and 1.7 stretch at 4
-steps a frame; docs/performance.md has the figures). Where nothing touches the cloth (no
-constraint, self-collision or tearing) and neither count is given, 2 steps of 4 iterations run
-instead (`calm_steps`, `meshdeform.simulate.steps_for`): with the coarse steps they follow a
-falling, swinging sheet as closely as 8 x 3 without them did, at twice the speed.
+stiffness, soft across a spring, so a turn is not lost. The defaults are 8 steps a frame of 3
+iterations each: 4 steps settle and rest as well, but under collider contact a step that stops
+part of the cloth is too long for a few iterations to resolve (a sheet draped over a sphere
+flickered between 1.05 and 1.7 stretch at 4 steps a frame; docs/performance.md has the figures).
+Where nothing touches the cloth (no constraint, self-collision or tearing) and neither count is
+given, 2 steps of 4 iterations run instead (`calm_steps`, `meshdeform.simulate.steps_for`): with
+the coarse steps they follow a falling, swinging sheet as closely as 8 x 3 without them did, at
+twice the speed.
 
 Constraints (colliders, self-collision, tethers) move vertices after the step; BDF2 would
 extrapolate those vertices' former path through the correction (a landed vertex still falling
