@@ -90,7 +90,9 @@ class Settings:
         Iterations likewise come from `options.iterations` or the solver's default (see
         `Settings.iterations`). Where both are the defaults and the scene lets the cloth touch
         nothing, `steps_for` gives the solver's calm steps instead (`Solver.calm_steps`):
-        `simulate` runs with what it returns.
+        `simulate` runs with what it returns. A copy made by `dataclasses.replace` passes the
+        resolved count on, so it counts as given: change a field of the settings before they
+        are resolved (or pass `substeps=None` again) to keep the calm steps.
     options: the solver's own options (its `Solver.options_class`); None (the default) takes
         that class's defaults, resolved on construction like substeps. Options of another
         solver's class raise MeshdeformError.
