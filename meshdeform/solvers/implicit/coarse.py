@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
+from scipy.sparse import csr_matrix, diags
 
 from meshdeform.solvers.implicit.kernels import spring_constant
 from meshdeform.solvers.jit import JIT
@@ -66,10 +67,14 @@ class CoarseSpace:
     group_start: np.ndarray
 
     def inertia_matrix(self, inertia: np.ndarray) -> np.ndarray:
-        """Z^T diag(inertia) Z (3C, 3C) for the free vertices' inertia (F,) (kg / s^2)."""
-        out = np.zeros((3 * self.count, 3 * self.count))
-        _inertia_matrix(self.vertex_nodes, self.vertex_weights, inertia, out)
-        return out
+        """Z^T diag(inertia) Z (3C, 3C) for the free vertices' inertia (F,) (kg / s^2): the same
+        for x, y and z (a Kronecker product with the 3 x 3 identity). Sparse products, once per
+        step size."""
+        used = self.vertex_nodes >= 0
+        rows = np.broadcast_to(np.arange(self.vertex_nodes.shape[0])[:, None], used.shape)[used]
+        z = csr_matrix((self.vertex_weights[used], (rows, self.vertex_nodes[used])), shape=(used.shape[0], self.count))
+        lumped = (z.T @ diags(inertia) @ z).toarray()
+        return np.kron(lumped, np.eye(3))
 
 
 def coarse_space(
@@ -139,57 +144,39 @@ def coarse_space(
     )
 
 
-@nb.njit(**JIT)
-def _spring_stencils(springs, a, b, free, vertex_nodes, vertex_weights):  # pragma: no cover - compiled
-    """(S', 16) nodes and coefficients of z_a - z_b per spring, each node once, in order of first use."""
-    nodes = np.full((springs.shape[0], 2 * CORNERS), -1, dtype=np.int32)
-    coefficients = np.zeros((springs.shape[0], 2 * CORNERS))
-    for k in range(springs.shape[0]):
-        s = springs[k]
-        count = 0
-        for side in range(2):
-            row = free[a[s]] if side == 0 else free[b[s]]
-            if row < 0:
-                continue
-            sign = 1.0 if side == 0 else -1.0
-            for j in range(CORNERS):
-                node = vertex_nodes[row, j]
-                if node < 0:
-                    continue
-                slot = -1
-                for t in range(count):
-                    if nodes[k, t] == node:
-                        slot = t
-                if slot < 0:
-                    slot = count
-                    nodes[k, slot] = node
-                    count += 1
-                coefficients[k, slot] += sign * vertex_weights[row, j]
-        for i in range(1, count):  # ascending nodes (insertion sort), so equal sets have equal rows
-            j = i
-            while j > 0 and nodes[k, j - 1] > nodes[k, j]:
-                nodes[k, j - 1], nodes[k, j] = nodes[k, j], nodes[k, j - 1]
-                coefficients[k, j - 1], coefficients[k, j] = coefficients[k, j], coefficients[k, j - 1]
-                j -= 1
-    return nodes, coefficients
-
-
-@nb.njit(**JIT)
-def _inertia_matrix(vertex_nodes, vertex_weights, inertia, out):  # pragma: no cover - compiled
-    """out (3C, 3C) += Z^T diag(inertia) Z."""
-    for j in range(vertex_nodes.shape[0]):
-        m = inertia[j]
-        for p in range(CORNERS):
-            np_ = vertex_nodes[j, p]
-            if np_ < 0:
-                continue
-            for q in range(CORNERS):
-                nq = vertex_nodes[j, q]
-                if nq < 0:
-                    continue
-                value = m * vertex_weights[j, p] * vertex_weights[j, q]
-                for d in range(3):
-                    out[3 * np_ + d, 3 * nq + d] += value
+def _spring_stencils(
+    springs: np.ndarray, a: np.ndarray, b: np.ndarray, free: np.ndarray, vertex_nodes: np.ndarray,
+    vertex_weights: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(S', 16) nodes (ascending, -1 past the last) and coefficients of z_a - z_b per spring, each
+    node once. NumPy, not Numba: it runs once a model, and a compiled version cost every fresh
+    process (a CI runner, a Dask worker) 0.9 s of compiling."""
+    count = springs.shape[0]
+    width = 2 * CORNERS
+    nodes = np.full((count, width), -1, dtype=np.int64)
+    coefficients = np.zeros((count, width))
+    for side, ends, sign in ((0, a, 1.0), (1, b, -1.0)):
+        rows = free[ends[springs]]
+        has = rows >= 0
+        columns = slice(side * CORNERS, (side + 1) * CORNERS)
+        nodes[has, columns] = vertex_nodes[rows[has]]
+        coefficients[has, columns] = sign * vertex_weights[rows[has]]
+    coefficients[nodes < 0] = 0.0
+    # each row's nodes ascending (the a side before the b side where equal), equal ones summed
+    none = np.iinfo(np.int64).max
+    key = np.where(nodes < 0, none, nodes)
+    order = np.argsort(key, axis=1, kind="stable")
+    key = np.take_along_axis(key, order, axis=1)
+    coefficients = np.take_along_axis(coefficients, order, axis=1)
+    first = np.ones(key.shape, dtype=bool)
+    first[:, 1:] = key[:, 1:] != key[:, :-1]
+    slot = ((np.cumsum(first, axis=1) - 1) + np.arange(count)[:, None] * width).ravel()
+    summed = np.bincount(slot, weights=coefficients.ravel(), minlength=count * width).reshape(count, width)
+    out_nodes = np.full(count * width, -1, dtype=np.int64)
+    out_nodes[slot] = np.where(key < none, key, -1).ravel()
+    out_nodes = out_nodes.reshape(count, width)
+    summed[out_nodes < 0] = 0.0
+    return out_nodes.astype(np.int32), summed
 
 
 @nb.njit(**JIT)
