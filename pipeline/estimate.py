@@ -23,10 +23,12 @@ from typing import TYPE_CHECKING
 
 from meshdeform.errors import ExportError, MeshdeformError
 from meshdeform.export import EXPORTERS
+from meshdeform.solvers.registry import solver_class
 
 if TYPE_CHECKING:
     from meshdeform.mesh import Mesh
     from meshdeform.model import SpringModel
+    from meshdeform.simulate import Settings
     from pipeline.recipe import Recipe
 
 __all__ = ["InsufficientDiskSpace", "RunEstimate", "estimate_run", "human_bytes", "output_bytes", "require_disk_space"]
@@ -179,10 +181,18 @@ def scene_frames_written(recipe: Recipe) -> range:
     return range(sim.start_frame, sim.start_frame + sim.frames + 1)
 
 
-def estimate_run(recipe: Recipe, mesh: Mesh | None = None, model: SpringModel | None = None) -> RunEstimate:
-    """The run's cost: sweeps per frame from the recipe (and the solver's defaults); springs and
-    output bytes when the mesh and its built model are given."""
-    substeps, iterations = recipe.simulation.sweeps_per_frame()
+def estimate_run(
+    recipe: Recipe, mesh: Mesh | None = None, model: SpringModel | None = None, settings: Settings | None = None
+) -> RunEstimate:
+    """The run's cost: sweeps per frame from the recipe (and the solver's defaults), or from the
+    settings a built simulation runs with (`BuiltSimulation.settings`: a calm scene's steps,
+    `meshdeform.simulate.steps_for`, which the recipe alone cannot tell); springs and output bytes
+    when the mesh and its built model are given."""
+    if settings is not None:  # solvers without constraint sweeps count their substeps only
+        sweeps = int(solver_class(settings.solver).default_iterations) > 0
+        substeps, iterations = int(settings.substeps), int(settings.iterations) if sweeps else 1
+    else:
+        substeps, iterations = recipe.simulation.sweeps_per_frame()
     return RunEstimate(
         frames=recipe.simulation.frames,
         substeps=substeps,

@@ -368,6 +368,23 @@ def test_check_prints_the_estimate_without_and_with_a_mesh(tmp_path: Path) -> No
     assert f"pc2 {(32 + 12 * 20 * 12) / 1000:.1f} KB)" in lines[1], lines[1]
 
 
+def test_check_with_a_mesh_estimates_the_steps_a_calm_run_takes(tmp_path: Path) -> None:
+    """Without colliders, self-collision or tearing the default solver takes its calm steps (2 x 4,
+    `meshdeform.simulate.steps_for`), which only the built scene tells: with --mesh the estimate
+    counts them; without a mesh it counts the solver's defaults (8 x 3), an upper bound."""
+    recipe = tmp_path / "r.toml"
+    recipe.write_text("[simulation]\nframes = 10\n[[pins]]\nselect = { indices = [0] }\n")
+    mesh = write_grid(tmp_path / "m.obj", 5, 4)
+    plain = runner.invoke(app, ["check", str(recipe)])
+    assert plain.exit_code == 0, plain.output
+    assert plain.stdout.splitlines()[1].startswith("estimate: 8 substeps x 3 iterations x 10 frames = 240 sweeps")
+    result = runner.invoke(app, ["check", str(recipe), "--mesh", str(mesh)])
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    assert re.match(r"estimate: \d+ springs x 2 substeps x 4 iterations x 10 frames", lines[1]), lines[1]
+    assert lines[2].endswith("2 substeps"), lines[2]  # the model line says what will run
+
+
 @pytest.mark.parametrize("name", list(EXPORTERS))
 def test_output_estimates_cover_what_a_run_writes(tmp_path: Path, name: str) -> None:
     """The estimate of every registered format is at least what a real run in that format writes (every

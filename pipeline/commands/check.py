@@ -120,7 +120,7 @@ def _check(recipe_path: Path, mesh: Path | None, result: dict[str, Any], *, warn
         )
         raise
     model = built.model
-    estimate = estimate_run(for_mesh, mesh_data, model)
+    estimate = estimate_run(for_mesh, mesh_data, model, built.settings)
     lines.append(estimate.summary())
     lines.append(
         f"{mesh}: {model.vertex_count} simulated vertices, {model.spring_count} springs, "
