@@ -23,7 +23,6 @@ from typing import TYPE_CHECKING
 
 from meshdeform.errors import ExportError, MeshdeformError
 from meshdeform.export import EXPORTERS
-from meshdeform.solvers.registry import solver_class
 
 if TYPE_CHECKING:
     from meshdeform.mesh import Mesh
@@ -188,11 +187,7 @@ def estimate_run(
     settings a built simulation runs with (`BuiltSimulation.settings`: a calm scene's steps,
     `meshdeform.simulate.steps_for`, which the recipe alone cannot tell); springs and output bytes
     when the mesh and its built model are given."""
-    if settings is not None:  # solvers without constraint sweeps count their substeps only
-        sweeps = int(solver_class(settings.solver).default_iterations) > 0
-        substeps, iterations = int(settings.substeps), int(settings.iterations) if sweeps else 1
-    else:
-        substeps, iterations = recipe.simulation.sweeps_per_frame()
+    substeps, iterations = recipe.simulation.sweeps_per_frame(settings)
     return RunEstimate(
         frames=recipe.simulation.frames,
         substeps=substeps,

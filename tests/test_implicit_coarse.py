@@ -26,7 +26,7 @@ def test_the_lattice_interpolates_every_free_vertex() -> None:
     """Each free vertex's weights are a partition of unity, and the lattice reproduces every linear
     field of the rest positions exactly (trilinear interpolation), so it can carry a turn."""
     solver, rest = _prepared()
-    space = solver.coarse
+    space = solver.coarse_space
     assert space is not None
     assert np.allclose(np.where(space.vertex_nodes >= 0, space.vertex_weights, 0.0).sum(axis=1), 1.0)
     free_rest = rest[solver.free_vertices]
@@ -45,7 +45,7 @@ def test_the_coarse_matrix_is_the_step_hessian_seen_through_the_lattice() -> Non
     kernel) along each lattice field, on a sheet stretched everywhere (where no part of a spring's
     Hessian is left out)."""
     solver, rest = _prepared()
-    space = solver.coarse
+    space = solver.coarse_space
     rng = np.random.default_rng(3)
     x = rest * 1.08 + rng.normal(0.0, 0.001, rest.shape)
     y = x + rng.normal(0.0, 0.01, rest.shape)

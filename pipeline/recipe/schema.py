@@ -14,7 +14,7 @@ import fnmatch
 import json
 from collections.abc import Mapping
 from pathlib import PurePosixPath
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -42,6 +42,10 @@ from pipeline.recipe.messages import close_match, show, toml_type
 from pipeline.recipe.selection import PlaneSpec, SelectSpec, SphereSpec
 from pipeline.recipe.solver_options import options_class
 from pipeline.recipe.values import Direction3, Float, Scale3, Table, Vec3, is_number, nonzero_vec3, one_of
+
+if TYPE_CHECKING:
+    from meshdeform.simulate import Settings
+
 
 # ---------------------------------------------------------------------------------------------
 # [simulation]
@@ -96,14 +100,17 @@ class SimulationSpec(Table):
         shared = {k: v for k, v in (("iterations", self.iterations), ("damping", self.damping)) if v is not None}
         return options_class(self.solver)(**shared, **self.given_options())
 
-    def sweeps_per_frame(self) -> tuple[int, int]:
-        """(substeps, iterations) per frame in force: as given, else the solver's defaults; iterations
-        is 1 for solvers without constraint sweeps (springs, anchor)."""
+    def sweeps_per_frame(self, settings: Settings | None = None) -> tuple[int, int]:
+        """(substeps, iterations) per frame in force: as given, else the solver's defaults, or those
+        of the resolved `settings` of a built scene (its calm steps: `meshdeform.simulate.steps_for`);
+        iterations is 1 for solvers without constraint sweeps (springs, anchor)."""
         cls = solver_class(self.solver)
-        substeps = self.substeps if self.substeps is not None else int(cls.default_substeps)
-        if int(cls.default_iterations) == 0:
-            return substeps, 1
-        return substeps, self.iterations if self.iterations is not None else int(cls.default_iterations)
+        if settings is not None:
+            substeps, iterations = int(settings.substeps), int(settings.iterations)
+        else:
+            substeps = self.substeps if self.substeps is not None else int(cls.default_substeps)
+            iterations = self.iterations if self.iterations is not None else int(cls.default_iterations)
+        return (substeps, 1) if int(cls.default_iterations) == 0 else (substeps, iterations)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -160,9 +160,9 @@ class ImplicitSolver(ModelCache, Solver):
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
             self.rho = np.zeros(HISTORY)
         self.factor: cholespy.CholeskySolverD | None = None
-        self.coarse = None
+        self.coarse_space: coarse.CoarseSpace | None = None
         if self.options.method == "lbfgs":
-            self.coarse = coarse.coarse_space(
+            self.coarse_space = coarse.coarse_space(
                 np.asarray(model.rest_positions, dtype=np.float64)[self.free_vertices], self.free, self.a, self.b,
                 kinds != SpringKind.BENDING, int(self.options.coarse or 0),
             )
@@ -209,8 +209,8 @@ class ImplicitSolver(ModelCache, Solver):
             )
         self.beta2 = beta2
         self._dt = dt
-        if self.coarse is not None:
-            self.coarse_inertia = self.coarse.inertia_matrix(self.inertia)
+        if self.coarse_space is not None:
+            self.coarse_inertia = self.coarse_space.inertia_matrix(self.inertia)
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         if not self._prepared(model):
@@ -294,7 +294,7 @@ class ImplicitSolver(ModelCache, Solver):
         docstring) from x, in place, each with an Armijo line search on the step's energy; its
         matrix Z^T H Z is assembled and factorised once, at x. Returns the energy at the x it leaves, whose
         gradient is in `self.grad` (the L-BFGS iterations start from both)."""
-        space = self.coarse
+        space = self.coarse_space
         fv = self.free_vertices
         matrix = self.coarse_inertia.copy()
         coarse.spring_hessian(
@@ -337,7 +337,7 @@ class ImplicitSolver(ModelCache, Solver):
         step 1, halved until the energy falls by the Armijo condition. The history is per step.
         """
         fv = self.free_vertices
-        if self.coarse is not None and not self.contact_rows.shape[0]:
+        if self.coarse_space is not None and not self.contact_rows.shape[0]:
             energy = self._coarse_correction(x, y)
         else:
             energy = self._energy(x, y, self.grad)
