@@ -51,10 +51,7 @@ def test_the_coarse_matrix_is_the_step_hessian_seen_through_the_lattice() -> Non
     y = x + rng.normal(0.0, 0.01, rest.shape)
     assert (np.linalg.norm(x[solver.a] - x[solver.b], axis=1) > solver.rest).all()  # every spring stretched
     matrix = solver.coarse_inertia.copy()
-    coarse.spring_hessian(
-        x, solver.a, solver.b, solver.rest, solver.stiff_t, solver.stiff_c, solver.modulus, space.springs,
-        space.spring_nodes, space.spring_coefficients, space.group_start, matrix,
-    )
+    space.add_spring_hessian(x, solver.a, solver.b, solver.rest, solver.stiff_t, solver.stiff_c, solver.modulus, matrix)
     assert np.allclose(matrix, matrix.T)
     fv = solver.free_vertices
     eps = 1e-6

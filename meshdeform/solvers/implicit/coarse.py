@@ -35,7 +35,7 @@ import numpy as np
 from scipy.sparse import csr_matrix, diags
 
 from meshdeform.solvers.implicit.kernels import spring_constant
-from meshdeform.solvers.jit import JIT
+from meshdeform.solvers.jit import FAST, JIT
 
 #: at most this many lattice nodes (3 unknowns each; the dense solve costs their cube): a flat sheet
 #: keeps its `nodes` x `nodes`, a solid's lattice gets fewer along each side (3 x 3 x 3)
@@ -52,9 +52,11 @@ class CoarseSpace:
         weight of each free vertex's cell corners; the weights of a vertex sum to 1.
     count: lattice nodes kept (C); the coarse unknowns are their (C, 3) displacements (m).
     springs: (S',) indices into the solver's spring arrays of the springs assembled into Z^T H Z;
-    spring_nodes, spring_coefficients: (S', 16) the nodes (ascending) and coefficients of z_a - z_b
-        for each (a pinned end contributes nothing), -1 / 0 past the last.
-    group_start: (G + 1,) the springs are in groups with the same nodes; group g is rows
+    spring_nodes: (S', 16) the nodes of z_a - z_b for each spring (ascending; -1 past the last);
+    spring_coefficients: (16, S') their coefficients, row p the p-th node's of every spring (a
+        pinned end contributes nothing; 0 past the last node), so that a sum over springs reads
+        consecutive memory.
+    group_start: (G + 1,) the springs are in groups with the same nodes; group g is springs
         group_start[g] .. group_start[g + 1] - 1.
     """
 
@@ -65,6 +67,17 @@ class CoarseSpace:
     spring_nodes: np.ndarray
     spring_coefficients: np.ndarray
     group_start: np.ndarray
+
+    def add_spring_hessian(
+        self, x: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, stiff_t: np.ndarray,
+        stiff_c: np.ndarray, modulus: float, out: np.ndarray,
+    ) -> None:
+        """out (3C, 3C) += Z^T H Z of the assembled springs at positions x (V, 3) (`spring_hessian`;
+        a, b, rest, stiff_t, stiff_c, modulus: the solver's spring arrays)."""
+        spring_hessian(
+            x, a, b, rest, stiff_t, stiff_c, modulus, self.springs, self.spring_nodes, self.spring_coefficients,
+            self.group_start, out,
+        )
 
     def inertia_matrix(self, inertia: np.ndarray) -> np.ndarray:
         """Z^T diag(inertia) Z (3C, 3C) for the free vertices' inertia (F,) (kg / s^2): the same
@@ -139,7 +152,7 @@ def coarse_space(
         count=int(used.shape[0]),
         springs=springs,
         spring_nodes=spring_nodes,
-        spring_coefficients=spring_coefficients,
+        spring_coefficients=np.ascontiguousarray(spring_coefficients.T),
         group_start=group_start,
     )
 
@@ -179,7 +192,7 @@ def _spring_stencils(
     return out_nodes.astype(np.int32), summed
 
 
-@nb.njit(**JIT)
+@nb.njit(**FAST)
 def spring_hessian(
     x, a, b, rest, stiff_t, stiff_c, modulus, springs, spring_nodes, spring_coefficients, group_start, out
 ):  # pragma: no cover - compiled
@@ -187,76 +200,92 @@ def spring_hessian(
     H_s = k (n n^T + max(0, 1 - L / l) (I - n n^T)): a spring's Hessian with the part across it
     that a compressed spring would make negative left out (positive semi-definite).
 
-    Each group of springs with the same nodes is summed into a block of its own (3m x 3m for its
-    m nodes, upper triangle), added to out's upper triangle once; out's lower triangle is
-    mirrored from it at the end."""
-    block = np.zeros((6 * CORNERS, 6 * CORNERS))
+    A group of springs with the same nodes is taken `HESSIAN_CHUNK` springs at a time: the six
+    entries of each spring's H_s (xx, yy, zz, xy, xz, yy) into a small buffer, then for each pair of
+    the group's nodes p <= q the six sums over the chunk of c_p c_q H_s (coefficients from
+    `spring_coefficients` (W, S'), row p the p-th node's), loops over consecutive springs that the
+    compiler runs several at a time on data still in the first-level cache. The group's sums go to
+    out's upper triangle, mirrored to the lower one at the end. Serial, in a fixed order."""
+    width = spring_nodes.shape[1]
+    terms = np.zeros((6, HESSIAN_CHUNK))
+    sums = np.zeros((width * (width + 1) // 2, 6))
     for g in range(group_start.shape[0] - 1):
         first = group_start[g]
         m = 0
-        while m < 2 * CORNERS and spring_nodes[first, m] >= 0:
+        while m < width and spring_nodes[first, m] >= 0:
             m += 1
-        size = 3 * m
-        for i in range(size):
-            for j in range(i, size):
-                block[i, j] = 0.0
-        for k in range(first, group_start[g + 1]):
-            s = springs[k]
-            ia = a[s]
-            ib = b[s]
-            dx = x[ia, 0] - x[ib, 0]
-            dy = x[ia, 1] - x[ib, 1]
-            dz = x[ia, 2] - x[ib, 2]
-            length = np.sqrt(dx * dx + dy * dy + dz * dz)
-            if length < 1e-12:
-                continue
-            stiffness = spring_constant(length - rest[s], stiff_t[s], stiff_c[s], modulus)
-            if stiffness == 0.0:
-                continue
-            inv = 1.0 / length
-            nx, ny, nz = dx * inv, dy * inv, dz * inv
-            across = max(0.0, 1.0 - rest[s] * inv)
-            along = stiffness * (1.0 - across)
-            iso = stiffness * across
-            hxx = along * nx * nx + iso
-            hyy = along * ny * ny + iso
-            hzz = along * nz * nz + iso
-            hxy = along * nx * ny
-            hxz = along * nx * nz
-            hyz = along * ny * nz
+        pairs = m * (m + 1) // 2
+        sums[:pairs] = 0.0
+        for start in range(first, group_start[g + 1], HESSIAN_CHUNK):
+            stop = min(start + HESSIAN_CHUNK, group_start[g + 1])
+            for k in range(start, stop):
+                s = springs[k]
+                ia = a[s]
+                ib = b[s]
+                dx = x[ia, 0] - x[ib, 0]
+                dy = x[ia, 1] - x[ib, 1]
+                dz = x[ia, 2] - x[ib, 2]
+                length = np.sqrt(dx * dx + dy * dy + dz * dz)
+                stiffness = spring_constant(length - rest[s], stiff_t[s], stiff_c[s], modulus)
+                j = k - start
+                if length < 1e-12 or stiffness == 0.0:
+                    for e in range(6):
+                        terms[e, j] = 0.0
+                    continue
+                inv = 1.0 / length
+                nx, ny, nz = dx * inv, dy * inv, dz * inv
+                across = max(0.0, 1.0 - rest[s] * inv)
+                along = stiffness * (1.0 - across)
+                iso = stiffness * across
+                terms[0, j] = along * nx * nx + iso
+                terms[1, j] = along * ny * ny + iso
+                terms[2, j] = along * nz * nz + iso
+                terms[3, j] = along * nx * ny
+                terms[4, j] = along * nx * nz
+                terms[5, j] = along * ny * nz
+            pair = 0
             for p in range(m):
-                cp = spring_coefficients[k, p]
-                r = 3 * p
-                c = cp * cp
-                block[r, r] += c * hxx
-                block[r + 1, r + 1] += c * hyy
-                block[r + 2, r + 2] += c * hzz
-                block[r, r + 1] += c * hxy
-                block[r, r + 2] += c * hxz
-                block[r + 1, r + 2] += c * hyz
-                for q in range(p + 1, m):
-                    c = cp * spring_coefficients[k, q]
-                    t = 3 * q
-                    block[r, t] += c * hxx
-                    block[r + 1, t + 1] += c * hyy
-                    block[r + 2, t + 2] += c * hzz
-                    block[r, t + 1] += c * hxy
-                    block[r + 1, t] += c * hxy
-                    block[r, t + 2] += c * hxz
-                    block[r + 2, t] += c * hxz
-                    block[r + 1, t + 2] += c * hyz
-                    block[r + 2, t + 1] += c * hyz
+                for q in range(p, m):
+                    sxx = syy = szz = sxy = sxz = syz = 0.0
+                    for k in range(start, stop):
+                        j = k - start
+                        c = spring_coefficients[p, k] * spring_coefficients[q, k]
+                        sxx += c * terms[0, j]
+                        syy += c * terms[1, j]
+                        szz += c * terms[2, j]
+                        sxy += c * terms[3, j]
+                        sxz += c * terms[4, j]
+                        syz += c * terms[5, j]
+                    sums[pair, 0] += sxx
+                    sums[pair, 1] += syy
+                    sums[pair, 2] += szz
+                    sums[pair, 3] += sxy
+                    sums[pair, 4] += sxz
+                    sums[pair, 5] += syz
+                    pair += 1
+        pair = 0
         for p in range(m):
             r = 3 * spring_nodes[first, p]
             for q in range(p, m):
                 t = 3 * spring_nodes[first, q]
-                for i in range(3):
-                    for j in range(3):
-                        if p < q or j >= i:
-                            out[r + i, t + j] += block[3 * p + i, 3 * q + j]
+                out[r, t] += sums[pair, 0]
+                out[r + 1, t + 1] += sums[pair, 1]
+                out[r + 2, t + 2] += sums[pair, 2]
+                out[r, t + 1] += sums[pair, 3]
+                out[r, t + 2] += sums[pair, 4]
+                out[r + 1, t + 2] += sums[pair, 5]
+                if q > p:  # a block above the diagonal: its lower half too (t > r: nodes ascend)
+                    out[r + 1, t] += sums[pair, 3]
+                    out[r + 2, t] += sums[pair, 4]
+                    out[r + 2, t + 1] += sums[pair, 5]
+                pair += 1
     for i in range(out.shape[0]):
         for j in range(i + 1, out.shape[0]):
             out[j, i] = out[i, j]
+
+
+#: springs whose Hessian entries `spring_hessian` holds at once (6 x 8 bytes each, in the first-level cache)
+HESSIAN_CHUNK = 256
 
 
 @nb.njit(**JIT)

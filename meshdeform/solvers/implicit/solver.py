@@ -297,10 +297,7 @@ class ImplicitSolver(ModelCache, Solver):
         space = self.coarse_space
         fv = self.free_vertices
         matrix = self.coarse_inertia.copy()
-        coarse.spring_hessian(
-            x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, space.springs,
-            space.spring_nodes, space.spring_coefficients, space.group_start, matrix,
-        )
+        space.add_spring_hessian(x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, matrix)
         skip = coarse.factor_spd(matrix)
         gradient = np.empty(3 * space.count)
         energy = self._energy(x, y, self.grad)
