@@ -34,7 +34,7 @@ import numba as nb
 import numpy as np
 from scipy.sparse import csr_matrix, diags
 
-from meshdeform.solvers.implicit.kernels import spring_constant
+from meshdeform.solvers.implicit.kernels import dot, spring_constant
 from meshdeform.solvers.jit import FAST, JIT
 
 #: at most this many lattice nodes (3 unknowns each; the dense solve costs their cube): a flat sheet
@@ -373,3 +373,16 @@ def solve_factored(lower, skip, rhs):  # pragma: no cover - compiled
             v -= lower[k, i] * x[k]
         x[i] = v / lower[i, i]
     return x
+
+
+@nb.njit(**JIT)
+def newton_direction(  # pragma: no cover - compiled
+    grad, vertex_nodes, vertex_weights, lower, skip, gradient, direction
+):
+    """A coarse Newton step as fine displacements: gradient (3C,) = Z^T grad for grad (F, 3), the
+    coarse move solving (Z^T H Z) c = -gradient with the factor `lower`, `skip` of `factor_spd`,
+    and direction (F, 3) = Z c. Returns the slope grad . direction (negative downhill)."""
+    restrict(grad, vertex_nodes, vertex_weights, gradient)
+    move = solve_factored(lower, skip, -gradient)
+    prolong(move, vertex_nodes, vertex_weights, direction)
+    return dot(grad, direction)

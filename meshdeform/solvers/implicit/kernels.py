@@ -227,3 +227,106 @@ def pressing(grad, rows, normals):  # pragma: no cover - compiled
         j = rows[k]
         out[k] = grad[j, 0] * normals[k, 0] + grad[j, 1] * normals[k, 1] + grad[j, 2] * normals[k, 2] > 0.0
     return out
+
+
+@nb.njit(**JIT)
+def bdf2_start(  # pragma: no cover - compiled
+    x, v, x_prev, v_prev, accel, dt, beta2, drag_factor, free_vertices, x_n, v_n, x_hat, y
+):
+    """A BDF2 step's start, all (V, 3): x_n, v_n = x, v (the step's start, kept); x_hat =
+    4/3 x_n - 1/3 x_prev; the inertial target y = (2 dt / 9 (4 v_n - v_prev) + beta2 accel) /
+    drag_factor + x_hat; and x on the free vertices set to y - beta2 / drag_factor accel (the
+    iterations' start: the springs already balance most of the external acceleration). One pass,
+    each value computed as the NumPy expressions it replaces would (same bits)."""
+    damped = drag_factor != 1.0
+    for i in range(x.shape[0]):
+        for d in range(3):
+            xn = x[i, d]
+            vn = v[i, d]
+            x_n[i, d] = xn
+            v_n[i, d] = vn
+            hat = (4.0 / 3.0) * xn - (1.0 / 3.0) * x_prev[i, d]
+            x_hat[i, d] = hat
+            target = (2.0 * dt / 9.0) * (4.0 * vn - v_prev[i, d])
+            target += beta2 * accel[i, d]
+            if damped:
+                target /= drag_factor
+            y[i, d] = target + hat
+    lead = beta2 / drag_factor
+    for j in range(free_vertices.shape[0]):
+        i = free_vertices[j]
+        for d in range(3):
+            x[i, d] = y[i, d] - lead * accel[i, d]
+
+
+@nb.njit(**JIT)
+def bdf2_finish(x, v, x_hat, x_n, previous, free, dt, x_out):  # pragma: no cover - compiled
+    """A BDF2 step's end, all (V, 3): v = 3 / (2 dt) (x - x_hat) on free vertices, (x -
+    previous) / dt on pinned ones (free < 0: their scripted motion); previous = x_n on free
+    vertices; x_out = x (what the step left, to tell a constraint's later change)."""
+    rate = 1.5 / dt
+    for i in range(x.shape[0]):
+        pinned = free[i] < 0
+        for d in range(3):
+            if pinned:
+                v[i, d] = (x[i, d] - previous[i, d]) / dt
+            else:
+                v[i, d] = rate * (x[i, d] - x_hat[i, d])
+                previous[i, d] = x_n[i, d]
+            x_out[i, d] = x[i, d]
+
+
+@nb.njit(**JIT)
+def lbfgs_first_loop(  # pragma: no cover - compiled
+    grad, rows, normals, slots, rho, step_history, gradient_history, alpha, residual
+):
+    """The first loop of L-BFGS's two-loop recursion: residual (F, 3) = grad made tangent to the
+    held contacts (rows (K,), unit normals (K, 3): `remove_normal`), then for each history slot
+    in `slots` (newest first) alpha[slot] = rho[slot] s . residual and residual -= alpha[slot] y
+    (s, y the slot's step and gradient change in step_history, gradient_history (H, F, 3)).
+    The same operations, in the same order, as the NumPy-level loop it replaces."""
+    residual[:] = grad
+    remove_normal(residual, rows, normals)
+    for k in range(slots.shape[0]):
+        slot = slots[k]
+        alpha[slot] = rho[slot] * dot(step_history[slot], residual)
+        add_scaled(residual, gradient_history[slot], -alpha[slot])
+
+
+@nb.njit(**JIT)
+def lbfgs_second_loop(  # pragma: no cover - compiled
+    direction, rows, normals, slots, rho, step_history, gradient_history, alpha, grad
+):
+    """The second loop of the recursion on direction (F, 3) (the preconditioned residual): for
+    each slot oldest first, beta = rho[slot] y . direction and direction += (alpha[slot] - beta)
+    s; then direction made tangent to the held contacts. Returns the slope -grad . direction of
+    the step -direction (negative for a descent direction)."""
+    for k in range(slots.shape[0] - 1, -1, -1):
+        slot = slots[k]
+        beta = rho[slot] * dot(gradient_history[slot], direction)
+        add_scaled(direction, step_history[slot], alpha[slot] - beta)
+    remove_normal(direction, rows, normals)
+    return -dot(grad, direction)
+
+
+@nb.njit(**JIT)
+def lbfgs_remember(direction, step, trial_grad, grad, rows, normals, s_k, y_k):  # pragma: no cover - compiled
+    """An L-BFGS history pair after a step of length `step` along -direction (F, 3): s_k =
+    -step direction, y_k = trial_grad - grad made tangent to the held contacts. Returns the
+    curvature s_k . y_k."""
+    for j in range(direction.shape[0]):
+        for d in range(3):
+            s_k[j, d] = direction[j, d] * -step
+            y_k[j, d] = trial_grad[j, d] - grad[j, d]
+    remove_normal(y_k, rows, normals)
+    return dot(s_k, y_k)
+
+
+@nb.njit(**JIT)
+def gather_rows(x, free_vertices, out):  # pragma: no cover - compiled
+    """out (F, 3) = x[free_vertices]."""
+    for j in range(free_vertices.shape[0]):
+        i = free_vertices[j]
+        out[j, 0] = x[i, 0]
+        out[j, 1] = x[i, 1]
+        out[j, 2] = x[i, 2]

@@ -172,6 +172,8 @@ class ImplicitSolver(ModelCache, Solver):
         self.trust = TRUST_FRACTION * float(np.median(edges)) if edges.size else np.inf
         self._forget_contacts()
         self._normal = np.zeros((model.vertex_count, 3))  # scratch of `kernels.constrained_rows`
+        # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out
+        self.x_hat, self.y, self.x_out = (np.zeros((model.vertex_count, 3)) for _ in range(3))
         self._dt = -1.0
         self._state_key = None
 
@@ -236,35 +238,24 @@ class ImplicitSolver(ModelCache, Solver):
             pushed_vertices = np.flatnonzero(pushed)
             self.contact_rows = self.free[pushed_vertices].astype(np.int64)
             self.contact_normals = np.ascontiguousarray(self._normal[pushed_vertices])
-        x_n = x.copy()
-        v_n = v.copy()
-        x_hat = (4.0 / 3.0) * x_n - (1.0 / 3.0) * self.x_prev
-        y = (2.0 * dt / 9.0) * (4.0 * v_n - self.v_prev)
-        y += self.beta2 * accel
-        if self.drag_factor != 1.0:
-            y /= self.drag_factor
-        y += x_hat
-        fv = self.free_vertices
-        if fv.shape[0] and self.factor is not None:
-            # start from the inertial prediction without the external acceleration: on a
-            # supported cloth the springs already balance most of it there (a cloth at rest starts
-            # at its solution), and in free fall the first iteration adds exactly b^2 a / q
-            # (the matrix maps the free vertices' translation M a to it), so it stays exact
-            x[fv] = y[fv] - (self.beta2 / self.drag_factor) * accel[fv]
-            if self.a.shape[0]:
-                if self.options.method == "lbfgs":
-                    self._quasi_newton(x, y)
-                else:
-                    self._local_global(x, y)
-        v_new = (1.5 / dt) * (x - x_hat)
-        pinned = self.free < 0
-        v_new[pinned] = (x[pinned] - state.previous[pinned]) / dt
+        # the step's start (x_n, v_n) becomes the next step's history: fresh arrays each step
+        x_n, v_n = np.empty_like(x), np.empty_like(v)
+        x_hat, y = self.x_hat, self.y
+        kernels.bdf2_start(
+            x, v, self.x_prev, self.v_prev, accel, dt, self.beta2, self.drag_factor, self.free_vertices,
+            x_n, v_n, x_hat, y,
+        )
+        if not self.a.shape[0]:  # no springs: the step's minimum is the inertial target
+            x[self.free_vertices] = y[self.free_vertices]
+        elif self.factor is not None:
+            if self.options.method == "lbfgs":
+                self._quasi_newton(x, y)
+            else:
+                self._local_global(x, y)
+        kernels.bdf2_finish(x, v, x_hat, x_n, state.previous, self.free, dt, self.x_out)
         self.x_prev = x_n
         self.v_prev = v_n
-        state.previous[~pinned] = x_n[~pinned]
-        v[:] = v_new
-        self.x_out = x.copy()
-        self.v_out = v_new
+        self.v_out = v.copy()
         self._state_key = (id(state), state.time + dt)
 
     def _forget_contacts(self) -> None:
@@ -302,13 +293,12 @@ class ImplicitSolver(ModelCache, Solver):
         gradient = np.empty(3 * space.count)
         energy = self._energy(x, y, self.grad)
         for _ in range(COARSE_STEPS):
-            coarse.restrict(self.grad, space.vertex_nodes, space.vertex_weights, gradient)
-            move = coarse.solve_factored(matrix, skip, -gradient)
-            coarse.prolong(move, space.vertex_nodes, space.vertex_weights, self.direction)
-            slope = kernels.dot(self.grad, self.direction)
+            slope = coarse.newton_direction(
+                self.grad, space.vertex_nodes, space.vertex_weights, matrix, skip, gradient, self.direction
+            )
             if not slope < 0.0:
                 break
-            self.base[:] = x[fv]
+            kernels.gather_rows(x, fv, self.base)
             step = 1.0
             for _ in range(LINE_SEARCH_HALVINGS):
                 kernels.place(x, fv, self.base, self.direction, step)
@@ -342,39 +332,33 @@ class ImplicitSolver(ModelCache, Solver):
         trust = self.trust if self.contact_rows.shape[0] else np.inf  # only a step with contact is bounded
         slots: list[int] = []  # history slots, newest first
         alpha = np.zeros(HISTORY)
+        no_rows, no_normals = self.contact_rows[:0], self.contact_normals[:0]
         for iteration in range(self.iterations):
             # contacts: a vertex a constraint pushed before this step is held where the forces
             # press it into the obstacle (its motion along the push taken out of the direction)
             # and may lift off where they pull it away; the last iteration holds none, so the
             # collider's push after the step, and the friction it scales, still take place
-            if iteration + 1 < self.iterations:
+            if iteration + 1 < self.iterations and self.contact_rows.shape[0]:
                 held = kernels.pressing(grad, self.contact_rows, self.contact_normals)
+                rows, normals = self.contact_rows[held], self.contact_normals[held]
             else:
-                held = np.zeros(self.contact_rows.shape[0], dtype=np.bool_)
-            rows, normals = self.contact_rows[held], self.contact_normals[held]
+                rows, normals = no_rows, no_normals
             # two-loop recursion: direction = H grad, H0 = matrix^-1 (the step is -direction)
-            self.residual[:] = grad
-            kernels.remove_normal(self.residual, rows, normals)
-            for slot in slots:
-                alpha[slot] = self.rho[slot] * kernels.dot(self.step_history[slot], self.residual)
-                kernels.add_scaled(self.residual, self.gradient_history[slot], -alpha[slot])
+            order = np.array(slots, dtype=np.int64)
+            history = (self.rho, self.step_history, self.gradient_history, alpha)
+            kernels.lbfgs_first_loop(grad, rows, normals, order, *history, self.residual)
             self.factor.solve(self.residual, direction)
-            for slot in reversed(slots):
-                beta = self.rho[slot] * kernels.dot(self.gradient_history[slot], direction)
-                kernels.add_scaled(direction, self.step_history[slot], alpha[slot] - beta)
-            kernels.remove_normal(direction, rows, normals)
-            slope = -kernels.dot(grad, direction)
+            slope = kernels.lbfgs_second_loop(direction, rows, normals, order, *history, grad)
             if not slope < 0.0 and slots:  # the history spoilt the direction: start it afresh
                 slots.clear()
-                self.residual[:] = grad
-                kernels.remove_normal(self.residual, rows, normals)
+                order = order[:0]
+                kernels.lbfgs_first_loop(grad, rows, normals, order, *history, self.residual)
                 self.factor.solve(self.residual, direction)
-                kernels.remove_normal(direction, rows, normals)
-                slope = -kernels.dot(grad, direction)
+                slope = kernels.lbfgs_second_loop(direction, rows, normals, order, *history, grad)
             if not slope < 0.0:  # a stationary point
                 return
-            base[:] = x[fv]
-            longest = kernels.longest_row(direction)
+            kernels.gather_rows(x, fv, base)
+            longest = kernels.longest_row(direction) if trust < np.inf else 0.0
             step = 1.0 if longest <= trust else trust / longest
             for _ in range(LINE_SEARCH_HALVINGS):
                 kernels.place(x, fv, base, direction, -step)
@@ -388,11 +372,9 @@ class ImplicitSolver(ModelCache, Solver):
             if iteration + 1 == self.iterations:
                 return
             slot = next(k for k in range(HISTORY) if k not in slots) if len(slots) < HISTORY else slots.pop()
-            s_k, y_k = self.step_history[slot], self.gradient_history[slot]
-            np.multiply(direction, -step, out=s_k)
-            np.subtract(trial_grad, grad, out=y_k)
-            kernels.remove_normal(y_k, rows, normals)
-            curvature = kernels.dot(s_k, y_k)
+            curvature = kernels.lbfgs_remember(
+                direction, step, trial_grad, grad, rows, normals, self.step_history[slot], self.gradient_history[slot]
+            )
             if curvature > 0.0:
                 self.rho[slot] = 1.0 / curvature
                 slots.insert(0, slot)
