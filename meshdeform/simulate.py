@@ -344,7 +344,7 @@ def simulate(
     pinned_rest = np.array(model.rest_positions[pinned_idx])
     accelerations = np.empty_like(state.positions)
     accelerations[:] = gravity
-    control = Control(accelerations=accelerations)
+    control = Control(accelerations=accelerations, pulled=scene.pulled(model.vertex_count))
     forces = list(scene.forces)
     constraints = list(scene.constraints)
     remappable = scene.remappables()  # the forces and constraints with per-vertex data (follow tears)
@@ -417,7 +417,7 @@ def simulate(
                     pin_slot = np.searchsorted(original_pins, tearing.origin[pinned_idx])
                     accelerations = np.empty_like(state.positions)
                     accelerations[:] = gravity
-                    control = Control(accelerations=accelerations)
+                    control = Control(accelerations=accelerations, pulled=scene.pulled(model.vertex_count))
                     structural = _Structural.of(model)
                     balance = _Balance.of(model)
             if substep in keep_after:

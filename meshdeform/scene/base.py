@@ -51,6 +51,16 @@ class Constraint(Protocol):
 
 
 @runtime_checkable
+class Pulling(Protocol):
+    """A constraint that pulls vertices toward targets like zero-length springs (soft pins), where
+    a collider pushes them out of an obstacle: solvers must not hold these vertices as contacts."""
+
+    def pulled_vertices(self) -> np.ndarray:
+        """(P,) int64: the welded vertices it pulls."""
+        ...
+
+
+@runtime_checkable
 class Remappable(Protocol):
     """A force or constraint with per-vertex data follows a tear: `index_map` (W',) gives the
     previous vertex of every vertex of the new `model` (copies appended after the old ones)."""
@@ -98,6 +108,16 @@ class Scene:
     pin_motion: PinMotion | None = None
     tearing: Tearer | None = None
     self_collision: SelfCollision | None = None
+
+    def pulled(self, vertex_count: int) -> np.ndarray | None:
+        """(vertex_count,) bool: the vertices a `Pulling` constraint pulls; None where none does."""
+        pulling = [c for c in self.constraints if isinstance(c, Pulling)]
+        if not pulling:
+            return None
+        mask = np.zeros(vertex_count, dtype=bool)
+        for constraint in pulling:
+            mask[constraint.pulled_vertices()] = True
+        return mask
 
     def remappables(self) -> list[Remappable]:
         """The forces and constraints that follow a tear, each object once (an effect such as

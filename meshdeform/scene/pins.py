@@ -194,6 +194,10 @@ class SoftPins(Constraint, Remappable):
     def targets(self, time: float) -> np.ndarray:
         return self.rest if self.keys is None else self.keys.apply(self.rest, time)
 
+    def pulled_vertices(self) -> np.ndarray:
+        """The welded vertices it pulls (`scene.base.Pulling`)."""
+        return self.indices
+
     def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
         """Follow a tear (`index_map`: new vertex -> old): copies of a pinned vertex are pulled
         toward the same target."""

@@ -33,6 +33,10 @@ class Control:
     """
 
     accelerations: np.ndarray
+    #: (W,) bool or None: vertices a constraint pulls toward a target like a spring after each step
+    #: (soft pins), not out of an obstacle; a solver that takes the vertices constraints moved for
+    #: contacts (implicit: held against the push in its iterations) leaves these out
+    pulled: np.ndarray | None = None
 
 
 class Solver(ABC):

@@ -232,6 +232,8 @@ class ImplicitSolver(ModelCache, Solver):
             # collision, tethers) start their history afresh from where they are: BDF2's
             # extrapolation of their former path would carry on through the contact
             moved, pushed = kernels.constrained_rows(x, v, self.x_out, self.v_out, self.free, self._normal)
+            if control.pulled is not None:  # a soft pin's pull is no obstacle: never held against
+                pushed &= ~control.pulled
             if moved.any():
                 self.x_prev[moved] = x[moved] - dt * v[moved] + 0.5 * dt * dt * accel[moved]
                 self.v_prev[moved] = v[moved] - dt * accel[moved]
