@@ -117,10 +117,10 @@ class _Pairs:
     the continuous check keeps up to date (`self_kernels.colliding_pairs`).
 
     Each vertex has a carried-on path: after substep `built` (V,) it is at `base` (V, 3) and
-    moves on by `motion` (V, 3, m) a substep. The list covers a vertex for `LIST_SUBSTEPS`
-    substeps from its `built` while it stays within the slack (m) of that path (`stale`: the
+    moves on by `motion` (V, 3, m) a substep. The list covers a vertex for `span` substeps
+    (`list_substeps`) from its `built` while it stays within the slack (m) of that path (`stale`: the
     departure common to all vertices taken out, as a common translation brings no pair closer).
-    Over such a span two points come closer by at most `LIST_SUBSTEPS` times their relative
+    Over such a span two points come closer by at most `span` times their relative
     motion plus twice the slack (and a triangle's or an edge's points by at most their corners'
     largest such figure), so the pairs further apart than the thickness plus that reach cannot
     come within the thickness or touch and are left out. The reach is relative, so parts of the
@@ -151,17 +151,17 @@ class _Pairs:
         )
 
     def stale(
-        self, x0: np.ndarray, x1: np.ndarray, substep: int, slack: float
+        self, x0: np.ndarray, x1: np.ndarray, substep: int, slack: float, span: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The vertices (V,) bool this list does not cover in substep number `substep`, from x0
-        to x1 (V, 3): past their span, or an end of the substep further than `slack` (m) from
+        to x1 (V, 3): past their span of `span` substeps, or an end of the substep further than `slack` (m) from
         their path after the common departure (then every point between the ends is within it
         too); and those common departures at x0 and x1 (3,) each."""
         age = (substep - self.built).astype(np.float64)
         at_end, at_start = np.empty(x1.shape[0], dtype=np.bool_), np.empty(x1.shape[0], dtype=np.bool_)
         common_end = strays(x1, self.base, self.motion, age, slack, at_end)
         common_start = strays(x0, self.base, self.motion, age - 1.0, slack, at_start)
-        return at_end | at_start | (age > LIST_SUBSTEPS), common_start, common_end
+        return at_end | at_start | (age > span), common_start, common_end
 
 
 class SelfCollision(Constraint, Remappable):
@@ -181,6 +181,7 @@ class SelfCollision(Constraint, Remappable):
         self._start: np.ndarray | None = None
         self._held: _Pairs | None = None
         self._substep = 0  # substeps projected so far: the age of the kept pairs
+        self._span = 1  # substeps a list of candidate pairs covers at most (`list_substeps`)
         self._margin = 0.0
         self._capacity = (0, 0)
         self._threads = 1  # threads a candidate search may use (`parts.search_threads`)
@@ -226,7 +227,7 @@ class SelfCollision(Constraint, Remappable):
         slack = 0.5 * self._margin
         n = x0.shape[0]
         if held is not None and held.base.shape[0] == n:
-            stale, common_start, common_end = held.stale(x0, x1, self._substep, slack)
+            stale, common_start, common_end = held.stale(x0, x1, self._substep, slack, self._span)
             if not stale.any():
                 return held
             if np.count_nonzero(stale) > REGATHER_FRACTION * n:
@@ -258,7 +259,7 @@ class SelfCollision(Constraint, Remappable):
         # pair that comes within the thickness while the list holds has its paths within `reach`
         # of each other at that moment, so its boxes overlap
         drift = pairs.motion - pairs.motion.mean(axis=0)
-        first, last = carried - drift, carried + (LIST_SUBSTEPS - age) * drift
+        first, last = carried - drift, carried + (self._span - age) * drift
         reach = self.thickness + 2.0 * slack
         vertices = np.arange(x0.shape[0], dtype=np.int64)[:, None]
         qlo, qhi = swept_boxes(first, last, vertices, reach)
@@ -269,7 +270,7 @@ class SelfCollision(Constraint, Remappable):
         edge_fresh = ends[:, 0] | ends[:, 1]
         ring_start, ring = self._rings
         rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
-        shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, LIST_SUBSTEPS, reach)
+        shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, self._span, reach)
         everyone = fresh.shape[0] == x0.shape[0]
         capacity = self._capacity if everyone else (0, 0)
         # a partial search keeps the cells of the last whole one (`grid_for`)
@@ -355,6 +356,9 @@ class SelfCollision(Constraint, Remappable):
         if topology.triangles.shape[0] == 0:
             return
         self._substep += 1
+        span = list_substeps(dt)
+        if span != self._span:  # a list covers the span it was searched for: a longer one is searched anew
+            self._span, self._held = span, None
         x = state.positions
         n = x.shape[0]
         x0 = self._start if self._start is not None and self._start.shape[0] == n else state.previous.copy()
@@ -410,9 +414,16 @@ SEAM_FRACTION = 0.2
 MARGIN_FRACTION = 0.25
 
 
-#: how many substeps a list of candidate pairs covers at most (`_Pairs`): a longer span keeps
-#: the pairs whose relative motion could close their gap within it
-LIST_SUBSTEPS = 4
+#: the time (s) a list of candidate pairs covers at most, rounded to whole substeps (`_Pairs`,
+#: `list_substeps`): a longer span keeps the pairs whose relative motion could close their gap
+#: within it. 4 substeps of xpbd's default 22 a frame at 24 fps; at implicit's 8 a frame that is 1
+#: substep, which ran the fold scene of benchmarks/contact.py 2.3x as fast as 4 (docs/performance.md)
+LIST_SPAN = 4.0 / (24.0 * 22.0)
+
+
+def list_substeps(dt: float) -> int:
+    """Substeps of dt (s) that a list of candidate pairs covers: `LIST_SPAN` rounded, at least 1."""
+    return max(1, round(LIST_SPAN / dt)) if dt > 0.0 else 1
 #: when more than this fraction of the vertices strayed from their paths, the whole list is
 #: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone
 REGATHER_FRACTION = 0.5
