@@ -215,7 +215,9 @@ def spring_hessian(
         while m < width and spring_nodes[first, m] >= 0:
             m += 1
         pairs = m * (m + 1) // 2
-        sums[:pairs] = 0.0
+        for pair in range(pairs):
+            for e in range(6):
+                sums[pair, e] = 0.0
         for start in range(first, group_start[g + 1], HESSIAN_CHUNK):
             stop = min(start + HESSIAN_CHUNK, group_start[g + 1])
             for k in range(start, stop):
@@ -381,8 +383,11 @@ def newton_direction(  # pragma: no cover - compiled
 ):
     """A coarse Newton step as fine displacements: gradient (3C,) = Z^T grad for grad (F, 3), the
     coarse move solving (Z^T H Z) c = -gradient with the factor `lower`, `skip` of `factor_spd`,
-    and direction (F, 3) = Z c. Returns the slope grad . direction (negative downhill)."""
+    and direction (F, 3) = Z c; gradient is left negated. Returns the slope grad . direction
+    (negative downhill)."""
     restrict(grad, vertex_nodes, vertex_weights, gradient)
-    move = solve_factored(lower, skip, -gradient)
+    for i in range(gradient.shape[0]):  # in place (an array expression compiles far more code)
+        gradient[i] = -gradient[i]
+    move = solve_factored(lower, skip, gradient)
     prolong(move, vertex_nodes, vertex_weights, direction)
     return dot(grad, direction)

@@ -285,7 +285,10 @@ def lbfgs_first_loop(  # pragma: no cover - compiled
     in `slots` (newest first) alpha[slot] = rho[slot] s . residual and residual -= alpha[slot] y
     (s, y the slot's step and gradient change in step_history, gradient_history (H, F, 3)).
     The same operations, in the same order, as the NumPy-level loop it replaces."""
-    residual[:] = grad
+    for j in range(grad.shape[0]):  # a loop, not residual[:] = grad: its shape check compiles
+        residual[j, 0] = grad[j, 0]  # string formatting (seconds in a process with an empty cache)
+        residual[j, 1] = grad[j, 1]
+        residual[j, 2] = grad[j, 2]
     remove_normal(residual, rows, normals)
     for k in range(slots.shape[0]):
         slot = slots[k]
@@ -321,12 +324,3 @@ def lbfgs_remember(direction, step, trial_grad, grad, rows, normals, s_k, y_k): 
     remove_normal(y_k, rows, normals)
     return dot(s_k, y_k)
 
-
-@nb.njit(**JIT)
-def gather_rows(x, free_vertices, out):  # pragma: no cover - compiled
-    """out (F, 3) = x[free_vertices]."""
-    for j in range(free_vertices.shape[0]):
-        i = free_vertices[j]
-        out[j, 0] = x[i, 0]
-        out[j, 1] = x[i, 1]
-        out[j, 2] = x[i, 2]
