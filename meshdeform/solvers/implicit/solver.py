@@ -300,7 +300,7 @@ class ImplicitSolver(ModelCache, Solver):
             )
             if not slope < 0.0:
                 break
-            np.take(x, fv, axis=0, out=self.base)
+            kernels.gather_rows(x, fv, self.base)
             step = 1.0
             for _ in range(LINE_SEARCH_HALVINGS):
                 kernels.place(x, fv, self.base, self.direction, step)
@@ -359,7 +359,7 @@ class ImplicitSolver(ModelCache, Solver):
                 slope = kernels.lbfgs_second_loop(direction, rows, normals, order, *history, grad)
             if not slope < 0.0:  # a stationary point
                 return
-            np.take(x, fv, axis=0, out=base)
+            kernels.gather_rows(x, fv, base)
             longest = kernels.longest_row(direction) if trust < np.inf else 0.0
             step = 1.0 if longest <= trust else trust / longest
             for _ in range(LINE_SEARCH_HALVINGS):
