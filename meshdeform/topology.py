@@ -33,7 +33,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
-import numba as nb
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -274,7 +273,6 @@ def line_graph_pairs(mesh: Mesh, vertex_map: np.ndarray, n: int, structural: np.
     return _unique_pairs(np.concatenate([s[larger], ls]), np.concatenate([e[larger], le]), n)
 
 
-@nb.njit(cache=True, error_model="numpy")
 def _straightest_continuations(
     positions: np.ndarray, indptr: np.ndarray, neighbours: np.ndarray, straight_cos: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -282,56 +280,35 @@ def _straightest_continuations(
 
     Returns (v, a, b) triples where b is a's best continuation through v, a is b's best
     continuation too (mutual) and the rest angle a-v-b is at least the straightness threshold;
-    each accepted pair is reported once (a < b).
+    each accepted pair is reported once (a < b), ordered by v then by a's place among v's
+    neighbours; among equally opposite neighbours the last in order wins. NumPy, one pass over
+    all neighbour slots per place in the longest neighbour list, not a compiled loop: it runs once
+    per model, and compiling the loop cost every fresh process 0.7 s.
     """
-    total = indptr[-1]
-    best = np.full(total, -1, dtype=np.int64)  # best[slot of a around v] = slot of b
-    for v in range(positions.shape[0]):
-        lo = indptr[v]
-        hi = indptr[v + 1]
-        for sa in range(lo, hi):
-            a = neighbours[sa]
-            ax = positions[a, 0] - positions[v, 0]
-            ay = positions[a, 1] - positions[v, 1]
-            az = positions[a, 2] - positions[v, 2]
-            la = np.sqrt(ax * ax + ay * ay + az * az)
-            best_cos = straight_cos
-            best_slot = -1
-            for sb in range(lo, hi):
-                if sb == sa:
-                    continue
-                b = neighbours[sb]
-                bx = positions[b, 0] - positions[v, 0]
-                by = positions[b, 1] - positions[v, 1]
-                bz = positions[b, 2] - positions[v, 2]
-                lb = np.sqrt(bx * bx + by * by + bz * bz)
-                denom = la * lb
-                if denom <= 0.0:
-                    continue
-                c = (ax * bx + ay * by + az * bz) / denom
-                if c <= best_cos:
-                    best_cos = c
-                    best_slot = sb
-            best[sa] = best_slot
-    count = 0
-    for v in range(positions.shape[0]):
-        for sa in range(indptr[v], indptr[v + 1]):
-            sb = best[sa]
-            if sb >= 0 and best[sb] == sa and neighbours[sa] < neighbours[sb]:
-                count += 1
-    out_v = np.empty(count, dtype=np.int64)
-    out_a = np.empty(count, dtype=np.int64)
-    out_b = np.empty(count, dtype=np.int64)
-    k = 0
-    for v in range(positions.shape[0]):
-        for sa in range(indptr[v], indptr[v + 1]):
-            sb = best[sa]
-            if sb >= 0 and best[sb] == sa and neighbours[sa] < neighbours[sb]:
-                out_v[k] = v
-                out_a[k] = neighbours[sa]
-                out_b[k] = neighbours[sb]
-                k += 1
-    return out_v, out_a, out_b
+    slots = np.arange(indptr[-1], dtype=np.int64)
+    degree = np.diff(indptr)
+    owner = np.repeat(np.arange(degree.shape[0], dtype=np.int64), degree)  # each slot's vertex
+    centre = positions[owner]
+    to_a = positions[neighbours] - centre  # (slots, 3): each slot's edge, as a and as b alike
+    length = np.sqrt(to_a[:, 0] * to_a[:, 0] + to_a[:, 1] * to_a[:, 1] + to_a[:, 2] * to_a[:, 2])
+    best = np.full(slots.shape[0], -1, dtype=np.int64)
+    best_cos = np.full(slots.shape[0], straight_cos)
+    first = indptr[owner]
+    for place in range(int(degree.max(initial=0))):  # b = the place-th neighbour of a's vertex
+        sb = first + place
+        live = (place < degree[owner]) & (sb != slots)
+        sb = np.where(live, sb, 0)
+        denom = length * length[sb]
+        live &= denom > 0.0
+        dot = to_a[:, 0] * to_a[sb, 0] + to_a[:, 1] * to_a[sb, 1] + to_a[:, 2] * to_a[sb, 2]
+        cos = np.divide(dot, denom, out=np.full(slots.shape[0], np.inf), where=live)
+        better = live & (cos <= best_cos)
+        best_cos[better] = cos[better]
+        best[better] = sb[better]
+    partner = np.maximum(best, 0)
+    mutual = (best >= 0) & (best[partner] == slots) & (neighbours < neighbours[partner])
+    accepted = slots[mutual]
+    return owner[accepted], neighbours[accepted], neighbours[best[accepted]]
 
 
 def adjacency(pairs: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
