@@ -8,7 +8,10 @@ from factories import grid_sheet
 
 from meshdeform.mesh import Mesh, polygons_to_csr
 from meshdeform.topology import (
+    STRAIGHT_COS,
     SpringKind,
+    _straightest_continuations,
+    adjacency,
     boundary_edge_count,
     boundary_edges,
     build_springs,
@@ -179,3 +182,42 @@ def test_edge_incidence_boundary_and_closed_surfaces() -> None:
     assert is_closed(tetra) and boundary_edge_count(tetra) == 0
     assert not is_closed(tetra[1:]) and boundary_edge_count(tetra[1:]) == 3
     assert not is_closed(np.zeros((0, 3), dtype=np.int64)) and boundary_edge_count(np.zeros((0, 3))) == 0
+
+
+def test_straightest_continuations_match_a_plain_search_on_an_irregular_mesh() -> None:
+    """Every (v, a, b) triple against a plain Python search of the definition: b is the neighbour of
+    v most opposite to a (the last of equally opposite ones in neighbour order), a is b's too, the
+    angle a-v-b is at least the straightness threshold, each pair once with a < b; on a jittered
+    10 x 10 grid with a few vertices of 5, 6 and 8 neighbours (extra edges across quads)."""
+    rng = np.random.default_rng(7)
+    sheet = grid_sheet(10)
+    positions = sheet.positions + rng.normal(0.0, 0.02, sheet.positions.shape)
+    grid = np.arange(100).reshape(10, 10)
+    edges = np.concatenate(
+        [np.stack([grid[:, :-1].ravel(), grid[:, 1:].ravel()], 1), np.stack([grid[:-1].ravel(), grid[1:].ravel()], 1)]
+    )
+    extra = np.array([[11, 22], [12, 21], [44, 55], [45, 54], [33, 44], [66, 77], [67, 76]])
+    pairs = np.sort(np.concatenate([edges, extra]), axis=1)
+    indptr, neighbours = adjacency(pairs, 100)
+    v, a, b = _straightest_continuations(positions, indptr, neighbours, STRAIGHT_COS)
+    got = set(zip(v.tolist(), a.tolist(), b.tolist(), strict=True))
+
+    def best(v: int, a: int) -> int:
+        choice, choice_cos = -1, STRAIGHT_COS
+        for b in neighbours[indptr[v] : indptr[v + 1]].tolist():
+            if b == a:
+                continue
+            u, w = positions[a] - positions[v], positions[b] - positions[v]
+            cos = float(np.dot(u, w) / (np.linalg.norm(u) * np.linalg.norm(w)))
+            if cos <= choice_cos:
+                choice, choice_cos = b, cos
+        return choice
+
+    expected = set()
+    for v in range(100):
+        for a in neighbours[indptr[v] : indptr[v + 1]].tolist():
+            b = best(v, a)
+            if b >= 0 and best(v, b) == a and a < b:
+                expected.add((v, a, b))
+    assert got == expected
+    assert len(expected) > 80  # most interior vertices continue in two directions
