@@ -138,7 +138,9 @@ def coarse_space(
     renumber[used] = np.arange(used.shape[0])
     vertex_nodes = np.where(vertex_nodes >= 0, renumber[np.maximum(vertex_nodes, 0)], -1)
     springs = np.flatnonzero(assembled & ((free[a] >= 0) | (free[b] >= 0))).astype(np.int64)
-    spring_nodes, spring_coefficients = _spring_stencils(springs, a, b, free, vertex_nodes, vertex_weights)
+    spring_nodes, spring_coefficients = _spring_stencils(
+        springs, a, b, free, vertex_nodes, vertex_weights, int(used.shape[0])
+    )
     # springs with the same nodes (both ends in one lattice cell: most of them) side by side, so
     # that `spring_hessian` sums a group in a small block of its own and adds it to the matrix once
     order = np.lexsort(spring_nodes.T[::-1])
@@ -159,37 +161,42 @@ def coarse_space(
 
 def _spring_stencils(
     springs: np.ndarray, a: np.ndarray, b: np.ndarray, free: np.ndarray, vertex_nodes: np.ndarray,
-    vertex_weights: np.ndarray,
+    vertex_weights: np.ndarray, count: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(S', 16) nodes (ascending, -1 past the last) and coefficients of z_a - z_b per spring, each
-    node once. NumPy, not Numba: it runs once a model, and a compiled version cost every fresh
-    process (a CI runner, a Dask worker) 0.9 s of compiling."""
-    count = springs.shape[0]
+    node once (count: the lattice's nodes). NumPy, not Numba: it runs once a model, and a compiled
+    version cost every fresh process (a CI runner, a Dask worker) 0.9 s of compiling. Springs are
+    taken `STENCIL_CHUNK` at a time: each spring's nodes marked and its coefficients summed in a
+    row of `count` slots (so each node appears once, in ascending order: the a side's weight added
+    before the b side's), then each row's marked nodes packed to the left."""
+    total = springs.shape[0]
     width = 2 * CORNERS
-    nodes = np.full((count, width), -1, dtype=np.int64)
-    coefficients = np.zeros((count, width))
-    for side, ends, sign in ((0, a, 1.0), (1, b, -1.0)):
-        rows = free[ends[springs]]
-        has = rows >= 0
-        columns = slice(side * CORNERS, (side + 1) * CORNERS)
-        nodes[has, columns] = vertex_nodes[rows[has]]
-        coefficients[has, columns] = sign * vertex_weights[rows[has]]
-    coefficients[nodes < 0] = 0.0
-    # each row's nodes ascending (the a side before the b side where equal), equal ones summed
-    none = np.iinfo(np.int64).max
-    key = np.where(nodes < 0, none, nodes)
-    order = np.argsort(key, axis=1, kind="stable")
-    key = np.take_along_axis(key, order, axis=1)
-    coefficients = np.take_along_axis(coefficients, order, axis=1)
-    first = np.ones(key.shape, dtype=bool)
-    first[:, 1:] = key[:, 1:] != key[:, :-1]
-    slot = ((np.cumsum(first, axis=1) - 1) + np.arange(count)[:, None] * width).ravel()
-    summed = np.bincount(slot, weights=coefficients.ravel(), minlength=count * width).reshape(count, width)
-    out_nodes = np.full(count * width, -1, dtype=np.int64)
-    out_nodes[slot] = np.where(key < none, key, -1).ravel()
-    out_nodes = out_nodes.reshape(count, width)
-    summed[out_nodes < 0] = 0.0
-    return out_nodes.astype(np.int32), summed
+    out_nodes = np.full((total, width), -1, dtype=np.int32)
+    out_coefficients = np.zeros((total, width))
+    for start in range(0, total, STENCIL_CHUNK):
+        chunk = springs[start : start + STENCIL_CHUNK]
+        rows = chunk.shape[0]
+        nodes = np.full((rows, width), -1, dtype=np.int64)
+        weights = np.zeros((rows, width))
+        for side, ends, sign in ((0, a, 1.0), (1, b, -1.0)):
+            row_of = free[ends[chunk]]
+            has = row_of >= 0
+            columns = slice(side * CORNERS, (side + 1) * CORNERS)
+            nodes[has, columns] = vertex_nodes[row_of[has]]
+            weights[has, columns] = sign * vertex_weights[row_of[has]]
+        used = nodes >= 0
+        slot = (np.arange(rows)[:, None] * count + nodes)[used]
+        present = np.bincount(slot, minlength=rows * count).reshape(rows, count) > 0
+        summed = np.bincount(slot, weights=weights[used], minlength=rows * count).reshape(rows, count)
+        row, node = np.nonzero(present)  # row by row, nodes ascending
+        place = np.arange(row.shape[0]) - np.searchsorted(row, row)  # the node's place in its row
+        out_nodes[start + row, place] = node
+        out_coefficients[start + row, place] = summed[row, node]
+    return out_nodes, out_coefficients
+
+
+#: springs whose stencils `_spring_stencils` forms at once (a block of rows x lattice nodes)
+STENCIL_CHUNK = 16384
 
 
 @nb.njit(**FAST)
