@@ -400,6 +400,7 @@ def simulate(
                 constraint.project(model, state, t1, dt)
             if self_collision is not None:
                 self_collision.project(model, state, t1, dt)
+                control.self_contact = self_collision.moved
             if pin_motion is not None:
                 state.positions[pinned_idx] = targets
             elif pinned_idx.size:

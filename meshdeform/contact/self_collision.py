@@ -189,6 +189,8 @@ class SelfCollision(Constraint, Remappable):
         self._cells: tuple[float, float] | None = None
         #: the thickness kept on the model last prepared (`contact_thickness`), metres
         self.thickness = self.settings.thickness
+        #: (V,) bool: the vertices the last `project` moved (None before the first)
+        self.moved: np.ndarray | None = None
         self.work = ContactWork()
 
     def take_work(self) -> ContactWork:
@@ -403,6 +405,7 @@ class SelfCollision(Constraint, Remappable):
             self._impact_zones(model, topology, x0, x, inv_mass, work, translate=False)
             _settle(state, x3, dt)
         self._start = x.copy()
+        self.moved = np.any(x != x1, axis=1)
         self.work.add(work)
 
 

@@ -37,6 +37,10 @@ class Control:
     #: (soft pins), not out of an obstacle; a solver that takes the vertices constraints moved for
     #: contacts (implicit: held against the push in its iterations) leaves these out
     pulled: np.ndarray | None = None
+    #: (W,) bool or None: the vertices self-collision moved after the last substep (the cloth's own
+    #: layers, set by `simulate` each substep); a collider's push that is not among them is an
+    #: obstacle's, which implicit judges as an impact where it is deep (`IMPACT_SINKS`)
+    self_contact: np.ndarray | None = None
 
 
 class Solver(ABC):

@@ -219,13 +219,23 @@ def longest_row(arr):  # pragma: no cover - compiled
 
 
 @nb.njit(**JIT)
-def pressing(grad, rows, normals):  # pragma: no cover - compiled
-    """(K,) bool: whether the force -grad on each contact row (rows (K,) of grad (F, 3)) points
-    into its obstacle, against its unit normal (K, 3)."""
+def pressing(grad, x, y, free_vertices, inertia, rows, normals, impacts):  # pragma: no cover - compiled
+    """(K,) bool: whether each contact row (rows (K,) of grad (F, 3)) is pressed into its obstacle,
+    against its unit normal (K, 3): by the whole force -grad, or, on the rows of an impact
+    (impacts (K,) bool), by the vertex's own momentum alone, the inertia term inertia (x - y) of
+    the gradient (x, y (V, 3); free_vertices (F,) maps a row to its vertex)."""
     out = np.empty(rows.shape[0], dtype=np.bool_)
     for k in range(rows.shape[0]):
         j = rows[k]
-        out[k] = grad[j, 0] * normals[k, 0] + grad[j, 1] * normals[k, 1] + grad[j, 2] * normals[k, 2] > 0.0
+        if impacts[k]:
+            i = free_vertices[j]
+            along = (
+                (x[i, 0] - y[i, 0]) * normals[k, 0] + (x[i, 1] - y[i, 1]) * normals[k, 1]
+                + (x[i, 2] - y[i, 2]) * normals[k, 2]
+            )
+            out[k] = inertia[j] * along > 0.0
+        else:
+            out[k] = grad[j, 0] * normals[k, 0] + grad[j, 1] * normals[k, 1] + grad[j, 2] * normals[k, 2] > 0.0
     return out
 
 
