@@ -199,8 +199,8 @@ def test_straightest_continuations_match_a_plain_search_on_an_irregular_mesh() -
     extra = np.array([[11, 22], [12, 21], [44, 55], [45, 54], [33, 44], [66, 77], [67, 76]])
     pairs = np.sort(np.concatenate([edges, extra]), axis=1)
     indptr, neighbours = adjacency(pairs, 100)
-    v, a, b = _straightest_continuations(positions, indptr, neighbours, STRAIGHT_COS)
-    got = set(zip(v.tolist(), a.tolist(), b.tolist(), strict=True))
+    centres, firsts, seconds = _straightest_continuations(positions, indptr, neighbours, STRAIGHT_COS)
+    got = set(zip(centres.tolist(), firsts.tolist(), seconds.tolist(), strict=True))
 
     def best(v: int, a: int) -> int:
         choice, choice_cos = -1, STRAIGHT_COS

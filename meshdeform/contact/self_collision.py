@@ -419,17 +419,17 @@ MARGIN_FRACTION = 0.25
 
 #: the time (s) a list of candidate pairs covers at most, rounded to whole substeps (`_Pairs`,
 #: `list_substeps`): a longer span keeps the pairs whose relative motion could close their gap
-#: within it. 4 substeps of xpbd's default 22 a frame at 24 fps; at implicit's 8 a frame that is 1
-#: substep, which ran the fold scene of benchmarks/contact.py 2.3x as fast as 4 (docs/performance.md)
+#: within it, but sweeps wider boxes. 4 substeps of xpbd's default 22 a frame at 24 fps, 1 of
+#: implicit's 8 (docs/performance.md, "Self-collision's pair lists over a span of time")
 LIST_SPAN = 4.0 / (24.0 * 22.0)
+#: when more than this fraction of the vertices strayed from their paths, the whole list is
+#: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone
+REGATHER_FRACTION = 0.5
 
 
 def list_substeps(dt: float) -> int:
     """Substeps of dt (s) that a list of candidate pairs covers: `LIST_SPAN` rounded, at least 1."""
     return max(1, round(LIST_SPAN / dt)) if dt > 0.0 else 1
-#: when more than this fraction of the vertices strayed from their paths, the whole list is
-#: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone
-REGATHER_FRACTION = 0.5
 
 
 #: the thickness self-collision keeps is at most this fraction of the median rest edge length

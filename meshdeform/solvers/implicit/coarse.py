@@ -208,7 +208,7 @@ def spring_hessian(
     that a compressed spring would make negative left out (positive semi-definite).
 
     A group of springs with the same nodes is taken `HESSIAN_CHUNK` springs at a time: the six
-    entries of each spring's H_s (xx, yy, zz, xy, xz, yy) into a small buffer, then for each pair of
+    entries of each spring's H_s (xx, yy, zz, xy, xz, yz) into a small buffer, then for each pair of
     the group's nodes p <= q the six sums over the chunk of c_p c_q H_s (coefficients from
     `spring_coefficients` (W, S'), row p the p-th node's), loops over consecutive springs that the
     compiler runs several at a time on data still in the first-level cache. The group's sums go to

@@ -169,14 +169,14 @@ def place(x, free_vertices, base, direction, step):  # pragma: no cover - compil
 
 
 @nb.njit(**JIT)
-def constrained_rows(x, v, x_was, v_was, free, normal):  # pragma: no cover - compiled
+def constrained_rows(x, v, x_was, v_was, free, normal, depth):  # pragma: no cover - compiled
     """The vertices a constraint changed since the last step, and which way it pushed them.
 
     x, v (V, 3): positions and velocities now; x_was, v_was: what the last step left. Returns
     moved (V,) bool, the rows whose position or velocity differs, and pushed (V,) bool, the free
     vertices (free >= 0) whose position moved; normal (V, 3) receives the unit direction of that
     move (x - x_was) on the pushed rows (a collider's contact normal, or the way back along a
-    crossing path).
+    crossing path) and depth (V,) its length (m).
     """
     n = x.shape[0]
     moved = np.zeros(n, dtype=np.bool_)
@@ -190,6 +190,7 @@ def constrained_rows(x, v, x_was, v_was, free, normal):  # pragma: no cover - co
             length = np.sqrt(dx * dx + dy * dy + dz * dz)
             if free[i] >= 0 and length > 1e-12:
                 pushed[i] = True
+                depth[i] = length
                 normal[i, 0] = dx / length
                 normal[i, 1] = dy / length
                 normal[i, 2] = dz / length
@@ -219,11 +220,12 @@ def longest_row(arr):  # pragma: no cover - compiled
 
 
 @nb.njit(**JIT)
-def pressing(grad, x, y, free_vertices, inertia, rows, normals, impacts):  # pragma: no cover - compiled
+def pressing(grad, x, y, free_vertices, rows, normals, impacts):  # pragma: no cover - compiled
     """(K,) bool: whether each contact row (rows (K,) of grad (F, 3)) is pressed into its obstacle,
     against its unit normal (K, 3): by the whole force -grad, or, on the rows of an impact
-    (impacts (K,) bool), by the vertex's own momentum alone, the inertia term inertia (x - y) of
-    the gradient (x, y (V, 3); free_vertices (F,) maps a row to its vertex)."""
+    (impacts (K,) bool), by the vertex's own momentum alone, the gradient's inertia term
+    inertia (x - y), whose sign is that of x - y (x, y (V, 3); free_vertices (F,) maps a row to
+    its vertex)."""
     out = np.empty(rows.shape[0], dtype=np.bool_)
     for k in range(rows.shape[0]):
         j = rows[k]
@@ -233,7 +235,7 @@ def pressing(grad, x, y, free_vertices, inertia, rows, normals, impacts):  # pra
                 (x[i, 0] - y[i, 0]) * normals[k, 0] + (x[i, 1] - y[i, 1]) * normals[k, 1]
                 + (x[i, 2] - y[i, 2]) * normals[k, 2]
             )
-            out[k] = inertia[j] * along > 0.0
+            out[k] = along > 0.0
         else:
             out[k] = grad[j, 0] * normals[k, 0] + grad[j, 1] * normals[k, 1] + grad[j, 2] * normals[k, 2] > 0.0
     return out
@@ -246,8 +248,8 @@ def bdf2_start(  # pragma: no cover - compiled
     """A BDF2 step's start, all (V, 3): x_n, v_n = x, v (the step's start, kept); x_hat =
     4/3 x_n - 1/3 x_prev; the inertial target y = (2 dt / 9 (4 v_n - v_prev) + beta2 accel) /
     drag_factor + x_hat; and x on the free vertices set to y - beta2 / drag_factor accel (the
-    iterations' start: the springs already balance most of the external acceleration). One pass,
-    each value computed as the NumPy expressions it replaces would (same bits)."""
+    iterations' start: the springs already balance most of the external acceleration). One pass
+    over the vertices."""
     damped = drag_factor != 1.0
     for i in range(x.shape[0]):
         for d in range(3):
@@ -293,8 +295,7 @@ def lbfgs_first_loop(  # pragma: no cover - compiled
     """The first loop of L-BFGS's two-loop recursion: residual (F, 3) = grad made tangent to the
     held contacts (rows (K,), unit normals (K, 3): `remove_normal`), then for each history slot
     in `slots` (newest first) alpha[slot] = rho[slot] s . residual and residual -= alpha[slot] y
-    (s, y the slot's step and gradient change in step_history, gradient_history (H, F, 3)).
-    The same operations, in the same order, as the NumPy-level loop it replaces."""
+    (s, y the slot's step and gradient change in step_history, gradient_history (H, F, 3))."""
     for j in range(grad.shape[0]):  # a loop, not residual[:] = grad: its shape check compiles
         residual[j, 0] = grad[j, 0]  # string formatting (seconds in a process with an empty cache)
         residual[j, 1] = grad[j, 1]
@@ -335,10 +336,10 @@ def lbfgs_remember(direction, step, trial_grad, grad, rows, normals, s_k, y_k): 
     return dot(s_k, y_k)
 
 
-
 @nb.njit(**JIT)
 def gather_rows(x, free_vertices, out):  # pragma: no cover - compiled
-    """out (F, 3) = x[free_vertices] (a few microseconds where NumPy's take needs 18 at 4096 rows)."""
+    """out (F, 3) = x[free_vertices], in place (a step gathers x several times: NumPy's fancy
+    indexing or `take` cost several times as much at this size)."""
     for j in range(free_vertices.shape[0]):
         i = free_vertices[j]
         out[j, 0] = x[i, 0]

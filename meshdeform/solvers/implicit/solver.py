@@ -174,7 +174,8 @@ class ImplicitSolver(ModelCache, Solver):
         #: the longest move an L-BFGS iteration may give a vertex (m): a fraction of the median edge
         self.trust = TRUST_FRACTION * float(np.median(edges)) if edges.size else np.inf
         self._forget_contacts()
-        self._normal = np.zeros((model.vertex_count, 3))  # scratch of `kernels.constrained_rows`
+        # scratch of `kernels.constrained_rows`: each pushed vertex's unit push (V, 3) and its length (V,)
+        self._normal, self._depth = np.zeros((model.vertex_count, 3)), np.zeros(model.vertex_count)
         # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out
         self.x_hat, self.y, self.x_out = (np.zeros((model.vertex_count, 3)) for _ in range(3))
         self._dt = -1.0
@@ -234,7 +235,9 @@ class ImplicitSolver(ModelCache, Solver):
             # vertices a constraint moved since this solver's last step (a collider, self-
             # collision, tethers) start their history afresh from where they are: BDF2's
             # extrapolation of their former path would carry on through the contact
-            moved, pushed = kernels.constrained_rows(x, v, self.x_out, self.v_out, self.free, self._normal)
+            moved, pushed = kernels.constrained_rows(
+                x, v, self.x_out, self.v_out, self.free, self._normal, self._depth
+            )
             if control.pulled is not None:  # a soft pin's pull is no obstacle: never held against
                 pushed &= ~control.pulled
             if moved.any():
@@ -245,9 +248,8 @@ class ImplicitSolver(ModelCache, Solver):
             self.contact_normals = np.ascontiguousarray(self._normal[pushed_vertices])
             # an impact on an obstacle: a push deeper than IMPACT_SINKS times what the external
             # acceleration alone sinks a resting vertex in a step, not by self-collision
-            depth = np.linalg.norm(x[pushed_vertices] - self.x_out[pushed_vertices], axis=1)
             sink = 0.5 * dt * dt * np.linalg.norm(accel[pushed_vertices], axis=1)
-            self.contact_impacts = depth > IMPACT_SINKS * sink
+            self.contact_impacts = self._depth[pushed_vertices] > IMPACT_SINKS * sink
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_impacts &= ~control.self_contact[pushed_vertices]
         # the step's start (x_n, v_n) becomes the next step's history: fresh arrays each step
@@ -352,9 +354,7 @@ class ImplicitSolver(ModelCache, Solver):
             # and may lift off where they pull it away; the last iteration holds none, so the
             # collider's push after the step, and the friction it scales, still take place
             if iteration + 1 < self.iterations and self.contact_rows.shape[0]:
-                held = kernels.pressing(
-                    grad, x, y, fv, self.inertia, self.contact_rows, self.contact_normals, self.contact_impacts
-                )
+                held = kernels.pressing(grad, x, y, fv, self.contact_rows, self.contact_normals, self.contact_impacts)
                 rows, normals = self.contact_rows[held], self.contact_normals[held]
             else:
                 rows, normals = no_rows, no_normals
