@@ -574,9 +574,10 @@ class _Balance:
 
     def residual(self, positions: np.ndarray, accelerations: np.ndarray) -> float:
         """The force residual of welded positions (W, 3) under accelerations (W, 3) m/s^2."""
+        force, load, magnitude = np.zeros((self.cells, 3)), np.zeros((self.cells, 3)), np.zeros(self.cells)
         return float(
             guard_kernels.force_residual(
                 positions, self.a, self.b, self.rest, self.kt, self.kc, self.mass, self.inv_mass,
-                accelerations, self.cell, self.cells,
+                accelerations, self.cell, force, load, magnitude,
             )
         )

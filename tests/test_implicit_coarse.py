@@ -77,8 +77,11 @@ def test_the_coarse_matrix_is_the_step_hessian_seen_through_the_lattice() -> Non
 
 def _solve(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     lower = matrix.copy()
-    skip = coarse.factor_spd(lower)
-    return coarse.solve_factored(lower, skip, rhs)
+    skip = np.zeros(rhs.shape[0], dtype=np.bool_)
+    coarse.factor_spd(lower, skip)
+    forward, solution = np.zeros(rhs.shape[0]), np.zeros(rhs.shape[0])
+    coarse.solve_factored(lower, skip, rhs, forward, solution)
+    return solution
 
 
 def test_the_dense_solve_matches_numpy_and_leaves_unseen_directions_alone() -> None:

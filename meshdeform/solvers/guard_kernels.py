@@ -48,7 +48,7 @@ def guard_figures(x, v, center):  # pragma: no cover - compiled
 
 
 @nb.njit(**JIT)
-def force_residual(x, a, b, rest, kt, kc, mass, inv_mass, accel, cell, cells):  # pragma: no cover - compiled
+def force_residual(x, a, b, rest, kt, kc, mass, inv_mass, accel, cell, f, load, mag):  # pragma: no cover - compiled
     """The free vertices' force imbalance at positions x (W, 3), relative to their load, in cells.
 
     Per free vertex (inv_mass > 0) r_i = the sum of its springs' Hooke forces (k = kt under
@@ -58,11 +58,11 @@ def force_residual(x, a, b, rest, kt, kc, mass, inv_mass, accel, cell, cells):  
     imbalance on the scale of the cells (the cloth's shape), not the jitter of single springs
     (which the stiff springs of a fine mesh make large against a vertex's small weight). Returns
     |R| / |L| (Euclidean norms over every cell's three components); without any load, |R| over
-    the norm of the cells' sums of spring force magnitudes; 0 when there is neither.
+    the norm of the cells' sums of spring force magnitudes; 0 when there is neither. f, load
+    (C, 3) and mag (C,): the caller's zeroed arrays, one row per cell (C cells) (an array made
+    in a kernel costs a process with an empty compile cache the compiling of its allocator).
     """
-    f = np.zeros((cells, 3))
-    load = np.zeros((cells, 3))
-    mag = np.zeros(cells)
+    cells = mag.shape[0]
     for s in range(a.shape[0]):
         ia = a[s]
         ib = b[s]

@@ -58,6 +58,10 @@ class CoarseSpace:
         consecutive memory.
     group_start: (G + 1,) the springs are in groups with the same nodes; group g is springs
         group_start[g] .. group_start[g + 1] - 1.
+    skip, forward, move: scratch of the dense solve, (3C,) each (`factor_spd`'s pivots left out,
+        `solve_factored`'s forward substitution and result); hessian_terms (6, HESSIAN_CHUNK) and
+        hessian_sums (W (W + 1) / 2, 6): scratch of `spring_hessian`. Arrays made inside a kernel
+        would cost every process with an empty compile cache the compiling of their allocators.
     """
 
     vertex_nodes: np.ndarray
@@ -67,6 +71,11 @@ class CoarseSpace:
     spring_nodes: np.ndarray
     spring_coefficients: np.ndarray
     group_start: np.ndarray
+    skip: np.ndarray
+    forward: np.ndarray
+    move: np.ndarray
+    hessian_terms: np.ndarray
+    hessian_sums: np.ndarray
 
     def add_spring_hessian(
         self, x: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, stiff_t: np.ndarray,
@@ -76,7 +85,7 @@ class CoarseSpace:
         a, b, rest, stiff_t, stiff_c, modulus: the solver's spring arrays)."""
         spring_hessian(
             x, a, b, rest, stiff_t, stiff_c, modulus, self.springs, self.spring_nodes, self.spring_coefficients,
-            self.group_start, out,
+            self.group_start, self.hessian_terms, self.hessian_sums, out,
         )
 
     def inertia_matrix(self, inertia: np.ndarray) -> np.ndarray:
@@ -148,6 +157,8 @@ def coarse_space(
     new_group = np.ones(springs.shape[0], dtype=bool)
     new_group[1:] = (spring_nodes[1:] != spring_nodes[:-1]).any(axis=1)
     group_start = np.append(np.flatnonzero(new_group), springs.shape[0]).astype(np.int64)
+    unknowns = 3 * int(used.shape[0])
+    width = spring_nodes.shape[1]
     return CoarseSpace(
         vertex_nodes=vertex_nodes.astype(np.int32),
         vertex_weights=vertex_weights,
@@ -156,6 +167,11 @@ def coarse_space(
         spring_nodes=spring_nodes,
         spring_coefficients=np.ascontiguousarray(spring_coefficients.T),
         group_start=group_start,
+        skip=np.zeros(unknowns, dtype=np.bool_),
+        forward=np.zeros(unknowns),
+        move=np.zeros(unknowns),
+        hessian_terms=np.zeros((6, HESSIAN_CHUNK)),
+        hessian_sums=np.zeros((width * (width + 1) // 2, 6)),
     )
 
 
@@ -201,7 +217,8 @@ STENCIL_CHUNK = 16384
 
 @nb.njit(**FAST)
 def spring_hessian(
-    x, a, b, rest, stiff_t, stiff_c, modulus, springs, spring_nodes, spring_coefficients, group_start, out
+    x, a, b, rest, stiff_t, stiff_c, modulus, springs, spring_nodes, spring_coefficients, group_start, terms, sums,
+    out,
 ):  # pragma: no cover - compiled
     """out (3C, 3C) += sum over `springs` of (z_a - z_b)(z_a - z_b)^T (x) H_s at positions x (V, 3),
     H_s = k (n n^T + max(0, 1 - L / l) (I - n n^T)): a spring's Hessian with the part across it
@@ -214,8 +231,6 @@ def spring_hessian(
     compiler runs several at a time on data still in the first-level cache. The group's sums go to
     out's upper triangle, mirrored to the lower one at the end. Serial, in a fixed order."""
     width = spring_nodes.shape[1]
-    terms = np.zeros((6, HESSIAN_CHUNK))
-    sums = np.zeros((width * (width + 1) // 2, 6))
     for g in range(group_start.shape[0] - 1):
         first = group_start[g]
         m = 0
@@ -331,18 +346,18 @@ def prolong(c, vertex_nodes, vertex_weights, out):  # pragma: no cover - compile
 
 
 @nb.njit(**JIT)
-def factor_spd(matrix):  # pragma: no cover - compiled
+def factor_spd(matrix, skip):  # pragma: no cover - compiled
     """The Cholesky factor of a symmetric positive semi-definite matrix (n, n), in place (lower
-    triangle; serial, fixed order), and the pivots (n,) left out: a pivot below 1e-12 of the
-    largest diagonal entry is a direction the matrix does not see, whose row and column the
-    solve passes over (`solve_factored`) instead of dividing by nearly zero."""
+    triangle; serial, fixed order), and into skip (n,) bool the pivots left out: a pivot below
+    1e-12 of the largest diagonal entry is a direction the matrix does not see, whose row and
+    column the solve passes over (`solve_factored`) instead of dividing by nearly zero."""
     n = matrix.shape[0]
     floor = 0.0
     for i in range(n):
         floor = max(floor, matrix[i, i])
     floor *= 1e-12
-    skip = np.zeros(n, dtype=np.bool_)
     for j in range(n):
+        skip[j] = False
         d = matrix[j, j]
         for k in range(j):
             d -= matrix[j, k] * matrix[j, k]
@@ -358,43 +373,42 @@ def factor_spd(matrix):  # pragma: no cover - compiled
             for k in range(j):
                 v -= matrix[i, k] * matrix[j, k]
             matrix[i, j] = v / d
-    return skip
 
 
 @nb.njit(**JIT)
-def solve_factored(lower, skip, rhs):  # pragma: no cover - compiled
-    """x with L L^T x = rhs for the factor of `factor_spd` (zero where a pivot was left out)."""
+def solve_factored(lower, skip, rhs, y, x):  # pragma: no cover - compiled
+    """x (n,) with L L^T x = rhs (n,) for the factor of `factor_spd` (zero where a pivot was left
+    out); y (n,): scratch for L y = rhs."""
     n = rhs.shape[0]
-    y = np.zeros(n)
     for i in range(n):
+        y[i] = 0.0
         if skip[i]:
             continue
         v = rhs[i]
         for k in range(i):
             v -= lower[i, k] * y[k]
         y[i] = v / lower[i, i]
-    x = np.zeros(n)
     for i in range(n - 1, -1, -1):
+        x[i] = 0.0
         if skip[i]:
             continue
         v = y[i]
         for k in range(i + 1, n):
             v -= lower[k, i] * x[k]
         x[i] = v / lower[i, i]
-    return x
 
 
 @nb.njit(**JIT)
 def newton_direction(  # pragma: no cover - compiled
-    grad, vertex_nodes, vertex_weights, lower, skip, gradient, direction
+    grad, vertex_nodes, vertex_weights, lower, skip, gradient, forward, move, direction
 ):
     """A coarse Newton step as fine displacements: gradient (3C,) = Z^T grad for grad (F, 3), the
-    coarse move solving (Z^T H Z) c = -gradient with the factor `lower`, `skip` of `factor_spd`,
-    and direction (F, 3) = Z c; gradient is left negated. Returns the slope grad . direction
-    (negative downhill)."""
+    coarse move (3C,) solving (Z^T H Z) c = -gradient with the factor `lower`, `skip` of
+    `factor_spd` (forward (3C,): the solve's scratch), and direction (F, 3) = Z c; gradient is
+    left negated. Returns the slope grad . direction (negative downhill)."""
     restrict(grad, vertex_nodes, vertex_weights, gradient)
     for i in range(gradient.shape[0]):  # in place (an array expression compiles far more code)
         gradient[i] = -gradient[i]
-    move = solve_factored(lower, skip, gradient)
+    solve_factored(lower, skip, gradient, forward, move)
     prolong(move, vertex_nodes, vertex_weights, direction)
     return dot(grad, direction)

@@ -169,19 +169,20 @@ def place(x, free_vertices, base, direction, step):  # pragma: no cover - compil
 
 
 @nb.njit(**JIT)
-def constrained_rows(x, v, x_was, v_was, free, normal, depth):  # pragma: no cover - compiled
+def constrained_rows(x, v, x_was, v_was, free, normal, depth, moved, pushed):  # pragma: no cover - compiled
     """The vertices a constraint changed since the last step, and which way it pushed them.
 
-    x, v (V, 3): positions and velocities now; x_was, v_was: what the last step left. Returns
+    x, v (V, 3): positions and velocities now; x_was, v_was: what the last step left. Fills
     moved (V,) bool, the rows whose position or velocity differs, and pushed (V,) bool, the free
     vertices (free >= 0) whose position moved; normal (V, 3) receives the unit direction of that
     move (x - x_was) on the pushed rows (a collider's contact normal, or the way back along a
-    crossing path) and depth (V,) its length (m).
+    crossing path) and depth (V,) its length (m). The caller's arrays: an array made in a kernel
+    costs every process with an empty compile cache the compiling of its allocator.
     """
     n = x.shape[0]
-    moved = np.zeros(n, dtype=np.bool_)
-    pushed = np.zeros(n, dtype=np.bool_)
     for i in range(n):
+        moved[i] = False
+        pushed[i] = False
         dx = x[i, 0] - x_was[i, 0]
         dy = x[i, 1] - x_was[i, 1]
         dz = x[i, 2] - x_was[i, 2]
@@ -196,7 +197,6 @@ def constrained_rows(x, v, x_was, v_was, free, normal, depth):  # pragma: no cov
                 normal[i, 2] = dz / length
         elif v[i, 0] != v_was[i, 0] or v[i, 1] != v_was[i, 1] or v[i, 2] != v_was[i, 2]:
             moved[i] = True
-    return moved, pushed
 
 
 @nb.njit(**JIT)
@@ -220,13 +220,12 @@ def longest_row(arr):  # pragma: no cover - compiled
 
 
 @nb.njit(**JIT)
-def pressing(grad, x, y, free_vertices, rows, normals, impacts):  # pragma: no cover - compiled
-    """(K,) bool: whether each contact row (rows (K,) of grad (F, 3)) is pressed into its obstacle,
+def pressing(grad, x, y, free_vertices, rows, normals, impacts, out):  # pragma: no cover - compiled
+    """out (K,) bool: whether each contact row (rows (K,) of grad (F, 3)) is pressed into its obstacle,
     against its unit normal (K, 3): by the whole force -grad, or, on the rows of an impact
     (impacts (K,) bool), by the vertex's own momentum alone, the gradient's inertia term
     inertia (x - y), whose sign is that of x - y (x, y (V, 3); free_vertices (F,) maps a row to
     its vertex)."""
-    out = np.empty(rows.shape[0], dtype=np.bool_)
     for k in range(rows.shape[0]):
         j = rows[k]
         if impacts[k]:
@@ -238,7 +237,6 @@ def pressing(grad, x, y, free_vertices, rows, normals, impacts):  # pragma: no c
             out[k] = along > 0.0
         else:
             out[k] = grad[j, 0] * normals[k, 0] + grad[j, 1] * normals[k, 1] + grad[j, 2] * normals[k, 2] > 0.0
-    return out
 
 
 @nb.njit(**JIT)

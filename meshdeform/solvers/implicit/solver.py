@@ -174,8 +174,11 @@ class ImplicitSolver(ModelCache, Solver):
         #: the longest move an L-BFGS iteration may give a vertex (m): a fraction of the median edge
         self.trust = TRUST_FRACTION * float(np.median(edges)) if edges.size else np.inf
         self._forget_contacts()
-        # scratch of `kernels.constrained_rows`: each pushed vertex's unit push (V, 3) and its length (V,)
+        # scratch of `kernels.constrained_rows`: each pushed vertex's unit push (V, 3) and its length (V,),
+        # which vertices moved and which were pushed (V,) bool each
         self._normal, self._depth = np.zeros((model.vertex_count, 3)), np.zeros(model.vertex_count)
+        self._moved = np.zeros(model.vertex_count, dtype=np.bool_)
+        self._pushed = np.zeros(model.vertex_count, dtype=np.bool_)
         # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out
         self.x_hat, self.y, self.x_out = (np.zeros((model.vertex_count, 3)) for _ in range(3))
         self._dt = -1.0
@@ -235,9 +238,8 @@ class ImplicitSolver(ModelCache, Solver):
             # vertices a constraint moved since this solver's last step (a collider, self-
             # collision, tethers) start their history afresh from where they are: BDF2's
             # extrapolation of their former path would carry on through the contact
-            moved, pushed = kernels.constrained_rows(
-                x, v, self.x_out, self.v_out, self.free, self._normal, self._depth
-            )
+            moved, pushed = self._moved, self._pushed
+            kernels.constrained_rows(x, v, self.x_out, self.v_out, self.free, self._normal, self._depth, moved, pushed)
             if control.pulled is not None:  # a soft pin's pull is no obstacle: never held against
                 pushed &= ~control.pulled
             if moved.any():
@@ -304,12 +306,14 @@ class ImplicitSolver(ModelCache, Solver):
         fv = self.free_vertices
         matrix = self.coarse_inertia.copy()
         space.add_spring_hessian(x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, matrix)
-        skip = coarse.factor_spd(matrix)
+        skip = space.skip
+        coarse.factor_spd(matrix, skip)
         gradient = np.empty(3 * space.count)
         energy = self._energy(x, y, self.grad)
         for _ in range(COARSE_STEPS):
             slope = coarse.newton_direction(
-                self.grad, space.vertex_nodes, space.vertex_weights, matrix, skip, gradient, self.direction
+                self.grad, space.vertex_nodes, space.vertex_weights, matrix, skip, gradient, space.forward, space.move,
+                self.direction,
             )
             if not slope < 0.0:
                 break
@@ -354,7 +358,8 @@ class ImplicitSolver(ModelCache, Solver):
             # and may lift off where they pull it away; the last iteration holds none, so the
             # collider's push after the step, and the friction it scales, still take place
             if iteration + 1 < self.iterations and self.contact_rows.shape[0]:
-                held = kernels.pressing(grad, x, y, fv, self.contact_rows, self.contact_normals, self.contact_impacts)
+                held = np.empty(self.contact_rows.shape[0], dtype=np.bool_)
+                kernels.pressing(grad, x, y, fv, self.contact_rows, self.contact_normals, self.contact_impacts, held)
                 rows, normals = self.contact_rows[held], self.contact_normals[held]
             else:
                 rows, normals = no_rows, no_normals
