@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from factories import KNIT, TOP_CORNERS, grid_cloth
+from factories import TOP_CORNERS, grid_cloth
 
 from meshdeform.errors import SimulationDiverged
 from meshdeform.material import KindMaterial, Material
@@ -118,7 +118,6 @@ def sag(iterations: int) -> float:
         structural=KindMaterial(stiffness=0.05),
         shear=KindMaterial(stiffness=0.02),
         bending=KindMaterial(stiffness=0.002),
-        stretch_modulus=1000.0,  # a soft knit: a sag of centimetres, measured to 5 %
     )
     mesh, model, _ = grid_cloth(12, pins=TOP_CORNERS, material=material)
     # tethers off: they cap stretch along pin paths; this checks the compliance alone
@@ -271,17 +270,12 @@ def test_hanging_cloth_comes_to_rest(name: str) -> None:
     assert all(f.at_rest for f in frames[last.rest_frame - 1 :])
 
 
-@pytest.mark.parametrize(("material", "seconds"), [(KNIT, 10), (None, 20)], ids=["knit", "woven default"])
-def test_implicit_swinging_cloth_comes_to_rest(material: Material | None, seconds: int) -> None:
+def test_implicit_swinging_cloth_comes_to_rest() -> None:
     """The issue's scene: a 12 x 12 sheet lying flat, two corners of one edge pinned, falls, swings
-    and must be at rest (max speed below 1e-4 m/s) at the solver's defaults: on the knit (the
-    default material when the issue was filed: one step of 6 iterations a frame, with the damping
-    applied after the step, still moved at 1.2e-2 m/s after 10 s) within 10 s; on the default woven
-    material within 20 s (measured: at rest from 14.5 s, where `springs` rests from 9 s: the calm
-    steps' 4 iterations converge the free edge's last half millimetre towards the pins' plane
-    slowly; docs/performance.md, "A woven default material")."""
-    model = grid_cloth(12, pins=TOP_CORNERS, plane="xz", material=material).model
-    frames = list(simulate(model, Scene(), Settings(solver="implicit", frames=24 * seconds)))
+    and must be at rest (max speed below 1e-4 m/s) after 10 s at the solver's defaults (one step of
+    6 iterations a frame, with the damping applied after the step, still moved at 1.2e-2 m/s)."""
+    model = grid_cloth(12, pins=TOP_CORNERS, plane="xz").model
+    frames = list(simulate(model, Scene(), Settings(solver="implicit", frames=240)))
     assert min(f.welded_positions[:, 1].min() for f in frames) < -0.9  # it did fall and swing down
     assert frames[-1].max_speed < 1e-4
     assert frames[-1].rest_frame is not None
