@@ -193,8 +193,20 @@ class Side:
 
 
 def recipe(scene: ContactScene, frames: int, self_collision: bool, solver: str = "xpbd") -> str:
-    """The recipe of one meshdeform run (the solver at its defaults)."""
-    text = f'[simulation]\nsolver = "{solver}"\nfps = {FPS}\nframes = {frames}\n\n'
+    """The recipe of one meshdeform run: `solver` at its defaults, or a spec `name:key=value:...`
+    whose `substeps` and `iterations` go to [simulation], `stretch_modulus` to [material] and other
+    keys to the solver's own table (e.g. `implicit:substeps=2:iterations=4:coarse=5`)."""
+    name, *fields = solver.split(":")
+    common, own, material = [], [], []
+    for item in fields:
+        key, _, value = item.partition("=")
+        table = common if key in ("substeps", "iterations") else material if key == "stretch_modulus" else own
+        table.append(f"{key} = {value}\n")
+    text = f'[simulation]\nsolver = "{name}"\nfps = {FPS}\nframes = {frames}\n{"".join(common)}\n'
+    if own:
+        text += f"[simulation.{name}]\n{''.join(own)}\n"
+    if material:
+        text += f"[material]\n{''.join(material)}\n"
     text += "\n".join(collider.recipe() for collider in scene.colliders)
     if self_collision:
         text += f"\n[self_collision]\nthickness = {SELF_THICKNESS}\nfriction = {SELF_FRICTION}\n"
@@ -378,7 +390,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--scenes", default="drop,collapse,fold", help="comma-separated scene names")
     parser.add_argument("--save", type=Path, help="write each side's frames (Y up) to DIR/<scene>_<side>.npy")
-    parser.add_argument("--solvers", default="xpbd", help="comma-separated meshdeform solvers, each at its defaults")
+    parser.add_argument(
+        "--solvers", default="xpbd",
+        help="comma-separated meshdeform solvers, each at its defaults or as name:key=value:... (see `recipe`)",
+    )
     parser.add_argument("--n", type=int, default=N, help="vertices along each side of the sheet (a finer cloth)")
     args = parser.parse_args()
     oracle = _load_oracle()
