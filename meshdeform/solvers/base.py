@@ -39,7 +39,9 @@ class Control:
     pulled: np.ndarray | None = None
     #: (W,) bool or None: the vertices self-collision moved after the last substep (the cloth's own
     #: layers, set by `simulate` each substep); a collider's push that is not among them is an
-    #: obstacle's, which implicit judges as an impact where it is deep (`IMPACT_SINKS`)
+    #: obstacle's, which implicit judges as an impact where it is deep (`IMPACT_SINKS`) and sinks
+    #: back into the obstacle after its iterations (`_sink_pressed`); the cloth's own layers it
+    #: releases in the last iteration
     self_contact: np.ndarray | None = None
 
 
