@@ -106,6 +106,7 @@ def _run_job(
     from meshdeform.scene.colliders import ContactStats
     from meshdeform.simulate import Frame, converged, convergence_warning, initial_frame, simulate
     from meshdeform.strain import VertexStrain
+    from pipeline import compile_ahead
     from pipeline.build import build_simulation
     from pipeline.estimate import estimate_run, require_disk_space
 
@@ -116,6 +117,9 @@ def _run_job(
     mesh = mesh if mesh is not None else load(mesh_path)
     built = build_simulation(recipe, mesh)
     model, settings = built.model, built.settings
+    # kernels compiled in the background while the run prepares (pipeline.compile_ahead); joined
+    # at the end, so that no compiling outlives the job (a failed job leaves it to finish alone)
+    ahead = compile_ahead.start(settings, built.scene)
     first, last = output_indices(recipe)
     if last < settings.frames:  # nothing after the last frame written is simulated
         settings = replace(settings, frames=last)
@@ -296,6 +300,8 @@ def _run_job(
             "total_seconds": round(time.perf_counter() - started, 4),
         }
         write_text_atomic(stage / REPORT_NAME, json.dumps(report, indent=2) + "\n")
+    if ahead is not None:
+        ahead.join()
     return JobResult(out_dir=Path(out_dir), report=report, outputs=[Path(out_dir) / r for r in report["outputs"]])
 
 

@@ -60,6 +60,9 @@ class Solver(ABC):
         whose defaults are set by contact (implicit: a long step that stops part of the cloth
         needs more iterations than a few give) runs a calm scene in fewer, longer steps.
     options_class: the options it takes (`meshdeform.solvers.options`).
+    parallel_kernels: whether its steps launch Numba's parallel builds (xpbd, verlet): those
+        must not be launched from two threads at once under Numba's workqueue threading layer,
+        so nothing steps such a solver beside a run (`pipeline.compile_ahead`).
 
     `state.time` is the caller's: `simulate` sets it after every `step` and after `advance`.
     """
@@ -71,6 +74,7 @@ class Solver(ABC):
     default_iterations: ClassVar[int] = 0
     calm_steps: ClassVar[tuple[int, int] | None] = None
     options_class: ClassVar[type[SolverOptions]]
+    parallel_kernels: ClassVar[bool] = False
 
     def __init__(self, options: SolverOptions) -> None:
         self.options = options

@@ -67,6 +67,7 @@ class VerletSolver(SweepSolver, Solver):
     summary: ClassVar[str] = "Verlet integration, springs relaxed as distance constraints (Jakobsen 2001)"
     hint: ClassVar[str] = "keep stiffness within 0..1 or use more substeps"
     options_class: ClassVar[type[VerletOptions]] = VerletOptions
+    parallel_kernels: ClassVar[bool] = True
     default_substeps: ClassVar[int] = 18
     default_iterations: ClassVar[int] = 2
     tether_kinds: ClassVar[tuple[int, ...]] = TETHER_KINDS

@@ -78,6 +78,7 @@ class XPBDSolver(SweepSolver, Solver):
     summary: ClassVar[str] = "compliant distance constraints in small steps (Macklin et al. 2016/2019)"
     hint: ClassVar[str] = "use more substeps or check the forces for non-finite values"
     options_class: ClassVar[type[XPBDOptions]] = XPBDOptions
+    parallel_kernels: ClassVar[bool] = True
     default_substeps: ClassVar[int] = 22
     default_iterations: ClassVar[int] = 2
     tether_kinds: ClassVar[tuple[int, ...]] = TETHER_KINDS

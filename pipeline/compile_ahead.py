@@ -1,0 +1,67 @@
+"""Compile ahead: a job's kernels compiled while the job prepares its run.
+
+A process with an empty Numba cache (a fresh CI runner, container or Dask worker) compiles every
+kernel a run uses on first use, some 4 to 5 s for the default solver; meanwhile the job's own
+preparation (the solver's set-up and factorisation at the first step, the exporters, the rest
+frame) would wait or be waited for. `start` steps a small stand-in cloth with the run's settings in
+a background thread, so that the compiling overlaps that preparation: Numba compiles under one
+lock, and a kernel the run reaches while the stand-in compiles it is waited for, not compiled
+twice. Its results are thrown away; the run's own bytes do not depend on it.
+
+The stand-in is a 4 x 4 sheet hanging from two corners, calm where the run's scene is calm
+(`meshdeform.simulate.calm`: the same steps a frame, `steps_for`), otherwise lying on a ground
+collider (the contact steps and their kernels), with self-collision where the run has it. Solvers
+that launch Numba's parallel builds (`Solver.parallel_kernels`: xpbd, verlet) get no stand-in:
+under Numba's workqueue threading layer two threads must not launch parallel kernels at once.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+
+import numpy as np
+
+from meshdeform.contact.self_collision import SelfCollision
+from meshdeform.mesh import grid_mesh
+from meshdeform.model import SpringModel
+from meshdeform.scene import Scene
+from meshdeform.scene.colliders import Collider, Plane
+from meshdeform.simulate import Settings, calm, simulate
+from meshdeform.solvers import solver_class
+
+__all__ = ["start"]
+
+#: vertices along each side of the stand-in sheet (1 m square)
+STAND_IN_SIDE = 4
+
+
+def start(settings: Settings, scene: Scene) -> threading.Thread | None:
+    """A started background thread stepping the stand-in for `settings` and `scene` (join it
+    before the process ends, so that Numba's cache files are complete), or None for a solver
+    with parallel builds."""
+    if solver_class(settings.solver).parallel_kernels:
+        return None
+    thread = threading.Thread(
+        target=_step_stand_in,
+        args=(settings, calm(scene), scene.self_collision is not None),
+        name="meshdeform-compile-ahead",
+        daemon=True,
+    )
+    thread.start()
+    return thread
+
+
+def _step_stand_in(settings: Settings, calm_scene: bool, self_collision: bool) -> None:
+    """One frame of the stand-in (module docstring)."""
+    side = STAND_IN_SIDE
+    pinned = np.zeros(side * side, dtype=bool)
+    pinned[[side * (side - 1), side * side - 1]] = True
+    model = SpringModel.from_mesh(grid_mesh(side, side, plane="xz"), pinned_input=pinned)
+    constraints = [] if calm_scene else [Collider(Plane((0.0, -0.001, 0.0), (0.0, 1.0, 0.0)))]
+    scene = Scene(constraints=constraints, self_collision=SelfCollision() if self_collision else None)
+    try:
+        for _ in simulate(model, scene, replace(settings, frames=1)):
+            pass
+    except Exception:  # an optimisation only: the run reports its own errors
+        return
