@@ -238,7 +238,9 @@ def _overlapping(
         n, found = query_grown(qlo, qhi, q, elo, ehi, inv_cell, start, element, cell, box, above, found)
         if count + n > out.shape[0]:
             grown = np.empty((2 * (count + n), 2), dtype=np.int64)
-            grown[:count] = out[:count]
+            for k in range(count):  # not a slice assignment: its shape check compiles a message
+                grown[k, 0] = out[k, 0]
+                grown[k, 1] = out[k, 1]
             out = grown
         for j in range(n):
             out[count, 0] = q

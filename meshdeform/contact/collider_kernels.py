@@ -45,6 +45,7 @@ from meshdeform.contact.bvh import closest_to_point, closest_to_triangle, new_st
 from meshdeform.contact.primitives import point_triangle_weights
 from meshdeform.contact.surface import FEATURE_EPS, Surface, pseudo_normal
 from meshdeform.contact.triangle_distance import segment_triangle_closest
+from meshdeform.solvers.jit import opaque
 
 _JIT = {"cache": True, "error_model": "numpy"}
 
@@ -168,11 +169,12 @@ def closest_simple(
         qz = tri[corner, 2] - best * nz
         return best, w0, w1, w2, qx, qy, qz, nx, ny, nz, 0.0
     if kind in (SPHERE, CAPSULE):
+        r0, r1, r2, r3 = opaque(0), opaque(1), opaque(2), opaque(3)  # rows: one compile of the callees
         if kind == SPHERE:
             ax, ay, az = params[0, 0], params[0, 1], params[0, 2]
-            w0, w1, w2 = point_triangle_weights(ax, ay, az, tri, 0, 1, 2)
+            w0, w1, w2 = point_triangle_weights(ax, ay, az, tri, r0, r1, r2)
         else:
-            _, u, w0, w1, w2 = segment_triangle_closest(params, 2, 3, tri, 0, 1, 2)
+            _, u, w0, w1, w2 = segment_triangle_closest(params, r2, r3, tri, r0, r1, r2)
             ax = params[2, 0] + u * (params[3, 0] - params[2, 0])
             ay = params[2, 1] + u * (params[3, 1] - params[2, 1])
             az = params[2, 2] + u * (params[3, 2] - params[2, 2])

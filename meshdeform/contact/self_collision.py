@@ -216,6 +216,9 @@ class SelfCollision(Constraint, Remappable):
             self._rings = _rings(self._topology.edges, n)
             self._start = None
         self._held = None
+        # a writable copy: the model's read-only array would make the kernels that read it and
+        # the positions compile twice (Numba types a read-only array apart)
+        self._rest = np.array(model.rest_positions, dtype=np.float64)
         self._threads = search_threads()  # in the thread that prepares the model, as the solvers' builds
         edge = median_edge(model)
         self.thickness = contact_thickness(self.settings.thickness, edge)
@@ -271,7 +274,7 @@ class SelfCollision(Constraint, Remappable):
         triangle_fresh = corners[:, 0] | corners[:, 1] | corners[:, 2]
         edge_fresh = ends[:, 0] | ends[:, 1]
         ring_start, ring = self._rings
-        rest = np.ascontiguousarray(model.rest_positions, dtype=np.float64)
+        rest = self._rest
         shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, self._span, reach)
         everyone = fresh.shape[0] == x0.shape[0]
         capacity = self._capacity if everyone else (0, 0)

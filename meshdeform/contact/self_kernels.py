@@ -20,7 +20,7 @@ import numpy as np
 
 from meshdeform.contact.broad_phase import query_grown
 from meshdeform.contact.primitives import point_triangle_weights, segment_segment_params
-from meshdeform.solvers.jit import JIT
+from meshdeform.solvers.jit import JIT, opaque
 
 #: pairs whose distance falls to this fraction of its start value within the substep count as
 #: colliding (the conservative advancement's stopping rule, Li et al. 2021 "additive CCD")
@@ -149,11 +149,14 @@ def _pair_buffers(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _grow(
     pairs: np.ndarray, near: np.ndarray, rest: np.ndarray, count: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The first `count` rows of the three output arrays, in arrays twice as long."""
+    """The first `count` rows of the three output arrays, in arrays twice as long. Copied element
+    by element: a slice assignment compiles Numba's shape-mismatch message (2.8 s of a cold run)."""
     grown_pairs, grown_near, grown_rest = _pair_buffers(2 * max(count, 16))
-    grown_pairs[:count] = pairs[:count]
-    grown_near[:count] = near[:count]
-    grown_rest[:count] = rest[:count]
+    for k in range(count):
+        grown_pairs[k, 0] = pairs[k, 0]
+        grown_pairs[k, 1] = pairs[k, 1]
+        grown_near[k] = near[k]
+        grown_rest[k] = rest[k]
     return grown_pairs, grown_near, grown_rest
 
 
@@ -206,13 +209,14 @@ def vf_candidates(
     (P,) bool; and its distance (m) in the rest positions (P,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
-    count = 0
+    count = opaque(0)  # constants through `opaque`: the callees compile once, for runtime values
+    anyone = opaque(-1)
     for k in range(queries.shape[0]):
         q = queries[k]
         if by_triangle:
-            n, found = query_grown(tlo, thi, q, qlo, qhi, inv_cell, start, element, cell, box, -1, found)
+            n, found = query_grown(tlo, thi, q, qlo, qhi, inv_cell, start, element, cell, box, anyone, found)
         else:
-            n, found = query_grown(qlo, qhi, q, tlo, thi, inv_cell, start, element, cell, box, -1, found)
+            n, found = query_grown(qlo, qhi, q, tlo, thi, inv_cell, start, element, cell, box, anyone, found)
         for j in range(n):
             v, t = (found[j], q) if by_triangle else (q, found[j])
             if skip[v]:
@@ -240,7 +244,7 @@ def ee_candidates(
     the distance (m) in the rest positions (Q,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
-    count = 0
+    count = opaque(0)  # a runtime value: `_grow` compiles once (`opaque`)
     for k in range(queries.shape[0]):
         e = queries[k]
         n, found = query_grown(elo, ehi, e, elo, ehi, inv_cell, start, element, cell, box, e if every else -1, found)
@@ -391,12 +395,13 @@ def proximity_sides(
     ids = np.empty(4, dtype=np.int64)
     active_vf = np.zeros(vf.shape[0], dtype=np.bool_)
     side_vf = np.empty((vf.shape[0], 3))
+    is_vf, is_ee = opaque(True), opaque(False)  # one compile of `_relative_travel`
     for k in range(vf.shape[0]):
         if not vf_near[k]:
             continue
         t = vf[k, 1]
         ids[0], ids[1], ids[2], ids[3] = vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2]
-        if vf_lower[k] - _relative_travel(x0, x, ids, True) > 2.0 * vf_gap[k]:
+        if vf_lower[k] - _relative_travel(x0, x, ids, is_vf) > 2.0 * vf_gap[k]:
             continue
         active_vf[k] = True
         nx, ny, nz = _vf_side(x0, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])
@@ -408,7 +413,7 @@ def proximity_sides(
             continue
         e, f = ee[k, 0], ee[k, 1]
         ids[0], ids[1], ids[2], ids[3] = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
-        if ee_lower[k] - _relative_travel(x0, x, ids, False) > 2.0 * ee_gap[k]:
+        if ee_lower[k] - _relative_travel(x0, x, ids, is_ee) > 2.0 * ee_gap[k]:
             continue
         active_ee[k] = True
         dist, _, _, dx, dy, dz = _ee_gap(x0, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])
@@ -577,7 +582,9 @@ def _advance(
     for i in range(4):
         for axis in range(3):
             buf[i, axis] = x0[ids[i], axis]
-    start = _vf_gap(buf, 0, 1, 2, 3)[0] if is_vf else _ee_gap(buf, 0, 1, 2, 3)[0]
+    # the rows of buf through `opaque`: the gap kernels compile once, for runtime indices
+    r0, r1, r2, r3 = opaque(0), opaque(1), opaque(2), opaque(3)
+    start = _vf_gap(buf, r0, r1, r2, r3)[0] if is_vf else _ee_gap(buf, r0, r1, r2, r3)[0]
     after = max(start - bound, 0.0)
     if bound <= 0.0:  # moving as one
         return False, after
@@ -603,7 +610,7 @@ def _advance(
         for i in range(4):
             for axis in range(3):
                 buf[i, axis] = x0[ids[i], axis] + t * (x1[ids[i], axis] - x0[ids[i], axis])
-        dist = _vf_gap(buf, 0, 1, 2, 3)[0] if is_vf else _ee_gap(buf, 0, 1, 2, 3)[0]
+        dist = _vf_gap(buf, r0, r1, r2, r3)[0] if is_vf else _ee_gap(buf, r0, r1, r2, r3)[0]
         if dist < floor:
             return True, 0.0
     return True, 0.0
@@ -628,6 +635,7 @@ def colliding_pairs(
     next substep skips the pairs that stay clear). Row by row: `parts.by_rows`."""
     buf = np.empty((4, 3))
     ids = np.empty(4, dtype=np.int64)
+    is_vf, is_ee = opaque(True), opaque(False)  # one compile of the callees, not one per constant
     hit_vf = np.zeros(vf.shape[0], dtype=np.bool_)
     for k in range(vf.shape[0]):
         t = vf[k, 1]
@@ -635,22 +643,22 @@ def colliding_pairs(
         ids[1] = triangles[t, 0]
         ids[2] = triangles[t, 1]
         ids[3] = triangles[t, 2]
-        bound = _relative_travel(x0, x1, ids, True)
+        bound = _relative_travel(x0, x1, ids, is_vf)
         if bound <= (1.0 - SEPARATION) * vf_lower[k]:  # provably safe: it cannot close the known gap
             vf_lower[k] -= bound
         else:
-            hit_vf[k], vf_lower[k] = _advance(x0, x1, ids, True, buf, origin, seam, bound)
+            hit_vf[k], vf_lower[k] = _advance(x0, x1, ids, is_vf, buf, origin, seam, bound)
     hit_ee = np.zeros(ee.shape[0], dtype=np.bool_)
     for k in range(ee.shape[0]):
         ids[0] = edges[ee[k, 0], 0]
         ids[1] = edges[ee[k, 0], 1]
         ids[2] = edges[ee[k, 1], 0]
         ids[3] = edges[ee[k, 1], 1]
-        bound = _relative_travel(x0, x1, ids, False)
+        bound = _relative_travel(x0, x1, ids, is_ee)
         if bound <= (1.0 - SEPARATION) * ee_lower[k]:
             ee_lower[k] -= bound
         else:
-            hit_ee[k], ee_lower[k] = _advance(x0, x1, ids, False, buf, origin, seam, bound)
+            hit_ee[k], ee_lower[k] = _advance(x0, x1, ids, is_ee, buf, origin, seam, bound)
     return hit_vf, hit_ee
 
 

@@ -33,3 +33,13 @@ def serial_and_parallel(kernel: Callable[..., None], **options: object) -> tuple
     copy.__qualname__ = name
     copy.__doc__ = kernel.__doc__
     return nb.njit(**options)(kernel), nb.njit(parallel=True, **options)(copy)
+
+
+@nb.njit(**JIT)
+def opaque(value):  # pragma: no cover - compiled
+    """`value` (an integer or a bool) as a runtime value. A kernel that compiled code calls with a
+    constant argument (`f(x, True)`, `g(i, -1)`) is compiled for that constant (Numba types it
+    `Literal`), once per constant and once more for runtime values, and so are the kernels it
+    calls in turn; passed through here the argument costs one compile. (`value | value`: an
+    operation's result is typed as a plain value, where a returned argument keeps its literal.)"""
+    return value | value
