@@ -148,3 +148,20 @@ def test_a_triangle_pierced_by_a_box_edge_is_pushed_off_it() -> None:
     assert abs(-d - 0.05 / np.sqrt(3)) < 1e-9  # the corner's depth beyond the plane
     moved = tri + (-d + 1e-9) * n
     assert not _oracle_box_distance(moved, 3)[1]
+
+
+def test_the_placeholder_surface_is_the_one_surface_of_builds() -> None:
+    """The shapes without a surface hand the contact kernels a one-triangle placeholder made in
+    NumPy (so that a scene without a mesh collider compiles no BVH build): the same arrays as the
+    BVH and normals kernels make of that triangle."""
+    from meshdeform.contact.surface import surface_of
+    from meshdeform.scene.colliders import _placeholder_surface
+
+    made, built = _placeholder_surface(), surface_of(np.eye(3), np.array([[0, 1, 2]]))
+    for name in ("vertices", "triangles", "normals"):
+        assert getattr(made, name).dtype == getattr(built, name).dtype
+        np.testing.assert_allclose(getattr(made, name), getattr(built, name), rtol=0, atol=1e-15)
+    for name in ("bounds", "nodes", "order", "tri_bounds"):
+        assert getattr(made.bvh, name).dtype == getattr(built.bvh, name).dtype
+        assert np.array_equal(getattr(made.bvh, name), getattr(built.bvh, name))
+    assert made.bvh.depth == built.bvh.depth and made.closed == built.closed

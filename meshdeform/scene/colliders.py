@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshdeform.contact import collider_kernels as ck
+from meshdeform.contact.bvh import TriangleBVH
 from meshdeform.contact.surface import Surface, signed_closest, surface_of
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
@@ -87,7 +88,26 @@ _BOX_TRIANGLES = np.array(
 
 
 def _placeholder_surface() -> Surface:
-    return surface_of(np.eye(3), np.array([[0, 1, 2]]))
+    """A one-triangle surface for the shapes that have none (the contact kernels take one list of
+    arguments for every shape), made in NumPy: `surface_of` would compile the BVH build and the
+    normals kernels, some 3 s of a process with an empty compile cache, in a scene without a mesh
+    collider. The same arrays as `surface_of(np.eye(3), [[0, 1, 2]])`
+    (tests/test_contact_primitives.py): the face's unit normal, its edges' (a lone face's), its
+    corners' (the normal times the corner's angle), and a BVH of one leaf."""
+    vertices = np.eye(3)
+    triangles = np.array([[0, 1, 2]], dtype=np.int64)
+    corners = vertices[triangles[0]]
+    normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+    normal /= np.linalg.norm(normal)
+    first, second = np.roll(corners, -1, axis=0) - corners, np.roll(corners, 1, axis=0) - corners
+    angles = np.arctan2(np.linalg.norm(np.cross(first, second), axis=1), np.einsum("ij,ij->i", first, second))
+    normals = np.concatenate([np.tile(normal, (4, 1)), angles[:, None] * normal])[None]
+    box = np.concatenate([corners.min(axis=0), corners.max(axis=0)])[None]
+    bvh = TriangleBVH(
+        bounds=box, nodes=np.array([[-1, -1, 0, 1]], dtype=np.int64), order=np.zeros(1, dtype=np.int64),
+        tri_bounds=box.copy(), depth=1,
+    )
+    return Surface(vertices=vertices, triangles=triangles, normals=normals, bvh=bvh, closed=False)
 
 
 class Shape:
