@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -85,8 +86,15 @@ def run_job(
     meshdeform did not write unless `overwrite`); nothing is left in `out_dir` when it does. Two runs
     on one folder at once are the caller's to prevent (`output_lock`, as `meshdeform simulate` does).
     """
-    with unwritten_on_failure(Path(out_dir)):  # also before the staging folder exists: the CLI's line names it
-        return _run_job(mesh_path, recipe, out_dir, on_frame=on_frame, mesh=mesh, overwrite=overwrite)
+    ahead: list[threading.Thread] = []  # the compile-ahead stand-in (`pipeline.compile_ahead`)
+    try:
+        with unwritten_on_failure(Path(out_dir)):  # also before the staging folder exists: the CLI's line names it
+            return _run_job(mesh_path, recipe, out_dir, on_frame=on_frame, mesh=mesh, overwrite=overwrite, ahead=ahead)
+    finally:
+        # joined whatever happens: a process that ends while the stand-in still compiles or holds
+        # a factorisation crashes or reports leaked objects on its way out
+        for thread in ahead:
+            thread.join()
 
 
 def _run_job(
@@ -97,8 +105,9 @@ def _run_job(
     on_frame: FrameCallback | None,
     mesh: Mesh | None,
     overwrite: bool,
+    ahead: list[threading.Thread],
 ) -> JobResult:
-    """`run_job`'s work."""
+    """`run_job`'s work; the compile-ahead thread it starts goes into `ahead` (run_job joins it)."""
     from meshdeform.export import ExportContext, ExportSession, FrameData
     from meshdeform.io import load
     from meshdeform.preview.colliders import scene_colliders
@@ -117,9 +126,10 @@ def _run_job(
     mesh = mesh if mesh is not None else load(mesh_path)
     built = build_simulation(recipe, mesh)
     model, settings = built.model, built.settings
-    # kernels compiled in the background while the run prepares (pipeline.compile_ahead); joined
-    # at the end, so that no compiling outlives the job (a failed job leaves it to finish alone)
-    ahead = compile_ahead.start(settings, built.scene)
+    # kernels compiled in the background while the run prepares (pipeline.compile_ahead)
+    thread = compile_ahead.start(settings, built.scene)
+    if thread is not None:
+        ahead.append(thread)
     first, last = output_indices(recipe)
     if last < settings.frames:  # nothing after the last frame written is simulated
         settings = replace(settings, frames=last)
@@ -300,8 +310,6 @@ def _run_job(
             "total_seconds": round(time.perf_counter() - started, 4),
         }
         write_text_atomic(stage / REPORT_NAME, json.dumps(report, indent=2) + "\n")
-    if ahead is not None:
-        ahead.join()
     return JobResult(out_dir=Path(out_dir), report=report, outputs=[Path(out_dir) / r for r in report["outputs"]])
 
 
