@@ -1,7 +1,7 @@
 """Compile ahead: a job's kernels compiled while the job prepares its run.
 
 A process with an empty Numba cache (a fresh CI runner, container or Dask worker) compiles every
-kernel a run uses on first use, some 4 to 5 s for the default solver; meanwhile the job's own
+kernel a run uses on first use, seconds of work; meanwhile the job's own
 preparation (the solver's set-up and factorisation at the first step, the exporters, the rest
 frame) would wait or be waited for. `start` steps a small stand-in cloth with the run's settings in
 a background thread, so that the compiling overlaps that preparation: Numba compiles under one

@@ -150,7 +150,8 @@ def _grow(
     pairs: np.ndarray, near: np.ndarray, rest: np.ndarray, count: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The first `count` rows of the three output arrays, in arrays twice as long. Copied element
-    by element: a slice assignment compiles Numba's shape-mismatch message (2.8 s of a cold run)."""
+    by element: a slice assignment compiles Numba's shape-mismatch message (docs/performance.md,
+    "Start-up with an empty compile cache")."""
     grown_pairs, grown_near, grown_rest = _pair_buffers(2 * max(count, 16))
     for k in range(count):
         grown_pairs[k, 0] = pairs[k, 0]

@@ -90,7 +90,7 @@ _BOX_TRIANGLES = np.array(
 def _placeholder_surface() -> Surface:
     """A one-triangle surface for the shapes that have none (the contact kernels take one list of
     arguments for every shape), made in NumPy: `surface_of` would compile the BVH build and the
-    normals kernels, some 3 s of a process with an empty compile cache, in a scene without a mesh
+    normals kernels in every process with an empty compile cache, for a scene without a mesh
     collider. The same arrays as `surface_of(np.eye(3), [[0, 1, 2]])`
     (tests/test_contact_primitives.py): the face's unit normal, its edges' (a lone face's), its
     corners' (the normal times the corner's angle), and a BVH of one leaf."""

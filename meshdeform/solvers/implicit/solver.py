@@ -376,10 +376,10 @@ class ImplicitSolver(ModelCache, Solver):
         Contacts: a vertex a constraint pushed before this step is held in every iteration where
         the forces press it into the obstacle (its motion along the push taken out of the
         direction) and may lift off where they pull it away; self-collision's are released in the
-        last iteration. Releasing every contact in the last iteration (so that the collider's push
-        after the step, and its friction, took place) let a stiff cloth's springs drive whole
-        regions into the obstacle, whose pushes then stored energy: a 40 x 40 sheet of 10 000 N/m
-        dropped on a sphere flickered to 4.8x stretch; `_sink_pressed` gives the push instead.
+        last iteration. Letting every contact go in the last iteration (so that the collider's
+        push after the step, and its friction, take place) would let a stiff cloth's springs drive
+        whole regions into the obstacle, whose pushes then store energy; `_sink_pressed` gives the
+        push instead (docs/performance.md has the figures).
         """
         fv = self.free_vertices
         if self.coarse_space is not None and not self.contact_rows.shape[0]:
@@ -448,8 +448,7 @@ class ImplicitSolver(ModelCache, Solver):
 TRUST_FRACTION = 0.25
 #: the deepest `_sink_pressed` moves a held contact into its obstacle, as a fraction of the median
 #: structural rest length: pressed by stiff springs, a vertex would otherwise be sunk deep and
-#: pushed back out as a strong, sticking friction (a 40 x 40 sheet collapsing on the ground with
-#: self-collision: worst stretch 1.49 at a quarter of an edge, 1.18 at a sixteenth)
+#: pushed back out as a strong, sticking friction that stretches the cloth (docs/performance.md)
 SINK_FRACTION = 1.0 / 16.0
 #: a collider's push deeper than this many times the sink of a resting vertex in one step (1/2 |a|
 #: dt^2) is an impact, whose vertex is held only while its own momentum presses it in, not while
