@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factories import TOP_CORNERS, grid_cloth
+from factories import TOP_CORNERS, grid_cloth, write_grid
 
 from meshdeform.scene import Scene
 from meshdeform.scene.colliders import Collider, Plane
@@ -35,3 +35,23 @@ def test_a_run_beside_the_stand_in_gives_the_bytes_of_a_run_alone() -> None:
     assert thread is not None
     thread.join(timeout=120)
     assert alone.tobytes() == beside.tobytes()
+
+
+def test_a_job_that_fails_after_starting_the_stand_in_waits_for_it(tmp_path, monkeypatch) -> None:
+    """run_job joins the stand-in whatever happens: a process that ended while it still compiled or
+    held a factorisation crashed or printed nanobind's leak report on its way out."""
+    import threading
+
+    import pipeline.estimate
+    from pipeline.estimate import InsufficientDiskSpace
+    from pipeline.job import run_job
+    from pipeline.recipe import load_recipe
+
+    def no_room(estimated_bytes: int | None, folder) -> None:
+        raise InsufficientDiskSpace(f"{folder}: no room (a test)")
+
+    monkeypatch.setattr(pipeline.estimate, "require_disk_space", no_room)
+    mesh = write_grid(tmp_path / "sheet.obj", 12, 12)
+    with pytest.raises(InsufficientDiskSpace):
+        run_job(mesh, load_recipe(None), tmp_path / "out")
+    assert not [t for t in threading.enumerate() if t.name == "meshdeform-compile-ahead"]
