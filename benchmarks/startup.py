@@ -16,7 +16,8 @@ and one uncounted run comes first: the modules' .pyc files exist, as in an insta
 
 Cases (the meshes are written into a temporary folder: the grids here, the samples by
 samples/make_samples.py; the recipes are this repository's samples/recipes):
-- grid8, grid40: an N x N quad grid in the XY plane, 1 m square, the default recipe;
+- grid8, grid40, grid256: an N x N quad grid in the XY plane, 1 m square, the default recipe
+  (grid256: 65 536 vertices, issue 16's production resolution);
 - curtain, flag_mesh, sheet, icosphere, rope: the sample meshes with the default recipe;
 - flag: samples/meshes/flag.obj with samples/recipes/flag.toml (wind, turbulence, tethers);
 - fold: samples/meshes/sheet.obj with samples/recipes/fold.toml (a capsule, the ground and
@@ -45,6 +46,7 @@ RECIPES = ROOT / "samples" / "recipes"
 CASES: dict[str, tuple[str, Path | None]] = {
     "grid8": ("grid8.obj", None),
     "grid40": ("grid40.obj", None),
+    "grid256": ("grid256.obj", None),
     "curtain": ("curtain.obj", None),
     "flag_mesh": ("flag.obj", None),
     "sheet": ("sheet.obj", None),
@@ -63,7 +65,7 @@ def make_meshes(folder: Path) -> None:
     from meshdeform.io import write_obj
     from meshdeform.mesh import grid_mesh
 
-    for n in (8, 40):
+    for n in (8, 40, 256):
         write_obj(folder / f"grid{n}.obj", grid_mesh(n, n, plane="xy"))
     subprocess.run(
         [sys.executable, str(ROOT / "samples" / "make_samples.py"), str(folder)], check=True, stdout=subprocess.DEVNULL

@@ -13,6 +13,8 @@ The stand-in is a 4 x 4 sheet hanging from two corners, calm where the run's sce
 collider (the contact steps and their kernels), with self-collision where the run has it. Solvers
 that launch Numba's parallel builds (`Solver.parallel_kernels`: xpbd, verlet) get no stand-in:
 under Numba's workqueue threading layer two threads must not launch parallel kernels at once.
+Nor do runs of fewer than `MIN_VERTICES` vertices: their own set-up is too short to hide the
+compiling behind, and with a warm cache the stand-in's steps are only a cost (`benchmarks/startup.py`).
 """
 
 from __future__ import annotations
@@ -34,13 +36,15 @@ __all__ = ["start"]
 
 #: vertices along each side of the stand-in sheet (1 m square)
 STAND_IN_SIDE = 4
+#: the fewest vertices of a run that gets a stand-in (a 128 x 128 sheet)
+MIN_VERTICES = 128 * 128
 
 
-def start(settings: Settings, scene: Scene) -> threading.Thread | None:
-    """A started background thread stepping the stand-in for `settings` and `scene` (join it
-    before the process ends, so that Numba's cache files are complete), or None for a solver
-    with parallel builds."""
-    if solver_class(settings.solver).parallel_kernels:
+def start(settings: Settings, scene: Scene, vertices: int) -> threading.Thread | None:
+    """A started background thread stepping the stand-in for `settings` and `scene` of a run of
+    `vertices` (welded) vertices (join it before the process ends, so that Numba's cache files
+    are complete), or None for a solver with parallel builds or a run under `MIN_VERTICES`."""
+    if solver_class(settings.solver).parallel_kernels or vertices < MIN_VERTICES:
         return None
     thread = threading.Thread(
         target=_step_stand_in,

@@ -127,7 +127,7 @@ def _run_job(
     built = build_simulation(recipe, mesh)
     model, settings = built.model, built.settings
     # kernels compiled in the background while the run prepares (pipeline.compile_ahead)
-    thread = compile_ahead.start(settings, built.scene)
+    thread = compile_ahead.start(settings, built.scene, model.vertex_count)
     if thread is not None:
         ahead.append(thread)
     first, last = output_indices(recipe)

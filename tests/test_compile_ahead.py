@@ -1,5 +1,6 @@
 """The compile-ahead stand-in (`pipeline.compile_ahead`): a background thread for solvers with
-serial kernels only, that finishes, and a run beside it gives the bytes of a run alone."""
+serial kernels and large runs only, that finishes, that a job waits for, and a run beside it
+gives the bytes of a run alone."""
 
 from __future__ import annotations
 
@@ -16,7 +17,8 @@ from pipeline import compile_ahead
 
 @pytest.mark.parametrize("name", sorted(SOLVERS))
 def test_a_stand_in_runs_beside_solvers_without_parallel_builds_only(name: str) -> None:
-    thread = compile_ahead.start(Settings(solver=name), Scene())
+    assert compile_ahead.start(Settings(solver=name), Scene(), compile_ahead.MIN_VERTICES - 1) is None  # too small
+    thread = compile_ahead.start(Settings(solver=name), Scene(), compile_ahead.MIN_VERTICES)
     if solver_class(name).parallel_kernels:  # xpbd, verlet: never two launchers of parallel kernels
         assert thread is None
     else:
@@ -30,7 +32,7 @@ def test_a_run_beside_the_stand_in_gives_the_bytes_of_a_run_alone() -> None:
     ground = Collider(Plane((0.0, -0.4, 0.0), (0.0, 1.0, 0.0)), friction=0.3)
     scene, settings = Scene(constraints=[ground]), Settings(frames=12)
     alone = np.array([f.welded_positions for f in simulate(model, scene, settings)])
-    thread = compile_ahead.start(settings, scene)
+    thread = compile_ahead.start(settings, scene, compile_ahead.MIN_VERTICES)
     beside = np.array([f.welded_positions for f in simulate(model, scene, settings)])
     assert thread is not None
     thread.join(timeout=120)
@@ -51,7 +53,7 @@ def test_a_job_that_fails_after_starting_the_stand_in_waits_for_it(tmp_path, mon
         raise InsufficientDiskSpace(f"{folder}: no room (a test)")
 
     monkeypatch.setattr(pipeline.estimate, "require_disk_space", no_room)
-    mesh = write_grid(tmp_path / "sheet.obj", 12, 12)
+    mesh = write_grid(tmp_path / "sheet.obj", 128, 128)  # compile_ahead.MIN_VERTICES: it gets a stand-in
     with pytest.raises(InsufficientDiskSpace):
         run_job(mesh, load_recipe(None), tmp_path / "out")
     assert not [t for t in threading.enumerate() if t.name == "meshdeform-compile-ahead"]
