@@ -8,7 +8,7 @@ a background thread, so that the compiling overlaps that preparation: Numba comp
 lock, and a kernel the run reaches while the stand-in compiles it is waited for, not compiled
 twice. Its results are thrown away; the run's own bytes do not depend on it.
 
-The stand-in is a 4 x 4 sheet hanging from two corners, calm where the run's scene is calm
+The stand-in is a 4 x 4 sheet lying flat, pinned at two corners, calm where the run's scene is calm
 (`meshdeform.simulate.calm`: the same steps a frame, `steps_for`), otherwise lying on a ground
 collider (the contact steps and their kernels), with self-collision where the run has it. Solvers
 that launch Numba's parallel builds (`Solver.parallel_kernels`: xpbd, verlet) get no stand-in:

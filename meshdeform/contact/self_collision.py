@@ -359,6 +359,7 @@ class SelfCollision(Constraint, Remappable):
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
         topology = self._prepare(model)
         if topology.triangles.shape[0] == 0:
+            self.moved = None
             return
         self._substep += 1
         span = list_substeps(dt)

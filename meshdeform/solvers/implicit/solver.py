@@ -292,15 +292,23 @@ class ImplicitSolver(ModelCache, Solver):
         the vertex in the contact set. Self-collision's contacts are left as they are (released
         in the last iteration)."""
         fv = self.free_vertices
-        held = np.empty(self.contact_rows.shape[0], dtype=np.bool_)
-        kernels.pressing(gradient, x, y, fv, self.contact_rows, self.contact_normals, self.contact_impacts, held)
-        held &= ~self.contact_self
+        held = self._pressed(gradient, x, y) & ~self.contact_self
         if not held.any():
             return
         rows, normals = self.contact_rows[held], self.contact_normals[held]
         force = np.maximum(np.einsum("ij,ij->i", gradient[rows], normals), 0.0)
         depth = np.minimum(force / self.inertia[rows], self.sink_cap)
         x[fv[rows]] -= normals * depth[:, None]
+
+    def _pressed(self, gradient: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(K,) bool: which contact rows are pressed into their obstacle at x, given the step
+        energy's gradient (F, 3) there (`kernels.pressing`: the force rule, or the momentum rule
+        after an impact)."""
+        held = np.empty(self.contact_rows.shape[0], dtype=np.bool_)
+        kernels.pressing(
+            gradient, x, y, self.free_vertices, self.contact_rows, self.contact_normals, self.contact_impacts, held
+        )
+        return held
 
     def _forget_contacts(self) -> None:
         """No vertex held: the free rows (K,) of F a constraint pushed before this step and the unit
@@ -394,8 +402,7 @@ class ImplicitSolver(ModelCache, Solver):
         for iteration in range(self.iterations):
             # contacts held while pressed (the docstring); self-collision's released in the last
             if self.contact_rows.shape[0]:
-                held = np.empty(self.contact_rows.shape[0], dtype=np.bool_)
-                kernels.pressing(grad, x, y, fv, self.contact_rows, self.contact_normals, self.contact_impacts, held)
+                held = self._pressed(grad, x, y)
                 if iteration + 1 == self.iterations:
                     held &= ~self.contact_self
                 rows, normals = self.contact_rows[held], self.contact_normals[held]
@@ -452,9 +459,8 @@ TRUST_FRACTION = 0.25
 SINK_FRACTION = 1.0 / 16.0
 #: a collider's push deeper than this many times the sink of a resting vertex in one step (1/2 |a|
 #: dt^2) is an impact, whose vertex is held only while its own momentum presses it in, not while
-#: springs do: a stiff body's compression would be held and given back as a bounce (a triangulated
-#: cube of 10 000 N/m dropped 0.3 m rebounded 0.28 m and kept bouncing). 2 let a sheet dropped on a
-#: thin bar hook over it; 8 and 16 left the cube rebounding 0.035 and 0.115 m
+#: springs do: a stiff body's compression would be held and given back as a bounce (the values
+#: tried and what they did: docs/performance.md, "Faster implicit steps, a woven default tried")
 IMPACT_SINKS = 4.0
 #: Newton steps on the coarse space before each step's L-BFGS iterations (`_coarse_correction`)
 COARSE_STEPS = 3
