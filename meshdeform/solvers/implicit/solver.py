@@ -463,7 +463,7 @@ SINK_FRACTION = 1.0 / 16.0
 #: tried and what they did: docs/performance.md, "Faster implicit steps, a woven default tried")
 IMPACT_SINKS = 4.0
 #: Newton steps on the coarse space before each step's L-BFGS iterations (`_coarse_correction`)
-COARSE_STEPS = 3
+COARSE_STEPS = 2
 #: L-BFGS history length (Liu, Bouaziz, Kavan 2017 use 5)
 HISTORY = 5
 #: sufficient decrease of the line search: the energy must fall by this fraction of the slope
