@@ -308,12 +308,20 @@ def calm(scene: Scene) -> bool:
     return not scene.constraints and scene.self_collision is None and scene.tearing is None
 
 
-def steps_for(settings: Settings, scene: Scene) -> Settings:
+def steps_for(settings: Settings, scene: Scene, model: SpringModel | None = None) -> Settings:
     """The settings a run of the scene uses: the solver's calm steps (`Solver.calm_steps`, with its
     `calm_options`) where the scene is `calm` and neither the substeps nor the iterations were
-    given, else `settings` itself."""
+    given; where it is not calm and the substeps were not given, at least the substeps the solver
+    needs under contact on `model` (`Solver.contact_substeps`; not asked without a model); else
+    `settings` itself."""
+    if not calm(scene):
+        if settings.substeps_defaulted and model is not None:
+            needed = make_solver(settings.solver, settings.options).contact_substeps(model, settings.fps)
+            if needed > int(settings.substeps):
+                return replace(settings, substeps=needed)
+        return settings
     steps = solver_class(settings.solver).calm_steps
-    if steps is None or not settings.substeps_defaulted or settings.options.iterations is not None or not calm(scene):
+    if steps is None or not settings.substeps_defaulted or settings.options.iterations is not None:
         return settings
     substeps, iterations = steps
     if int(settings.subframes) > substeps:  # the in-between states kept need as many steps
@@ -331,7 +339,7 @@ def simulate(
 ) -> Iterator[Frame]:
     """Yield `settings.frames` frames of the model moving under the scene, starting at rest."""
     scene = scene or Scene()
-    settings = steps_for(settings or Settings(), scene)
+    settings = steps_for(settings or Settings(), scene, model)
     solver = solver or make_solver(settings.solver, settings.options)
     name, hint = solver.name, solver.hint
     state = state or State.at_rest(model)

@@ -468,7 +468,7 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     return BuiltSimulation(
         model=model,
         scene=scene,
-        settings=steps_for(settings, scene),
+        settings=steps_for(settings, scene, model),
         selections=dict(res.counts),
         warnings=tuple(warnings),
         start_frame=sim.start_frame,

@@ -83,6 +83,14 @@ class Solver(ABC):
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         """One substep of dt under the external accelerations of `control`."""
 
+    def contact_substeps(self, model: SpringModel, fps: float) -> int:
+        """The fewest substeps a frame at `fps` (frames/s) that this solver needs on `model` where
+        something touches the cloth (a constraint such as a collider, self-collision, tearing) and
+        the substeps were not given (`meshdeform.simulate.steps_for`); 0: its defaults do. A
+        solver whose step runs many steps of its own between the constraints (the explicit
+        ones) asks for more: constraints act only between substeps."""
+        return 0
+
     @classmethod
     def calm_options(cls, options: SolverOptions) -> SolverOptions:
         """The options of a run at the calm steps (`calm_steps`), from those in force with the calm
