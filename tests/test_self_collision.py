@@ -217,6 +217,53 @@ def test_the_dense_and_the_hashed_grid_report_the_same_pairs_in_the_same_order()
     assert hashed.tobytes() == dense.tobytes()
 
 
+@pytest.mark.parametrize("dense_factor", [0.0, 1e9])  # always hashed, always dense
+def test_edge_pairs_found_cell_by_cell_are_every_close_pair_and_the_queries_own(dense_factor: float) -> None:
+    """A whole search's edge-edge pairs, found cell by cell (`ee_candidates_in_cells`), are every
+    pair of edges that share no vertex and lie within the reach, as ipctk's edge-edge distance
+    finds them over all pairs (written elsewhere), each once, with the flags and rest distances
+    that the edge-by-edge search (`ee_candidates`) gives them."""
+    import ipctk
+
+    from meshdeform.contact.broad_phase import grid_for, swept_boxes
+    from meshdeform.contact.self_collision import _rings, _Topology
+
+    rng = np.random.default_rng(11)
+    model = SpringModel.from_mesh(grid_sheet(12, 12))
+    x = np.asarray(model.rest_positions) + rng.normal(0.0, 0.04, (model.vertex_count, 3))  # crumpled
+    topology = _Topology.of(model)
+    edges = topology.edges
+    n = model.vertex_count
+    reach = 0.03
+    lo, hi = swept_boxes(x, x, edges, 0.5 * reach)
+    inv_cell, start, element, cell, box = grid_for(lo, hi, lo, hi, dense_factor=dense_factor)
+    ring_start, ring = _rings(edges, n)
+    rest = np.array(model.rest_positions, dtype=np.float64)
+    shared = (np.arange(n), ring_start, ring, np.zeros((n, 3)), 1.0, reach)
+    in_cells = self_kernels.ee_candidates_in_cells(
+        x, rest, np.arange(start.shape[0] - 1), lo, hi, inv_cell, start, element, cell, box, edges, *shared, 0
+    )
+    by_edge = self_kernels.ee_candidates(
+        x, rest, np.arange(edges.shape[0]), np.ones(edges.shape[0], dtype=bool), lo, hi, inv_cell, start, element,
+        cell, box, edges, *shared, True, 0,
+    )
+    found = [tuple(pair) for pair in in_cells[0].tolist()]
+    assert len(found) == len(set(found))  # each pair once
+    expected = set()
+    for e in range(edges.shape[0]):
+        for f in range(e + 1, edges.shape[0]):
+            if set(edges[e]) & set(edges[f]):
+                continue
+            d2 = ipctk.edge_edge_distance(x[edges[e, 0]], x[edges[e, 1]], x[edges[f, 0]], x[edges[f, 1]])
+            if d2 <= reach * reach:
+                expected.add((e, f))
+    assert len(expected) > 100
+    assert set(found) == expected
+    mine = {tuple(p): (bool(a), float(b)) for p, a, b in zip(in_cells[0].tolist(), *in_cells[1:], strict=True)}
+    theirs = {tuple(p): (bool(a), float(b)) for p, a, b in zip(by_edge[0].tolist(), *by_edge[1:], strict=True)}
+    assert mine == theirs
+
+
 def _sampled_min_distance(x0: np.ndarray, x1: np.ndarray, samples: int = 2001) -> float:
     """Distance of point 0 to triangle (1, 2, 3) along the straight path, densely sampled, by
     minimising over a barycentric lattice (independent of the kernels)."""

@@ -296,11 +296,16 @@ class SelfCollision(Constraint, Remappable):
                 0, threads,
             ))  # fmt: skip
         ee_grid = grid_for(elo, ehi, elo, ehi, inv_cell=ee_cell)
-        found_ee = search_in_parts(
-            self_kernels.ee_candidates, (carried, rest), np.flatnonzero(edge_fresh),
-            (edge_fresh, elo, ehi, *ee_grid, topology.edges, *shared[1:], bool(edge_fresh.all())),
-            capacity[1], threads,
-        )  # fmt: skip
+        if edge_fresh.all():  # every edge against every edge: pairs of entries cell by cell
+            found_ee = search_in_parts(
+                self_kernels.ee_candidates_in_cells, (carried, rest), np.arange(ee_grid[1].shape[0] - 1),
+                (elo, ehi, *ee_grid, topology.edges, *shared[1:]), capacity[1], threads,
+            )  # fmt: skip
+        else:
+            found_ee = search_in_parts(
+                self_kernels.ee_candidates, (carried, rest), np.flatnonzero(edge_fresh),
+                (edge_fresh, elo, ehi, *ee_grid, topology.edges, *shared[1:], False), capacity[1], threads,
+            )  # fmt: skip
         if everyone:
             self._capacity = (int(1.25 * found_vf[0][0].shape[0]), int(1.25 * found_ee[0].shape[0]))
             self._cells = (vf_grid[0], ee_grid[0])
