@@ -428,9 +428,10 @@ MARGIN_FRACTION = 0.25
 
 #: the time (s) a list of candidate pairs covers at most, rounded to whole substeps (`_Pairs`,
 #: `list_substeps`): a longer span keeps the pairs whose relative motion could close their gap
-#: within it, but sweeps wider boxes. 4 substeps of xpbd's default 22 a frame at 24 fps, 1 of
-#: implicit's 8 (docs/performance.md, "Self-collision's pair lists over a span of time")
-LIST_SPAN = 4.0 / (24.0 * 22.0)
+#: within it, but sweeps wider boxes. 4 substeps of xpbd's default 22 a frame at 24 fps, 2 of
+#: implicit's 8 (docs/performance.md, "Self-collision's pair lists over a span of time" and
+#: "Edge pairs cell by cell")
+LIST_SPAN = 8.2e-3
 #: when more than this fraction of the vertices strayed from their paths, the whole list is
 #: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone
 REGATHER_FRACTION = 0.5
