@@ -400,8 +400,8 @@ def test_every_pair_within_the_thickness_is_in_the_substeps_list() -> None:
     used = []
     search = contact._pairs
 
-    def recording(model, topology, x0, x1):
-        pairs = search(model, topology, x0, x1)
+    def recording(model, topology, x0, x1, threads):
+        pairs = search(model, topology, x0, x1, threads)
         used.append((x1.copy(), pairs.vf.copy(), pairs.ee.copy()))
         return pairs
 

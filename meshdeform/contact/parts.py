@@ -23,6 +23,7 @@ import functools
 import itertools
 import os
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -52,6 +53,80 @@ def _worker() -> ThreadPoolExecutor:
             _pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="meshdeform-search")
             _pool_pid = os.getpid()
         return _pool
+
+
+class ThreadPicker:
+    """How many threads the split kernels use now: two where measured faster, else one.
+
+    With another process on one of the two cores, splitting runs slower than one thread (the
+    contact scenes of benchmarks/contact.py: 5-8 %; docs/performance.md, "Edge pairs cell by
+    cell"), and only measuring tells the two machines apart. The caller times comparable pieces of
+    work (`timed`: self-collision's contact of one substep; over a window of several substeps, the
+    whole searches of the pair lists every few substeps included, alike from window to window);
+    every `interval` pieces a trial runs `window` of them at the count in use, `window` at the
+    other and `window` at the first again, and the other count is kept when its window's seconds beat
+    both windows around it by `margin` (noise does not flip it back and forth; sums, not medians: the
+    dear pieces, the whole searches, are a few of each window's). Without a switch the
+    interval doubles, up to `max_interval`. Neither count changes a result (module docstring):
+    only the speed.
+
+    most: the threads allowed (`search_threads`); clock: seconds (tests pass a fake)."""
+
+    def __init__(
+        self,
+        most: int,
+        window: int = 15,
+        margin: float = 0.1,
+        interval: int = 120,
+        max_interval: int = 960,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
+        self.most = most
+        self.threads = most
+        self.window, self.margin = window, margin
+        self.interval, self.max_interval = interval, max_interval
+        self.clock = clock
+        self.switches = 0
+        self._gap = interval  # pieces of work from one trial to the next
+        self._count = 0  # pieces so far
+        self._trial_at = interval  # the piece a trial starts at
+        self._times: list[float] = []  # the trial's seconds so far, window by window
+
+    def current(self) -> int:
+        """The threads the next kernel call uses: during a trial's middle window the other count."""
+        if self.most < 2:
+            return 1
+        step = self._count - self._trial_at
+        if self.window <= step < 2 * self.window:
+            return 3 - self.threads  # the other of 1 and 2
+        return self.threads
+
+    def timed(self, search: Callable[[int], object]) -> object:
+        """`search(threads)`, a piece of work at the count `current` gives, timed when a trial runs."""
+        threads = self.current()
+        step = self._count - self._trial_at
+        if self.most < 2 or step < 0:
+            self._count += 1
+            return search(threads)
+        start = self.clock()
+        result = search(threads)
+        self._times.append(self.clock() - start)
+        self._count += 1
+        if len(self._times) == 3 * self.window:
+            self._decide()
+        return result
+
+    def _decide(self) -> None:
+        w = self.window
+        first, other, last = (sum(self._times[k * w : (k + 1) * w]) for k in range(3))
+        if other < (1.0 - self.margin) * min(first, last):
+            self.threads = 3 - self.threads
+            self.switches += 1
+            self._gap = self.interval
+        else:
+            self._gap = min(2 * self._gap, self.max_interval)
+        self._times = []
+        self._trial_at = self._count + self._gap
 
 
 def search_threads() -> int:

@@ -45,7 +45,7 @@ import numpy as np
 
 from meshdeform.contact import self_kernels
 from meshdeform.contact.broad_phase import grid_for, strays, swept_boxes
-from meshdeform.contact.parts import by_rows, search_in_parts, search_threads
+from meshdeform.contact.parts import ThreadPicker, by_rows, search_in_parts, search_threads
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 
@@ -184,7 +184,8 @@ class SelfCollision(Constraint, Remappable):
         self._span = 1  # substeps a list of candidate pairs covers at most (`list_substeps`)
         self._margin = 0.0
         self._capacity = (0, 0)
-        self._threads = 1  # threads a candidate search may use (`parts.search_threads`)
+        #: threads the split kernels use, by measurement (`parts.ThreadPicker`)
+        self._picker = ThreadPicker(1)
         #: the grid cells (1/m) of the last whole search, for the VF and the EE grid
         self._cells: tuple[float, float] | None = None
         #: the thickness kept on the model last prepared (`contact_thickness`), metres
@@ -219,15 +220,20 @@ class SelfCollision(Constraint, Remappable):
         # a writable copy: the model's read-only array would make the kernels that read it and
         # the positions compile twice (Numba types a read-only array apart)
         self._rest = np.array(model.rest_positions, dtype=np.float64)
-        self._threads = search_threads()  # in the thread that prepares the model, as the solvers' builds
+        most = search_threads()  # in the thread that prepares the model, as the solvers' builds
+        if self._picker.most != most:  # (a torn model keeps what the picker measured)
+            self._picker = ThreadPicker(most)
         edge = median_edge(model)
         self.thickness = contact_thickness(self.settings.thickness, edge)
         self._margin = MARGIN_FRACTION * edge if edge > 0 else self.thickness
         return self._topology
 
-    def _pairs(self, model: SpringModel, topology: _Topology, x0: np.ndarray, x1: np.ndarray) -> _Pairs:
+    def _pairs(
+        self, model: SpringModel, topology: _Topology, x0: np.ndarray, x1: np.ndarray, threads: int
+    ) -> _Pairs:
         """The candidate pairs for a substep from x0 to x1: the kept list where it covers the
-        vertices, the pairs of the others searched again (all of them where most strayed)."""
+        vertices, the pairs of the others searched again (all of them where most strayed) on
+        `threads` threads."""
         held = self._held
         slack = 0.5 * self._margin
         n = x0.shape[0]
@@ -241,12 +247,14 @@ class SelfCollision(Constraint, Remappable):
             held = _Pairs.empty(n)
             stale, common_start, common_end = np.ones(n, dtype=np.bool_), np.zeros(3), np.zeros(3)
         self.work.pair_builds += 1
-        self._held = self._regather(model, topology, held, stale, x0 - common_start, x1 - common_end, slack)
+        self._held = self._regather(
+            model, topology, held, stale, x0 - common_start, x1 - common_end, slack, threads
+        )
         return self._held
 
     def _regather(
         self, model: SpringModel, topology: _Topology, pairs: _Pairs, stale: np.ndarray,
-        x0: np.ndarray, x1: np.ndarray, slack: float,
+        x0: np.ndarray, x1: np.ndarray, slack: float, threads: int,
     ) -> _Pairs:
         """`pairs` with new paths for the `stale` vertices (V,) bool, from their motion x0 -> x1
         (V, 3, the common departures taken out), and every pair touching one of them searched
@@ -281,7 +289,6 @@ class SelfCollision(Constraint, Remappable):
         # a partial search keeps the cells of the last whole one (`grid_for`)
         vf_cell, ee_cell = (None, None) if everyone or self._cells is None else self._cells
         vf_grid = grid_for(qlo, qhi, tlo, thi, inv_cell=vf_cell)
-        threads = self._threads
         found_vf = [
             search_in_parts(
                 self_kernels.vf_candidates, (carried, rest), fresh,
@@ -325,7 +332,7 @@ class SelfCollision(Constraint, Remappable):
 
     def _impact_zones(
         self, model: SpringModel, topology: _Topology, x0: np.ndarray, x: np.ndarray, inv_mass: np.ndarray,
-        work: ContactWork, translate: bool,
+        work: ContactWork, translate: bool, threads: int,
     ) -> bool:
         """The continuous check along x0 -> x (V, 3), and impact zones in x until it flags
         nothing: each zone takes its members' mass-weighted mean displacement (`translate`) or
@@ -336,7 +343,7 @@ class SelfCollision(Constraint, Remappable):
         settings = self.settings
         zoned = False
         for round_ in range(settings.max_rounds + 1):
-            pairs = self._pairs(model, topology, x0, x)
+            pairs = self._pairs(model, topology, x0, x, threads)
             vf, ee = pairs.vf, pairs.ee
             hit_vf, hit_ee = by_rows(
                 functools.partial(
@@ -344,7 +351,7 @@ class SelfCollision(Constraint, Remappable):
                     SEAM_FRACTION * self.thickness,
                 ),
                 ((vf, pairs.vf_lower), (ee, pairs.ee_lower)),
-                self._threads,
+                threads,
             )
             flagged = int(hit_vf.sum() + hit_ee.sum())
             if flagged == 0:
@@ -362,7 +369,14 @@ class SelfCollision(Constraint, Remappable):
         return zoned
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
+        """The substep's contact (module docstring), its split kernels on the threads the picker
+        gives (`parts.ThreadPicker`: a substep's contact is comparable work from one to the next)."""
         topology = self._prepare(model)
+        self._picker.timed(lambda threads: self._project(model, topology, state, time, dt, threads))
+
+    def _project(
+        self, model: SpringModel, topology: _Topology, state: State, time: float, dt: float, threads: int
+    ) -> None:
         if topology.triangles.shape[0] == 0:
             self.moved = None
             return
@@ -379,13 +393,13 @@ class SelfCollision(Constraint, Remappable):
         work = ContactWork()
 
         # 1. proximity: pairs within the thickness, pushed apart along their start side
-        pairs = self._pairs(model, topology, x0, x1)
+        pairs = self._pairs(model, topology, x0, x1, threads)
         vf_gap = np.minimum(self.thickness, pairs.vf_rest)
         ee_gap = np.minimum(self.thickness, pairs.ee_rest)
         active_vf, side_vf, active_ee, side_ee = by_rows(
             functools.partial(self_kernels.proximity_sides, x, x0, topology.triangles, topology.edges),
             ((pairs.vf, pairs.vf_near, vf_gap, pairs.vf_lower), (pairs.ee, pairs.ee_near, ee_gap, pairs.ee_lower)),
-            self._threads,
+            threads,
         )
         work.projections = self_kernels.project_proximity(
             x, x0, inv_mass, topology.triangles, topology.edges, pairs.vf, vf_gap, active_vf, side_vf,
@@ -401,7 +415,7 @@ class SelfCollision(Constraint, Remappable):
         x2 = x.copy()
 
         # 2. and 3. the continuous check along x0 -> x, impact zones until nothing is flagged
-        zoned = self._impact_zones(model, topology, x0, x, inv_mass, work, translate=True)
+        zoned = self._impact_zones(model, topology, x0, x, inv_mass, work, translate=True, threads=threads)
         _settle(state, x2, dt)
         if zoned and self.colliders:
             # a zone's common translation can carry a vertex a collider held into the collider's
@@ -411,7 +425,7 @@ class SelfCollision(Constraint, Remappable):
             for collider in self.colliders:
                 collider.project(model, state, time, dt)
             x3 = x.copy()
-            self._impact_zones(model, topology, x0, x, inv_mass, work, translate=False)
+            self._impact_zones(model, topology, x0, x, inv_mass, work, translate=False, threads=threads)
             _settle(state, x3, dt)
         self._start = x.copy()
         self.moved = np.any(x != x1, axis=1)
