@@ -138,7 +138,7 @@ class ExplicitSolver(ModelCache, Solver):
 
 #: the most stable explicit steps a substep runs where something touches the cloth, when the
 #: substeps are the solver's default (`ExplicitSolver.contact_substeps`; figures in
-#: docs/performance.md, "Explicit springs under contact")
+#: docs/performance.md, "springs: explicit steps under contact")
 CONTACT_INNER_STEPS = 16
 
 
