@@ -6,6 +6,7 @@
 - `by_rows`: a kernel whose work is row by row over pair lists (`proximity_sides`,
   `colliding_pairs`: each row read and written alone) gives, over consecutive parts of its lists,
   the rows of one call; rows updated in place are views of the caller's arrays.
+- `ee_candidates_in_cells` reports its pairs bucket by bucket, so its buckets split the same way.
 So a split never changes a result, whatever the thread count or which thread ran which part. The
 kernels are compiled with `nogil` (`solvers.jit.JIT`): the calling thread and a pool thread take
 the parts in turn, `PARTS` of them (more parts than threads, so that a thread whose parts are
@@ -14,7 +15,8 @@ quick takes more: the queries of a pile are far from alike).
 Splitting pays only where a kernel is long next to handing work to a thread (tens of
 microseconds): `MIN_QUERIES` queries or `MIN_ROWS` rows or more; and only with two Numba threads
 or more in the thread that prepares the model (a batch gives each job its share of the cores;
-the `MESHDEFORM_PARALLEL_SUBSTEPS=0` pin asks for one). Figures in docs/performance.md.
+the `MESHDEFORM_PARALLEL_SUBSTEPS=0` pin asks for one), and while `ThreadPicker` measures two
+faster than one. Figures in docs/performance.md.
 """
 
 from __future__ import annotations
@@ -58,9 +60,9 @@ def _worker() -> ThreadPoolExecutor:
 class ThreadPicker:
     """How many threads the split kernels use now: two where measured faster, else one.
 
-    With another process on one of the two cores, splitting runs slower than one thread (the
-    contact scenes of benchmarks/contact.py: 5-8 %; docs/performance.md, "Edge pairs cell by
-    cell"), and only measuring tells the two machines apart. The caller times comparable pieces of
+    With another process on one of the two cores, splitting can run slower than one thread (the
+    contact scenes of benchmarks/contact.py with a busy loop beside them: 2-5 %; docs/performance.md,
+    "Two threads or one, by measurement"), and only measuring tells the two machines apart. The caller times comparable pieces of
     work (`timed`: self-collision's contact of one substep; over a window of several substeps, the
     whole searches of the pair lists every few substeps included, alike from window to window);
     every `interval` pieces a trial runs `window` of them at the count in use, `window` at the
