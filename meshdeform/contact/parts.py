@@ -61,8 +61,9 @@ class ThreadPicker:
     """How many threads the split kernels use now: two where measured faster, else one.
 
     With another process on one of the two cores, splitting can run slower than one thread (the
-    contact scenes of benchmarks/contact.py with a busy loop beside them: 2-5 %; docs/performance.md,
-    "Two threads or one, by measurement"), and only measuring tells the two machines apart. The caller times comparable pieces of
+    contact scenes of benchmarks/contact.py with a busy loop beside them: 2-5 %;
+    docs/performance.md, "Two threads or one, by measurement"), and only measuring tells the two
+    machines apart. The caller times comparable pieces of
     work (`timed`: self-collision's contact of one substep; over a window of several substeps, the
     whole searches of the pair lists every few substeps included, alike from window to window);
     every `interval` pieces a trial runs `window` of them at the count in use, `window` at the
