@@ -130,6 +130,12 @@ def _bucket(ix: int, iy: int, iz: int, box: np.ndarray, mask: int) -> int:
 
 
 @nb.njit(**JIT)
+def dense_cell(h: int, box: np.ndarray) -> tuple[int, int, int]:
+    """The cell (ix, iy, iz) of bucket h of a dense grid whose range is `box` (`_bucket`'s inverse)."""
+    return h // (box[5] * box[4]) + box[0], (h // box[5]) % box[4] + box[1], h % box[5] + box[2]
+
+
+@nb.njit(**JIT)
 def query_box(
     qlo: np.ndarray,
     qhi: np.ndarray,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from meshdeform.contact.broad_phase import query_grown
+from meshdeform.contact.broad_phase import dense_cell, query_grown
 from meshdeform.contact.primitives import point_triangle_weights, segment_segment_params
 from meshdeform.solvers.jit import JIT, opaque
 
@@ -305,9 +305,7 @@ def ee_candidates_in_cells(
         if last - first < 2:
             continue
         if dense:  # the bucket's cell, from its place in the dense range
-            iz = h % box[5] + box[2]
-            iy = (h // box[5]) % box[4] + box[1]
-            ix = h // (box[5] * box[4]) + box[0]
+            ix, iy, iz = dense_cell(h, box)
         for s1 in range(first, last):
             e = element[s1]
             if not dense:  # a hashed bucket may hold several cells: pairs within one only
