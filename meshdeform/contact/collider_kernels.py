@@ -979,8 +979,7 @@ def respond(
     inv_mass: np.ndarray,
     prims: np.ndarray,
     ids: np.ndarray,
-    w: np.ndarray,
-    n: np.ndarray,
+    rows: np.ndarray,
     surface_v: np.ndarray,
     push: np.ndarray,
     friction: float,
@@ -988,19 +987,19 @@ def respond(
     touched: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Contact velocities, Gauss-Seidel over the contacts `ids` in order (world frame): at each
-    contact point (weights w (C, 3), unit normal n (C, 3), surface velocity surface_v (C, 3))
-    the velocity into the surface is removed and the tangential one reduced by Coulomb friction,
-    friction times the normal velocity change the contact stands for (the approach stopped, or
-    the push (C,) over dt), both spread over the vertices by weight and inverse mass.
-    v (V, 3) is updated in place, touched (V,) marks the vertices changed."""
+    contact point (rows (C, 9): weights w, surface point q (not read), unit normal n; surface
+    velocity surface_v (C, 3)) the velocity into the surface is removed and the tangential one
+    reduced by Coulomb friction, friction times the normal velocity change the contact stands for
+    (the approach stopped, or the push (C,) over dt), both spread over the vertices by weight and
+    inverse mass. v (V, 3) is updated in place, touched (V,) marks the vertices changed."""
     for k in range(ids.shape[0]):
         p = ids[k]
         i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
-        w0, w1, w2 = w[k, 0], w[k, 1], w[k, 2]
+        w0, w1, w2 = rows[k, 0], rows[k, 1], rows[k, 2]
         denom = w0 * w0 * inv_mass[i0] + w1 * w1 * inv_mass[i1] + w2 * w2 * inv_mass[i2]
         if not denom > 1e-300:
             continue
-        nx, ny, nz = n[k, 0], n[k, 1], n[k, 2]
+        nx, ny, nz = rows[k, 6], rows[k, 7], rows[k, 8]
         rx = w0 * v[i0, 0] + w1 * v[i1, 0] + w2 * v[i2, 0] - surface_v[k, 0]
         ry = w0 * v[i0, 1] + w1 * v[i1, 1] + w2 * v[i2, 1] - surface_v[k, 1]
         rz = w0 * v[i0, 2] + w1 * v[i1, 2] + w2 * v[i2, 2] - surface_v[k, 2]
@@ -1021,3 +1020,69 @@ def respond(
                 v[i, 1] += f * dy
                 v[i, 2] += f * dz
                 touched[i] = True
+
+
+@numba.njit(**_JIT)
+def acting_contacts(
+    ids: np.ndarray,
+    plane: np.ndarray,
+    end: np.ndarray,
+    d_end: np.ndarray,
+    push: np.ndarray,
+    touch: float,
+    totals: np.ndarray,
+    counts: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """The contacts of `contact`'s result (ids (C,), plane and end (C, 9), d_end and push (C,))
+    that act on the velocities, in order: those touching at the end (d_end <= touch, in local
+    units) with their final closest point, and those only pushed (push > 0) with their
+    time-of-impact plane. Returns their ids (A,), rows (A, 9) (w, q, n) and push (A,); adds the
+    substep to totals (6,) int64 (`ContactStats`' fields: substeps, touching contacts, then
+    `contact`'s counts (4,): swept, crossed, rounds, reverted)."""
+    acting = 0
+    touching = 0
+    for k in range(ids.shape[0]):
+        if d_end[k] <= touch:
+            touching += 1
+            acting += 1
+        elif push[k] > 0.0:
+            acting += 1
+    out_ids = np.empty(acting, dtype=ids.dtype)
+    rows = np.empty((acting, 9))
+    out_push = np.empty(acting)
+    a = 0
+    for k in range(ids.shape[0]):
+        source = end if d_end[k] <= touch else plane
+        if d_end[k] <= touch or push[k] > 0.0:
+            out_ids[a] = ids[k]
+            for j in range(9):
+                rows[a, j] = source[k, j]
+            out_push[a] = push[k]
+            a += 1
+    totals[0] += 1
+    totals[1] += touching
+    for j in range(4):
+        totals[2 + j] += counts[j]
+    return out_ids, rows, out_push
+
+
+@numba.njit(**_JIT)
+def copy_rows(target: np.ndarray, source: np.ndarray, mask: np.ndarray) -> None:  # pragma: no cover - compiled
+    """target[mask] = source[mask] for (V, 3) arrays and a (V,) mask, in place."""
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            target[i, 0] = source[i, 0]
+            target[i, 1] = source[i, 1]
+            target[i, 2] = source[i, 2]
+
+
+@numba.njit(**_JIT)
+def restart_paths(
+    previous: np.ndarray, positions: np.ndarray, velocities: np.ndarray, mask: np.ndarray, dt: float
+) -> None:  # pragma: no cover - compiled
+    """previous[mask] = positions[mask] - velocities[mask] * dt ((V, 3) each, in place): the
+    vertices a contact changed start the next substep's path where their new velocity says."""
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            for k in range(3):
+                previous[i, k] = positions[i, k] - velocities[i, k] * dt

@@ -405,19 +405,19 @@ class Collider(Constraint, Remappable):
         self.thickness = float(thickness)
         self.keys = keys
         self._side: np.ndarray | None = None
-        self._stats = ContactStats()
+        self._totals = np.zeros(6, dtype=np.int64)  # `ContactStats`' fields in order, summed
         self._model: SpringModel | None = None
         self._prims: _ClothPrimitives | None = None
 
     @property
     def stats(self) -> ContactStats:
         """Contacts and continuous-collision work so far (`ContactStats`, summed over substeps)."""
-        return self._stats
+        return ContactStats(*(int(total) for total in self._totals))
 
     @property
     def swept_hits(self) -> int:
         """Contacts found by the swept test along clear paths so far (`ContactStats.swept`)."""
-        return self._stats.swept
+        return int(self._totals[2])
 
     # -- frames ---------------------------------------------------------------------------------
     def _to_local(self, points: np.ndarray, time: float) -> np.ndarray:
@@ -514,25 +514,19 @@ class Collider(Constraint, Remappable):
         )  # fmt: skip
         if sheet:  # each vertex's side as the sweep found it (none crosses)
             self._side = hint[:n].copy()
-        swept, crossed, rounds, back = (int(c) for c in counts)
-        stats = ContactStats(substeps=1, swept=swept, crossed=crossed, rounds=rounds, reverted=back)
         # velocities: at the final contact where it touches, else where a time-of-impact plane pushed
-        touching = d_end <= h * (1.0 + TOUCH_FRACTION) + 1e-12
-        active = touching | (push > 0)
-        contact = np.where(touching[:, None], end, plane)[active]
-        ids, push = ids[active], push[active]
-        w, q, nrm = contact[:, 0:3], contact[:, 3:6], contact[:, 6:9]
-        if moved.any():
-            state.positions[moved] = self._to_world(x1[moved], time)
-        if self.keys is not None:
-            nrm = nrm @ self.keys.rotation(time).T
-        surface_v = self._surface_velocity(np.ascontiguousarray(q), time, dt)
+        ids, rows, push = ck.acting_contacts(
+            ids, plane, end, d_end, push, h * (1.0 + TOUCH_FRACTION) + 1e-12, self._totals, counts
+        )
+        if self.keys is None:
+            ck.copy_rows(state.positions, x1, moved)
+        else:
+            if moved.any():
+                state.positions[moved] = self._to_world(x1[moved], time)
+            rows[:, 6:9] = rows[:, 6:9] @ self.keys.rotation(time).T
+        surface_v = self._surface_velocity(np.ascontiguousarray(rows[:, 3:6]), time, dt)
         touched = moved.copy()
-        ck.respond(
-            state.velocities, inv_mass, prims, ids, np.ascontiguousarray(w), np.ascontiguousarray(nrm),
-            np.ascontiguousarray(surface_v), push * scale, self.friction, dt, touched,
-        )  # fmt: skip
+        ck.respond(state.velocities, inv_mass, prims, ids, rows, surface_v, push * scale, self.friction, dt, touched)
         if reverted.any():  # they move with the collider
             state.velocities[reverted] = self._surface_velocity(np.ascontiguousarray(x0[reverted]), time, dt)
-        state.previous[touched] = state.positions[touched] - state.velocities[touched] * dt
-        self._stats = self._stats + stats + ContactStats(contacts=int(np.count_nonzero(touching)))
+        ck.restart_paths(state.previous, state.positions, state.velocities, touched, dt)
