@@ -515,9 +515,9 @@ class Collider(Constraint, Remappable):
         if sheet:  # each vertex's side as the sweep found it (none crosses)
             self._side = hint[:n].copy()
         # velocities: at the final contact where it touches, else where a time-of-impact plane pushed
-        ids, rows, push = ck.acting_contacts(
-            ids, plane, end, d_end, push, h * (1.0 + TOUCH_FRACTION) + 1e-12, self._totals, counts
-        )
+        touch = h * (1.0 + TOUCH_FRACTION) + 1e-12
+        acting = ck.acting_contacts(ids, plane, end, d_end, push, touch, self._totals, counts)
+        ids, rows, push = ids[:acting], plane[:acting], push[:acting]
         if self.keys is None:
             ck.copy_rows(state.positions, x1, moved)
         else:
