@@ -71,6 +71,7 @@ from meshdeform.errors import MeshdeformError, SimulationDiverged
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
+from meshdeform.scene.colliders import share_company
 from meshdeform.solvers import guard_kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions
 from meshdeform.solvers.common import spring_constants, structural_mask
@@ -355,6 +356,7 @@ def simulate(
     control = Control(accelerations=accelerations, pulled=scene.pulled(model.vertex_count))
     forces = list(scene.forces)
     constraints = list(scene.constraints)
+    share_company(constraints)  # which compiled contact pipelines the colliders run
     remappable = scene.remappables()  # the forces and constraints with per-vertex data (follow tears)
     pin_motion = scene.pin_motion if pinned_idx.size else None
     center = model.rest_positions.mean(axis=0) if model.vertex_count else np.zeros(3)

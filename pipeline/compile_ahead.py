@@ -10,7 +10,9 @@ twice. Its results are thrown away; the run's own bytes do not depend on it.
 
 The stand-in is a 4 x 4 sheet lying flat, pinned at two corners, calm where the run's scene is calm
 (`meshdeform.simulate.calm`: the same steps a frame, `steps_for`), otherwise lying on a ground
-collider (the contact steps and their kernels), with self-collision where the run has it. Solvers
+collider (the contact steps and their kernels) with a shape of each other collider kind of the run
+far above it (so that the ground runs in the contact pipeline the run compiles), with
+self-collision where the run has it. Solvers
 that launch Numba's parallel builds (`Solver.parallel_kernels`: xpbd, verlet) get no stand-in:
 under Numba's workqueue threading layer two threads must not launch parallel kernels at once.
 Nor do runs of fewer than `MIN_VERTICES` vertices: their own set-up is too short to hide the
@@ -20,15 +22,17 @@ compiling behind, and with a warm cache the stand-in's steps are only a cost (`b
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
 
+from meshdeform.contact import collider_kernels as ck
 from meshdeform.contact.self_collision import SelfCollision
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel
 from meshdeform.scene import Scene
-from meshdeform.scene.colliders import Collider, Plane
+from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Shape, Sphere, TriangleMesh, collider_kinds
 from meshdeform.simulate import Settings, calm, simulate
 from meshdeform.solvers import solver_class
 
@@ -38,6 +42,16 @@ __all__ = ["start"]
 STAND_IN_SIDE = 4
 #: the fewest vertices of a run that gets a stand-in (a 128 x 128 sheet)
 MIN_VERTICES = 128 * 128
+#: a shape of each collider kind but the plane, 100 m above the stand-in (never touched)
+_DISTANT: dict[int, Callable[[], Shape]] = {
+    ck.SPHERE: lambda: Sphere((0.0, 100.0, 0.0), 0.5),
+    ck.CAPSULE: lambda: Capsule((0.0, 100.0, 0.0), (1.0, 100.0, 0.0), 0.5),
+    ck.BOX: lambda: Box((0.0, 100.0, 0.0), (1.0, 101.0, 1.0)),
+    ck.MESH: lambda: TriangleMesh(
+        np.array([[0.0, 100.0, 0.0], [1.0, 100.0, 0.0], [0.0, 101.0, 0.0], [0.0, 100.0, 1.0]]),
+        np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]),
+    ),
+}
 
 
 def start(settings: Settings, scene: Scene, vertices: int) -> threading.Thread | None:
@@ -48,7 +62,7 @@ def start(settings: Settings, scene: Scene, vertices: int) -> threading.Thread |
         return None
     thread = threading.Thread(
         target=_step_stand_in,
-        args=(settings, calm(scene), scene.self_collision is not None),
+        args=(settings, calm(scene), scene.self_collision is not None, collider_kinds(scene.constraints)),
         name="meshdeform-compile-ahead",
         daemon=True,
     )
@@ -56,13 +70,17 @@ def start(settings: Settings, scene: Scene, vertices: int) -> threading.Thread |
     return thread
 
 
-def _step_stand_in(settings: Settings, calm_scene: bool, self_collision: bool) -> None:
-    """One frame of the stand-in (module docstring)."""
+def _step_stand_in(settings: Settings, calm_scene: bool, self_collision: bool, kinds: frozenset[int]) -> None:
+    """One frame of the stand-in (module docstring); `kinds`: the run's collider shape kinds,
+    each but the plane's given a shape far above the stand-in (`_DISTANT`), so that its ground
+    runs in the compiled contact pipeline the run's colliders use (`collider_kernels.contact_kernel`)."""
     side = STAND_IN_SIDE
     pinned = np.zeros(side * side, dtype=bool)
     pinned[[side * (side - 1), side * side - 1]] = True
     model = SpringModel.from_mesh(grid_mesh(side, side, plane="xz"), pinned_input=pinned)
     constraints = [] if calm_scene else [Collider(Plane((0.0, -0.001, 0.0), (0.0, 1.0, 0.0)))]
+    if constraints:
+        constraints += [Collider(_DISTANT[kind]()) for kind in sorted(kinds) if kind in _DISTANT]
     scene = Scene(constraints=constraints, self_collision=SelfCollision() if self_collision else None)
     try:
         for _ in simulate(model, scene, replace(settings, frames=1)):

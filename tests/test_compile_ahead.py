@@ -57,3 +57,15 @@ def test_a_job_that_fails_after_starting_the_stand_in_waits_for_it(tmp_path, mon
     with pytest.raises(InsufficientDiskSpace):
         run_job(mesh, load_recipe(None), tmp_path / "out")
     assert not [t for t in threading.enumerate() if t.name == "meshdeform-compile-ahead"]
+
+
+def test_the_stand_in_s_distant_shapes_are_of_the_kind_they_stand_in_for() -> None:
+    """Each collider kind but the plane has a shape far above the stand-in, of that kind: the
+    stand-in's ground then runs in the contact pipeline the run's colliders compile."""
+    import meshdeform.contact.collider_kernels as ck
+    from meshdeform.scene.colliders import collider_kinds
+
+    assert set(compile_ahead._DISTANT) == {ck.SPHERE, ck.CAPSULE, ck.BOX, ck.MESH}
+    for kind, shape in compile_ahead._DISTANT.items():
+        assert collider_kinds([Collider(shape())]) == {kind}
+        assert shape().bounds()[0][1] >= 99.0  # far above the 1 m stand-in

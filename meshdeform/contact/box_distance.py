@@ -26,6 +26,7 @@ import numba
 import numpy as np
 
 from meshdeform.contact.triangle_distance import segment_triangle_closest
+from meshdeform.solvers.jit import opaque
 
 _JIT = {"cache": True, "error_model": "numpy"}
 
@@ -147,6 +148,7 @@ def primitive_box_closest(
     best2 = best * best
     pierced = False
     t2 = last if corners == 3 else 1  # a segment is passed as the triangle (a, b, b)
+    t0, t1 = opaque(0), opaque(1)  # rows as runtime values: the callee compiles once (`opaque`)
     for a in range(8):
         for axis in range(3):
             bit = 1 << axis
@@ -163,7 +165,7 @@ def primitive_box_closest(
                 bound += gap * gap
             if bound >= best2:
                 continue
-            d2, u, a0, a1, a2 = segment_triangle_closest(box, a, b, tri, 0, 1, t2)
+            d2, u, a0, a1, a2 = segment_triangle_closest(box, a, b, tri, t0, t1, t2)
             if d2 < best2:
                 best2 = d2
                 w0, w1, w2 = a0, a1, a2

@@ -124,6 +124,31 @@ def _triangle_normal(tri: np.ndarray) -> tuple[float, float, float, bool]:
 
 
 @numba.njit(**_JIT)
+def closest_plane(
+    params: np.ndarray, tri: np.ndarray, i0: int, i1: int, i2: int
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
+    """`closest_simple`'s answer for a plane (params rows 0 and 1: a point and the unit normal):
+    a half-space's distance is linear over the primitive, least at a corner. Every query below
+    answers planes with it, so a plane runs in whichever compiled pipeline its scene already
+    needs (`contact_kernel`)."""
+    nx, ny, nz = params[1, 0], params[1, 1], params[1, 2]
+    best = np.inf
+    corner = 0
+    for k in range(3):
+        dk = (tri[k, 0] - params[0, 0]) * nx + (tri[k, 1] - params[0, 1]) * ny + (tri[k, 2] - params[0, 2]) * nz
+        if dk < best:
+            best, corner = dk, k
+    w0 = 1.0 if corner == 0 else 0.0
+    w1 = 1.0 if corner == 1 else 0.0
+    w2 = 1.0 if corner == 2 else 0.0
+    w0, w1, w2 = _merge(i0, i1, i2, w0, w1, w2)
+    qx = tri[corner, 0] - best * nx
+    qy = tri[corner, 1] - best * ny
+    qz = tri[corner, 2] - best * nz
+    return best, w0, w1, w2, qx, qy, qz, nx, ny, nz, 0.0
+
+
+@numba.njit(**_JIT)
 def closest_simple(
     kind: int,
     params: np.ndarray,
@@ -152,22 +177,8 @@ def closest_simple(
     d = limit and a zero normal. hint: for an open sheet, the side (+1 / -1 along the face
     normals) the primitive keeps, 0 when unknown; side: the side used (0 for other shapes).
     stack: a BVH traversal stack (`bvh.new_stack()`)."""
-    if kind == PLANE:  # a half-space: the distance is linear over the primitive, least at a corner
-        nx, ny, nz = params[1, 0], params[1, 1], params[1, 2]
-        best = np.inf
-        corner = 0
-        for k in range(3):
-            dk = (tri[k, 0] - params[0, 0]) * nx + (tri[k, 1] - params[0, 1]) * ny + (tri[k, 2] - params[0, 2]) * nz
-            if dk < best:
-                best, corner = dk, k
-        w0 = 1.0 if corner == 0 else 0.0
-        w1 = 1.0 if corner == 1 else 0.0
-        w2 = 1.0 if corner == 2 else 0.0
-        w0, w1, w2 = _merge(i0, i1, i2, w0, w1, w2)
-        qx = tri[corner, 0] - best * nx
-        qy = tri[corner, 1] - best * ny
-        qz = tri[corner, 2] - best * nz
-        return best, w0, w1, w2, qx, qy, qz, nx, ny, nz, 0.0
+    if kind == PLANE:
+        return closest_plane(params, tri, i0, i1, i2)
     if kind in (SPHERE, CAPSULE):
         r0, r1, r2, r3 = opaque(0), opaque(1), opaque(2), opaque(3)  # rows: one compile of the callees
         if kind == SPHERE:
@@ -219,7 +230,10 @@ def closest_mesh(
     stack: np.ndarray,
 ) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
     """`closest_simple` for a triangle mesh: the exact closest points by the BVH, the sign (a
-    closed mesh) or the side kept (an open sheet) by the pseudo-normal there."""
+    closed mesh) or the side kept (an open sheet) by the pseudo-normal there; planes too
+    (`closest_plane`)."""
+    if kind == PLANE:
+        return closest_plane(params, tri, i0, i1, i2)
     vertex = i0 == i1 and i1 == i2
     verts = vertices
     tris = triangles
@@ -293,7 +307,10 @@ def closest_box(
 ) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
     """`closest_simple` for an axis-aligned box (`box_distance.primitive_box_closest`; its
     corners are `vertices`, its bounds params rows 2 and 3): exact closest points in a few dozen
-    operations where the box as a 12-triangle mesh took a BVH walk of triangle pairs."""
+    operations where the box as a 12-triangle mesh took a BVH walk of triangle pairs); planes
+    too (`closest_plane`)."""
+    if kind == PLANE:
+        return closest_plane(params, tri, i0, i1, i2)
     corners = 1 if (i0 == i1 and i1 == i2) else (2 if i1 == i2 else 3)
     d, w0, w1, w2, qx, qy, qz, nx, ny, nz = primitive_box_closest(tri, corners, vertices, params[2], params[3])
     w0, w1, w2 = _merge(i0, i1, i2, w0, w1, w2)
@@ -966,8 +983,15 @@ contact_box = _family("box", closest_box)
 contact_mesh = _family("mesh", closest_mesh)
 
 
-def contact_kernel(kind: int) -> Callable[..., tuple]:
-    """The compiled `contact` for a shape kind."""
+def contact_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable[..., tuple]:
+    """The compiled `contact` for a shape kind among colliders of the kinds `company` (a
+    scene's). Each build compiles the whole pipeline, seconds in a process with an empty compile
+    cache, and every build answers planes: a plane runs in the build of a box or mesh in its
+    company (unless a sphere or capsule needs the simple one anyway), so the ground beside a box
+    or a mesh costs no second build. The build changes no result (the same plane code, no
+    fast-math)."""
+    if kind == PLANE and not company & {SPHERE, CAPSULE}:
+        kind = BOX if BOX in company else (MESH if MESH in company else PLANE)
     if kind == MESH:
         return contact_mesh
     return contact_box if kind == BOX else contact_simple

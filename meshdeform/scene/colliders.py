@@ -73,20 +73,6 @@ def _normalise_rows(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     return out
 
 
-#: the 12 triangles of a box over its corners (index bit 0: x, bit 1: y, bit 2: z at hi), outward
-_BOX_TRIANGLES = np.array(
-    [
-        [0, 4, 6], [0, 6, 2],  # x = lo
-        [1, 3, 7], [1, 7, 5],  # x = hi
-        [0, 1, 5], [0, 5, 4],  # y = lo
-        [2, 6, 7], [2, 7, 3],  # y = hi
-        [0, 2, 3], [0, 3, 1],  # z = lo
-        [4, 5, 7], [4, 7, 6],  # z = hi
-    ],
-    dtype=np.int64,
-)  # fmt: skip
-
-
 def _placeholder_surface() -> Surface:
     """A one-triangle surface for the shapes that have none (the contact kernels take one list of
     arguments for every shape), made in NumPy: `surface_of` would compile the BVH build and the
@@ -231,8 +217,11 @@ class Box(Shape):
         return np.where(bits == 1, self.hi, self.lo)
 
     def _make_arrays(self) -> ck.ShapeArrays:
-        corners = self.corners()
-        return _arrays(ck.BOX, axis=np.stack([self.lo, self.hi]), surface=surface_of(corners, _BOX_TRIANGLES))
+        """Its corners as the surface's vertices (`closest_box` reads them, and no triangle, normal
+        or BVH: the placeholder's, which spares a fresh process compiling the BVH build)."""
+        return _arrays(
+            ck.BOX, axis=np.stack([self.lo, self.hi]), surface=_placeholder_surface()._replace(vertices=self.corners())
+        )
 
 
 class Capsule(Shape):
@@ -388,6 +377,21 @@ class _ClothPrimitives:
         )
 
 
+def collider_kinds(constraints: Sequence[Constraint]) -> frozenset[int]:
+    """The shape kinds (`collider_kernels.PLANE` ..) of the colliders among `constraints`."""
+    return frozenset(int(c.shape.arrays().kind) for c in constraints if isinstance(c, Collider))
+
+
+def share_company(constraints: Sequence[Constraint]) -> None:
+    """Tells each collider among `constraints` the shape kinds of all of them (`Collider.company`),
+    so that a plane runs in the contact pipeline another collider's kind compiles anyway
+    (`collider_kernels.contact_kernel`)."""
+    kinds = collider_kinds(constraints)
+    for constraint in constraints:
+        if isinstance(constraint, Collider):
+            constraint.company = kinds
+
+
 class Collider(Constraint, Remappable):
     """A shape as a Constraint: keeps the cloth's surface `thickness` outside it, with Coulomb friction.
 
@@ -408,6 +412,9 @@ class Collider(Constraint, Remappable):
         self._totals = np.zeros(6, dtype=np.int64)  # `ContactStats`' fields in order, summed
         self._model: SpringModel | None = None
         self._prims: _ClothPrimitives | None = None
+        #: the shape kinds of the scene's colliders (`share_company`): which compiled contact
+        #: pipeline runs this one (`collider_kernels.contact_kernel`)
+        self.company: frozenset[int] = frozenset()
 
     @property
     def stats(self) -> ContactStats:
@@ -508,7 +515,7 @@ class Collider(Constraint, Remappable):
         lo, hi = (np.zeros(3), np.zeros(3)) if bounds is None else bounds
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         hint = self._hints(prims, n, sheet)
-        ids, plane, end, d_end, push, moved, reverted, counts = ck.contact_kernel(shape.kind)(
+        ids, plane, end, d_end, push, moved, reverted, counts = ck.contact_kernel(shape.kind, self.company)(
             *shape, x0, x1, prims, inv_mass > 0, inv_mass, hint, lo, hi, h, gap, floor,
             MAX_ADVANCE_STEPS, PLANE_SWEEPS, JOINT_SWEEPS, EXTRA_ROUNDS,
         )  # fmt: skip
