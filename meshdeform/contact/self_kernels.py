@@ -289,46 +289,66 @@ def ee_candidates_in_cells(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The EE pairs to keep among all edges, as `ee_candidates` with every edge fresh finds them
     (the same pairs, flags and rest distances), but cell by cell: in each of the grid's `buckets`
-    (`broad_phase.build_grid` of the edge boxes elo, ehi (E, 3)), every two entries of one cell
-    whose boxes overlap, each pair once, in the cell holding the lower corner of the boxes'
+    (ascending; `broad_phase.build_grid` of the edge boxes elo, ehi (E, 3)), every two entries of one
+    cell whose boxes overlap, each pair once, in the cell holding the lower corner of the boxes'
     overlap. A cell holds a few edges, so pairs of entries are far fewer than the entries each
     query of all edges visits (2x faster on the 40 x 40 sheets of benchmarks/contact.py).
+    The buckets' entries are first copied in their order with what the tests of a pair read (box,
+    ends, the cell of the box's lower corner), so that the pairs of a cell, 200 000 a search on
+    those sheets for a few hundred kept, read consecutive memory (1.2x faster).
     Returns the pairs (Q, 2) (lower edge first) by bucket, then by the entries' order, whether
     each takes proximity repulsion, (Q,) bool, and its distance (m) in the rest positions (Q,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     count = opaque(0)  # a runtime value: `_grow` compiles once (`opaque`)
     dense = box[3] > 0
+    # the entries of these buckets, in order: box (lo, hi), ends and the lower corner's cell
+    offset = start[buckets[0]] if buckets.shape[0] else 0
+    entries = start[buckets[-1] + 1] - offset if buckets.shape[0] else 0
+    entry_box = np.empty((entries, 6))
+    entry_ends = np.empty((entries, 5), dtype=np.int64)
+    for j in range(entries):
+        e = element[offset + j]
+        for k in range(3):
+            entry_box[j, k] = elo[e, k]
+            entry_box[j, 3 + k] = ehi[e, k]
+            entry_ends[j, 2 + k] = int(np.floor(elo[e, k] * inv_cell))
+        entry_ends[j, 0], entry_ends[j, 1] = edges[e, 0], edges[e, 1]
     ix, iy, iz = 0, 0, 0
     for k in range(buckets.shape[0]):
         h = buckets[k]
-        first, last = start[h], start[h + 1]
+        first, last = start[h] - offset, start[h + 1] - offset
         if last - first < 2:
             continue
         if dense:  # the bucket's cell, from its place in the dense range
             ix, iy, iz = dense_cell(h, box)
         for s1 in range(first, last):
-            e = element[s1]
+            e = element[offset + s1]
             if not dense:  # a hashed bucket may hold several cells: pairs within one only
-                ix, iy, iz = cell[s1, 0], cell[s1, 1], cell[s1, 2]
-            p0, p1 = edges[e, 0], edges[e, 1]
+                ix, iy, iz = cell[offset + s1, 0], cell[offset + s1, 1], cell[offset + s1, 2]
+            p0, p1 = entry_ends[s1, 0], entry_ends[s1, 1]
+            lx, ly, lz = entry_box[s1, 0], entry_box[s1, 1], entry_box[s1, 2]
+            hx, hy, hz = entry_box[s1, 3], entry_box[s1, 4], entry_box[s1, 5]
+            cx, cy, cz = entry_ends[s1, 2], entry_ends[s1, 3], entry_ends[s1, 4]
             for s2 in range(s1 + 1, last):
-                if not dense and (cell[s2, 0] != ix or cell[s2, 1] != iy or cell[s2, 2] != iz):
-                    continue
-                f = element[s2]
-                if (
-                    elo[e, 0] > ehi[f, 0] or ehi[e, 0] < elo[f, 0] or elo[e, 1] > ehi[f, 1]
-                    or ehi[e, 1] < elo[f, 1] or elo[e, 2] > ehi[f, 2] or ehi[e, 2] < elo[f, 2]
-                ):
-                    continue
-                q0, q1 = edges[f, 0], edges[f, 1]
-                if p0 in (q0, q1) or p1 in (q0, q1):
+                q0, q1 = entry_ends[s2, 0], entry_ends[s2, 1]
+                if p0 == q0 or p0 == q1 or p1 == q0 or p1 == q1:  # noqa: SIM109 (a tuple's test is slower here)
                     continue
                 if (
-                    int(np.floor(max(elo[e, 0], elo[f, 0]) * inv_cell)) != ix
-                    or int(np.floor(max(elo[e, 1], elo[f, 1]) * inv_cell)) != iy
-                    or int(np.floor(max(elo[e, 2], elo[f, 2]) * inv_cell)) != iz
+                    lx > entry_box[s2, 3] or hx < entry_box[s2, 0] or ly > entry_box[s2, 4]
+                    or hy < entry_box[s2, 1] or lz > entry_box[s2, 5] or hz < entry_box[s2, 2]
                 ):
-                    continue  # reported in the cell of the overlap's lower corner
+                    continue
+                t2 = offset + s2
+                if not dense and (cell[t2, 0] != ix or cell[t2, 1] != iy or cell[t2, 2] != iz):
+                    continue
+                # reported in the cell of the overlap's lower corner (floor is monotonic: the
+                # larger of the two lower corners' cells)
+                if (
+                    max(cx, entry_ends[s2, 2]) != ix or max(cy, entry_ends[s2, 3]) != iy
+                    or max(cz, entry_ends[s2, 4]) != iz
+                ):
+                    continue
+                f = element[t2]
                 # the pair kept as `ee_candidates` keeps it, written out here: a helper returning the
                 # buffers made the contact scenes 8-13 % slower (its arrays counted on every call)
                 closing = np.sqrt(
