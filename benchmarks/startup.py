@@ -21,7 +21,8 @@ samples/make_samples.py; the recipes are this repository's samples/recipes):
 - curtain, flag_mesh, sheet, icosphere, rope: the sample meshes with the default recipe;
 - flag: samples/meshes/flag.obj with samples/recipes/flag.toml (wind, turbulence, tethers);
 - fold: samples/meshes/sheet.obj with samples/recipes/fold.toml (a capsule, the ground and
-  self-collision).
+  self-collision);
+- sill: samples/meshes/curtain.obj with samples/recipes/curtain.toml (wind and a box collider).
 
 Prints per case and kind the median, minimum and maximum over the repetitions of the wall
 seconds and of the CPU seconds (user + system of the child: less sensitive to other jobs on a
@@ -54,6 +55,7 @@ CASES: dict[str, tuple[str, Path | None]] = {
     "rope": ("rope.obj", None),
     "flag": ("flag.obj", RECIPES / "flag.toml"),
     "fold": ("sheet.obj", RECIPES / "fold.toml"),
+    "sill": ("curtain.obj", RECIPES / "curtain.toml"),
 }
 DEFAULT_CASES = ("grid8", "grid40", "curtain", "flag", "fold")
 #: the tool started as a user starts it (the console script runs the same `app`)
@@ -79,12 +81,18 @@ def command(folder: Path, case: str, out: Path) -> list[str]:
 
 
 def timed(args: list[str], cache: Path) -> tuple[float, float]:
-    """(wall seconds, CPU seconds of the child) of one run with Numba's cache in `cache`."""
+    """(wall seconds, CPU seconds of the child) of one run with Numba's cache in `cache`, started
+    in the cache's folder: `python -c` puts its working folder first on `sys.path`, so a run
+    started in a source tree would import that tree's code, not the one PYTHONPATH names."""
     env = {key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}
     env["NUMBA_CACHE_DIR"] = str(cache)
+    if env.get("PYTHONPATH"):  # its folders as this process reads them (the child starts elsewhere)
+        env["PYTHONPATH"] = os.pathsep.join(str(Path(p).resolve()) for p in env["PYTHONPATH"].split(os.pathsep) if p)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    done = subprocess.run(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    done = subprocess.run(
+        args, env=env, cwd=cache.parent, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
