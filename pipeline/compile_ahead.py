@@ -17,17 +17,33 @@ that launch Numba's parallel builds (`Solver.parallel_kernels`: xpbd, verlet) ge
 under Numba's workqueue threading layer two threads must not launch parallel kernels at once.
 Nor do runs of fewer than `MIN_VERTICES` vertices: their own set-up is too short to hide the
 compiling behind, and with a warm cache the stand-in's steps are only a cost (`benchmarks/startup.py`).
+
+Self-collision's kernels take a run with an empty cache longer than all the others together (about
+12 of the 24 s of one frame of a sheet dropped on a sphere), and a thread cannot share that work:
+Numba compiles under one lock. `start_compiler` starts a second process instead, which steps a
+stand-in with self-collision alone (`python -m pipeline.compile_ahead SOLVER`) and so compiles those
+kernels into Numba's disk cache (NUMBA_CACHE_DIR, inherited) on the other core, while this process
+compiles the solver's and the colliders' kernels, which a substep reaches first; when the run
+reaches self-collision it loads from the cache what the helper has compiled by then (its files are
+written whole and renamed into place). Only where that can help: self-collision on, its kernels in
+neither this process nor the cache, two cores and two Numba threads for this job (a batch of as
+many jobs as cores gives each one). The job stops the helper when it ends.
 """
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
+import numba
 import numpy as np
 
 from meshdeform.contact import collider_kernels as ck
+from meshdeform.contact import self_kernels
 from meshdeform.contact.self_collision import SelfCollision
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel
@@ -35,8 +51,9 @@ from meshdeform.scene import Scene
 from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Shape, Sphere, TriangleMesh, collider_kinds
 from meshdeform.simulate import Settings, calm, simulate
 from meshdeform.solvers import solver_class
+from meshdeform.solvers.dispatch import HOST, available
 
-__all__ = ["start"]
+__all__ = ["start", "start_compiler", "stop_compiler"]
 
 #: vertices along each side of the stand-in sheet (1 m square)
 STAND_IN_SIDE = 4
@@ -87,3 +104,41 @@ def _step_stand_in(settings: Settings, calm_scene: bool, self_collision: bool, k
             pass
     except Exception:  # an optimisation only: the run reports its own errors
         return
+
+
+def start_compiler(settings: Settings, scene: Scene) -> subprocess.Popen[bytes] | None:
+    """A started process compiling self-collision's kernels into Numba's disk cache for a run of
+    `settings` and `scene` (module docstring), or None where it cannot help. Stop it with
+    `stop_compiler` when the job ends."""
+    if scene.self_collision is None or available(self_kernels.vf_candidates):
+        return None
+    if numba.get_num_threads() < 2 or HOST.cores() < 2:
+        return None
+    # started where this process found the package, whose folder then comes first on the child's
+    # `sys.path` (`python -m` puts its working folder there): the same code as this process runs
+    root = Path(__file__).resolve().parents[1]
+    return subprocess.Popen(
+        [sys.executable, "-m", "pipeline.compile_ahead", settings.solver],
+        cwd=root, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+
+
+def stop_compiler(process: subprocess.Popen[bytes]) -> None:
+    """Ends a `start_compiler` process still running (its cache files are whole: Numba writes
+    each under another name and renames it)."""
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def _compile_self_collision(solver: str) -> None:
+    """The `start_compiler` process's work: one frame of the stand-in with self-collision alone."""
+    _step_stand_in(Settings(solver=solver), calm_scene=True, self_collision=True, kinds=frozenset())
+
+
+if __name__ == "__main__":
+    _compile_self_collision(sys.argv[1])

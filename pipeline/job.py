@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import subprocess
 import threading
 import time
 from collections.abc import Callable
@@ -86,15 +87,21 @@ def run_job(
     meshdeform did not write unless `overwrite`); nothing is left in `out_dir` when it does. Two runs
     on one folder at once are the caller's to prevent (`output_lock`, as `meshdeform simulate` does).
     """
-    ahead: list[threading.Thread] = []  # the compile-ahead stand-in (`pipeline.compile_ahead`)
+    ahead: list[threading.Thread | subprocess.Popen[bytes]] = []  # compiling ahead (`pipeline.compile_ahead`)
     try:
         with unwritten_on_failure(Path(out_dir)):  # also before the staging folder exists: the CLI's line names it
             return _run_job(mesh_path, recipe, out_dir, on_frame=on_frame, mesh=mesh, overwrite=overwrite, ahead=ahead)
     finally:
-        # joined whatever happens: a process that ends while the stand-in still compiles or holds
-        # a factorisation crashes or reports leaked objects on its way out
-        for thread in ahead:
-            thread.join()
+        # whatever happens: the stand-in thread joined (a process that ends while it still compiles
+        # or holds a factorisation crashes or reports leaked objects on its way out), the
+        # compiling process stopped
+        from pipeline import compile_ahead
+
+        for work in ahead:
+            if isinstance(work, threading.Thread):
+                work.join()
+            else:
+                compile_ahead.stop_compiler(work)
 
 
 def _run_job(
@@ -105,9 +112,10 @@ def _run_job(
     on_frame: FrameCallback | None,
     mesh: Mesh | None,
     overwrite: bool,
-    ahead: list[threading.Thread],
+    ahead: list[threading.Thread | subprocess.Popen[bytes]],
 ) -> JobResult:
-    """`run_job`'s work; the compile-ahead thread it starts goes into `ahead` (run_job joins it)."""
+    """`run_job`'s work; the compile-ahead thread and process it starts go into `ahead` (run_job
+    joins the one and stops the other)."""
     from meshdeform.export import ExportContext, ExportSession, FrameData
     from meshdeform.io import load
     from meshdeform.preview.colliders import scene_colliders
@@ -126,10 +134,14 @@ def _run_job(
     mesh = mesh if mesh is not None else load(mesh_path)
     built = build_simulation(recipe, mesh)
     model, settings = built.model, built.settings
-    # kernels compiled in the background while the run prepares (pipeline.compile_ahead)
+    # kernels compiled in the background while the run prepares (pipeline.compile_ahead), and
+    # self-collision's in a process of their own on the other core
     thread = compile_ahead.start(settings, built.scene, model.vertex_count)
     if thread is not None:
         ahead.append(thread)
+    compiler = compile_ahead.start_compiler(settings, built.scene)
+    if compiler is not None:
+        ahead.append(compiler)
     first, last = output_indices(recipe)
     if last < settings.frames:  # nothing after the last frame written is simulated
         settings = replace(settings, frames=last)

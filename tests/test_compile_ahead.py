@@ -69,3 +69,65 @@ def test_the_stand_in_s_distant_shapes_are_of_the_kind_they_stand_in_for() -> No
     for kind, shape in compile_ahead._DISTANT.items():
         assert collider_kinds([Collider(shape())]) == {kind}
         assert shape().bounds()[0][1] >= 99.0  # far above the 1 m stand-in
+
+
+def _self_collision_scene() -> Scene:
+    from meshdeform.contact.self_collision import SelfCollision
+
+    return Scene(self_collision=SelfCollision())
+
+
+def test_a_compiler_process_starts_only_where_it_can_help(monkeypatch) -> None:
+    """Self-collision on, its kernels neither compiled nor cached, two cores and two Numba threads."""
+    import numba
+
+    monkeypatch.setattr(compile_ahead, "available", lambda kernel: False)
+    monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 2.0)
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
+    assert compile_ahead.start_compiler(Settings(), Scene()) is None  # no self-collision
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 1)  # a batch job's share: one core
+    assert compile_ahead.start_compiler(Settings(), _self_collision_scene()) is None
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
+    monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 1.0)
+    assert compile_ahead.start_compiler(Settings(), _self_collision_scene()) is None
+    monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 2.0)
+    monkeypatch.setattr(compile_ahead, "available", lambda kernel: True)  # a warm cache
+    assert compile_ahead.start_compiler(Settings(), _self_collision_scene()) is None
+
+
+def test_the_compiler_process_fills_an_empty_cache_with_self_collision_s_kernels(tmp_path, monkeypatch) -> None:
+    """The process, started on an empty NUMBA_CACHE_DIR, ends by itself having written
+    self-collision's search kernels there (the files a run started next loads instead of compiling)."""
+    import numba
+
+    cache = tmp_path / "numba-cache"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache))
+    monkeypatch.setattr(compile_ahead, "available", lambda kernel: False)
+    monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 2.0)
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
+    process = compile_ahead.start_compiler(Settings(), _self_collision_scene())
+    assert process is not None
+    assert process.wait(timeout=300) == 0
+    written = {path.name.rsplit("-", 1)[0] for path in cache.rglob("*.nbi")}  # "module.function-line.py311.nbi"
+    searches = {"self_kernels.vf_candidates", "self_kernels.ee_candidates_in_cells", "self_kernels.project_proximity"}
+    assert searches <= written, sorted(written)
+
+
+def test_a_job_stops_a_compiler_process_still_running(tmp_path, monkeypatch) -> None:
+    """run_job ends the compiling process when the run is done (its cache files are whole)."""
+    import subprocess
+    import sys
+
+    from pipeline.job import run_job
+    from pipeline.recipe import load_recipe
+
+    started: list[subprocess.Popen[bytes]] = []
+
+    def sleeper(settings, scene) -> subprocess.Popen[bytes]:
+        process = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+        started.append(process)
+        return process
+
+    monkeypatch.setattr(compile_ahead, "start_compiler", sleeper)
+    run_job(write_grid(tmp_path / "sheet.obj", 6, 6), load_recipe(None), tmp_path / "out")
+    assert len(started) == 1 and started[0].poll() is not None
