@@ -344,38 +344,50 @@ def candidates(
 ) -> np.ndarray:  # pragma: no cover - compiled
     """Ids of the primitives with a movable vertex whose swept box comes within `margin` of
     the shape: of its bounds lo, hi (3,), and for a sphere of the sphere itself; for a plane
-    whose start or end vertices come within `margin` of the plane."""
+    whose start or end vertices come within `margin` of the plane.
+
+    First each vertex's outcode (Cohen and Sutherland's): for a plane, bit 0 where neither end
+    comes within `margin`; else bits 2k and 2k + 1 where its swept interval on axis k lies wholly
+    below lo - margin or above hi + margin. A primitive's swept box misses the bounds exactly where
+    all its corners share a bit (the box's interval is the union of theirs), so a primitive costs
+    an AND of three codes instead of its corners' eighteen extremes; the sphere's distance test
+    reads the box of the primitives that pass."""
+    n = x0.shape[0]
+    code = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        if kind == PLANE:
+            far = True
+            for x in (x0, x1):
+                d = (
+                    (x[i, 0] - params[0, 0]) * params[1, 0]
+                    + (x[i, 1] - params[0, 1]) * params[1, 1]
+                    + (x[i, 2] - params[0, 2]) * params[1, 2]
+                )
+                if d < margin:
+                    far = False
+            code[i] = 1 if far else 0
+            continue
+        for k in range(3):
+            if max(x0[i, k], x1[i, k]) < lo[k] - margin:
+                code[i] |= 1 << (2 * k)
+            if min(x0[i, k], x1[i, k]) > hi[k] + margin:
+                code[i] |= 2 << (2 * k)
     keep = np.zeros(prims.shape[0], dtype=np.bool_)
     for p in range(prims.shape[0]):
         i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
-        if not (movable[i0] or movable[i1] or movable[i2]):
+        if not (movable[i0] or movable[i1] or movable[i2]) or code[i0] & code[i1] & code[i2]:
             continue
-        if kind == PLANE:
-            near = False
-            for i in (i0, i1, i2):
-                for x in (x0, x1):
-                    d = (
-                        (x[i, 0] - params[0, 0]) * params[1, 0]
-                        + (x[i, 1] - params[0, 1]) * params[1, 1]
-                        + (x[i, 2] - params[0, 2]) * params[1, 2]
-                    )
-                    if d < margin:
-                        near = True
-            keep[p] = near
-            continue
-        inside = True
-        gap2 = 0.0  # a sphere: squared distance from its centre to the swept box
-        for k in range(3):
-            pmin = min(x0[i0, k], x0[i1, k], x0[i2, k], x1[i0, k], x1[i1, k], x1[i2, k])
-            pmax = max(x0[i0, k], x0[i1, k], x0[i2, k], x1[i0, k], x1[i1, k], x1[i2, k])
-            if pmax < lo[k] - margin or pmin > hi[k] + margin:
-                inside = False
-            g = max(pmin - params[0, k], 0.0, params[0, k] - pmax)
-            gap2 += g * g
-        if inside and kind == SPHERE:
+        if kind == SPHERE:  # squared distance from its centre to the swept box
+            gap2 = 0.0
+            for k in range(3):
+                pmin = min(x0[i0, k], x0[i1, k], x0[i2, k], x1[i0, k], x1[i1, k], x1[i2, k])
+                pmax = max(x0[i0, k], x0[i1, k], x0[i2, k], x1[i0, k], x1[i1, k], x1[i2, k])
+                g = max(pmin - params[0, k], 0.0, params[0, k] - pmax)
+                gap2 += g * g
             reach = params[4, 0] + margin
-            inside = gap2 <= reach * reach
-        keep[p] = inside
+            keep[p] = gap2 <= reach * reach
+        else:
+            keep[p] = True
     return np.flatnonzero(keep)
 
 
