@@ -19,15 +19,17 @@ Nor do runs of fewer than `MIN_VERTICES` vertices: their own set-up is too short
 compiling behind, and with a warm cache the stand-in's steps are only a cost (`benchmarks/startup.py`).
 
 Self-collision's kernels take a run with an empty cache longer than all the others together (about
-12 of the 24 s of one frame of a sheet dropped on a sphere), and a thread cannot share that work:
-Numba compiles under one lock. `start_compiler` starts a second process instead, which steps a
-stand-in with self-collision alone (`python -m pipeline.compile_ahead SOLVER`) and so compiles those
-kernels into Numba's disk cache (NUMBA_CACHE_DIR, inherited) on the other core, while this process
-compiles the solver's and the colliders' kernels, which a substep reaches first; when the run
-reaches self-collision it loads from the cache what the helper has compiled by then (its files are
-written whole and renamed into place). Only where that can help: self-collision on, its kernels in
-neither this process nor the cache, two cores and two Numba threads for this job (a batch of as
-many jobs as cores gives each one). The job stops the helper when it ends.
+12 of the 24 s of one frame of a sheet dropped on a sphere), and a collider's contact build 6-10 s;
+a thread cannot share that work: Numba compiles under one lock. `start_compiler` starts a second
+process instead (`python -m pipeline.compile_ahead SOLVER [--self-collision]`), which steps a
+stand-in without colliders, with self-collision where the run has it, and so compiles the solver's
+kernels and then self-collision's into Numba's disk cache (NUMBA_CACHE_DIR, inherited) on the other
+core, while this process compiles the colliders' builds first (`compile_colliders`, before the run's
+first substep): when the run reaches the solver and self-collision it loads from the cache what the
+helper has compiled by then (its files are written whole and renamed into place). Only where that
+can help: self-collision or colliders whose kernels are in neither this process nor the cache, two
+cores and two Numba threads for this job (a batch of as many jobs as cores gives each one). The job
+stops the helper when it ends.
 """
 
 from __future__ import annotations
@@ -46,14 +48,24 @@ from meshdeform.contact import collider_kernels as ck
 from meshdeform.contact import self_kernels
 from meshdeform.contact.self_collision import SelfCollision
 from meshdeform.mesh import grid_mesh
-from meshdeform.model import SpringModel
+from meshdeform.model import SpringModel, State
 from meshdeform.scene import Scene
-from meshdeform.scene.colliders import Box, Capsule, Collider, Plane, Shape, Sphere, TriangleMesh, collider_kinds
+from meshdeform.scene.colliders import (
+    Box,
+    Capsule,
+    Collider,
+    Plane,
+    Shape,
+    Sphere,
+    TriangleMesh,
+    collider_kinds,
+    share_company,
+)
 from meshdeform.simulate import Settings, calm, simulate
 from meshdeform.solvers import solver_class
 from meshdeform.solvers.dispatch import HOST, available
 
-__all__ = ["start", "start_compiler", "stop_compiler"]
+__all__ = ["compile_colliders", "start", "start_compiler", "stop_compiler"]
 
 #: vertices along each side of the stand-in sheet (1 m square)
 STAND_IN_SIDE = 4
@@ -107,20 +119,44 @@ def _step_stand_in(settings: Settings, calm_scene: bool, self_collision: bool, k
 
 
 def start_compiler(settings: Settings, scene: Scene) -> subprocess.Popen[bytes] | None:
-    """A started process compiling self-collision's kernels into Numba's disk cache for a run of
-    `settings` and `scene` (module docstring), or None where it cannot help. Stop it with
+    """A started process compiling kernels into Numba's disk cache for a run of `settings` and
+    `scene` (module docstring): self-collision's where it is on and they are not cached, and the
+    solver's where the run's colliders' contact build is not cached either (this process then
+    compiles that build first: `compile_colliders`); None where it cannot help. Stop it with
     `stop_compiler` when the job ends."""
-    if scene.self_collision is None or available(self_kernels.vf_candidates):
-        return None
-    if numba.get_num_threads() < 2 or HOST.cores() < 2:
+    kinds = collider_kinds(scene.constraints)
+    self_collision = scene.self_collision is not None and not available(self_kernels.vf_candidates)
+    colliders = not all(available(ck.contact_kernel(kind, kinds)) for kind in kinds)
+    if not (self_collision or colliders) or numba.get_num_threads() < 2 or HOST.cores() < 2:
         return None
     # started where this process found the package, whose folder then comes first on the child's
     # `sys.path` (`python -m` puts its working folder there): the same code as this process runs
     root = Path(__file__).resolve().parents[1]
+    flags = [SELF_COLLISION_FLAG] if scene.self_collision is not None else []
     return subprocess.Popen(
-        [sys.executable, "-m", "pipeline.compile_ahead", settings.solver],
+        [sys.executable, "-m", "pipeline.compile_ahead", settings.solver, *flags],
         cwd=root, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
+
+
+def compile_colliders(scene: Scene) -> None:
+    """Compiles the contact builds of `scene`'s colliders in this process now, before the run's
+    first substep reaches them (while a `start_compiler` process compiles the solver's kernels,
+    which the substep reaches first): one substep of a collider of each of the scene's kinds,
+    in the same company (`share_company`), on a resting stand-in sheet."""
+    kinds = collider_kinds(scene.constraints)
+    if not kinds:
+        return
+    side = STAND_IN_SIDE
+    model = SpringModel.from_mesh(grid_mesh(side, side, plane="xz"))
+    ground = Collider(Plane((0.0, -0.001, 0.0), (0.0, 1.0, 0.0)))
+    colliders = [ground] + [Collider(_DISTANT[kind]()) for kind in sorted(kinds) if kind in _DISTANT]
+    share_company(colliders)
+    state = State.at_rest(model)
+    dt = 1.0 / 192.0
+    for collider in colliders:
+        if int(collider.shape.arrays().kind) in kinds:
+            collider.project(model, state, dt, dt)
 
 
 def stop_compiler(process: subprocess.Popen[bytes]) -> None:
@@ -135,10 +171,19 @@ def stop_compiler(process: subprocess.Popen[bytes]) -> None:
             process.wait()
 
 
-def _compile_self_collision(solver: str) -> None:
-    """The `start_compiler` process's work: one frame of the stand-in with self-collision alone."""
-    _step_stand_in(Settings(solver=solver), calm_scene=True, self_collision=True, kinds=frozenset())
+#: the `start_compiler` process's argument for a run with self-collision
+SELF_COLLISION_FLAG = "--self-collision"
+
+
+def _compile_in_process(arguments: list[str]) -> None:
+    """The `start_compiler` process's work (arguments: the solver's name, then
+    `SELF_COLLISION_FLAG` or nothing): one frame of the stand-in without colliders, with
+    self-collision where the flag asks for it."""
+    solver, *flags = arguments
+    _step_stand_in(
+        Settings(solver=solver), calm_scene=True, self_collision=SELF_COLLISION_FLAG in flags, kinds=frozenset()
+    )
 
 
 if __name__ == "__main__":
-    _compile_self_collision(sys.argv[1])
+    _compile_in_process(sys.argv[1:])

@@ -134,14 +134,16 @@ def _run_job(
     mesh = mesh if mesh is not None else load(mesh_path)
     built = build_simulation(recipe, mesh)
     model, settings = built.model, built.settings
-    # kernels compiled in the background while the run prepares (pipeline.compile_ahead), and
-    # self-collision's in a process of their own on the other core
+    # kernels compiled in the background while the run prepares (pipeline.compile_ahead), and in
+    # a process of their own on the other core (the solver's and self-collision's) while this one
+    # compiles the colliders'.
     thread = compile_ahead.start(settings, built.scene, model.vertex_count)
     if thread is not None:
         ahead.append(thread)
     compiler = compile_ahead.start_compiler(settings, built.scene)
     if compiler is not None:
         ahead.append(compiler)
+        compile_ahead.compile_colliders(built.scene)  # meanwhile the process compiles the solver's
     first, last = output_indices(recipe)
     if last < settings.frames:  # nothing after the last frame written is simulated
         settings = replace(settings, frames=last)

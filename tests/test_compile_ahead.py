@@ -78,13 +78,18 @@ def _self_collision_scene() -> Scene:
 
 
 def test_a_compiler_process_starts_only_where_it_can_help(monkeypatch) -> None:
-    """Self-collision on, its kernels neither compiled nor cached, two cores and two Numba threads."""
+    """Self-collision on or colliders, their kernels neither compiled nor cached, two cores and
+    two Numba threads."""
     import numba
 
     monkeypatch.setattr(compile_ahead, "available", lambda kernel: False)
     monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 2.0)
     monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
-    assert compile_ahead.start_compiler(Settings(), Scene()) is None  # no self-collision
+    assert compile_ahead.start_compiler(Settings(), Scene()) is None  # neither self-collision nor colliders
+    process = compile_ahead.start_compiler(Settings(), Scene(constraints=[Collider(Plane((0, 0, 0), (0, 1, 0)))]))
+    assert process is not None  # the solver's kernels, while this process compiles the ground's
+    compile_ahead.stop_compiler(process)
+    assert process.poll() is not None
     monkeypatch.setattr(numba, "get_num_threads", lambda: 1)  # a batch job's share: one core
     assert compile_ahead.start_compiler(Settings(), _self_collision_scene()) is None
     monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
@@ -131,3 +136,22 @@ def test_a_job_stops_a_compiler_process_still_running(tmp_path, monkeypatch) -> 
     monkeypatch.setattr(compile_ahead, "start_compiler", sleeper)
     run_job(write_grid(tmp_path / "sheet.obj", 6, 6), load_recipe(None), tmp_path / "out")
     assert len(started) == 1 and started[0].poll() is not None
+
+
+def test_colliders_compiled_ahead_are_the_builds_the_run_calls() -> None:
+    """`compile_colliders` compiles each collider kind's contact build, in the scene's company, with
+    the signature the run's substeps call: the run compiles none of its own."""
+    import meshdeform.contact.collider_kernels as ck
+    from meshdeform.scene.colliders import Box
+
+    model = grid_cloth(8, plane="xz", size=1.0, centred=True, offset=(0.0, 0.2, 0.0)).model
+    ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), friction=0.3)
+    bar = Collider(Box((-0.6, 0.1, -0.02), (0.6, 0.12, 0.02)), friction=0.3)
+    scene = Scene(constraints=[ground, bar])
+    compile_ahead.compile_colliders(scene)
+    compiled = set(ck.contact_box.signatures)
+    assert compiled
+    for _ in simulate(model, scene, Settings(frames=3)):
+        pass
+    assert set(ck.contact_box.signatures) == compiled
+    assert ck.contact_kernel(ck.PLANE, ground.company) is ck.contact_box
