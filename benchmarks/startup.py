@@ -22,7 +22,8 @@ samples/make_samples.py; the recipes are this repository's samples/recipes):
 - flag: samples/meshes/flag.obj with samples/recipes/flag.toml (wind, turbulence, tethers);
 - fold: samples/meshes/sheet.obj with samples/recipes/fold.toml (a capsule, the ground and
   self-collision);
-- sill: samples/meshes/curtain.obj with samples/recipes/curtain.toml (wind and a box collider).
+- sill: samples/meshes/curtain.obj with samples/recipes/curtain.toml (wind and a box collider);
+- cape: samples/meshes/cape.obj with samples/recipes/cape.toml (a body mesh following a point cache).
 
 Prints per case and kind the median, minimum and maximum over the repetitions of the wall
 seconds and of the CPU seconds (user + system of the child: less sensitive to other jobs on a
@@ -56,6 +57,7 @@ CASES: dict[str, tuple[str, Path | None]] = {
     "flag": ("flag.obj", RECIPES / "flag.toml"),
     "fold": ("sheet.obj", RECIPES / "fold.toml"),
     "sill": ("curtain.obj", RECIPES / "curtain.toml"),
+    "cape": ("cape.obj", RECIPES / "cape.toml"),
 }
 DEFAULT_CASES = ("grid8", "grid40", "curtain", "flag", "fold")
 #: the tool started as a user starts it (the console script runs the same `app`)

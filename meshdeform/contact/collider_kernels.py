@@ -245,8 +245,9 @@ def closest_mesh(
         )
         w0, w1, w2 = 1.0, 0.0, 0.0
     else:
+        r0, r1, r2 = opaque(0), opaque(1), opaque(2)  # rows: one compile of the callees (`opaque`)
         d2, t, w0, w1, w2, m0, m1, m2 = closest_to_triangle(
-            bounds, nodes, order, tri_bounds, verts, tris, face, tri, 0, 1, 2, limit2, stack
+            bounds, nodes, order, tri_bounds, verts, tris, face, tri, r0, r1, r2, limit2, stack
         )
     if t < 0:
         return limit, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, hint
