@@ -107,15 +107,22 @@ def _step_stand_in(settings: Settings, calm_scene: bool, self_collision: bool, k
     pinned = np.zeros(side * side, dtype=bool)
     pinned[[side * (side - 1), side * side - 1]] = True
     model = SpringModel.from_mesh(grid_mesh(side, side, plane="xz"), pinned_input=pinned)
-    constraints = [] if calm_scene else [Collider(Plane((0.0, -0.001, 0.0), (0.0, 1.0, 0.0)))]
-    if constraints:
-        constraints += [Collider(_DISTANT[kind]()) for kind in sorted(kinds) if kind in _DISTANT]
+    constraints = [] if calm_scene else _stand_in_colliders(kinds | {ck.PLANE})
     scene = Scene(constraints=constraints, self_collision=SelfCollision() if self_collision else None)
     try:
         for _ in simulate(model, scene, replace(settings, frames=1)):
             pass
     except Exception:  # an optimisation only: the run reports its own errors
         return
+
+
+def _stand_in_colliders(kinds: frozenset[int]) -> list[Collider]:
+    """A collider of each shape kind in `kinds`, in kind order: the plane as a ground just below the
+    stand-in sheet, the others far above it (`_DISTANT`)."""
+    return [
+        Collider(Plane((0.0, -0.001, 0.0), (0.0, 1.0, 0.0)) if kind == ck.PLANE else _DISTANT[kind]())
+        for kind in sorted(kinds)
+    ]
 
 
 def start_compiler(settings: Settings, scene: Scene) -> subprocess.Popen[bytes] | None:
@@ -149,14 +156,12 @@ def compile_colliders(scene: Scene) -> None:
         return
     side = STAND_IN_SIDE
     model = SpringModel.from_mesh(grid_mesh(side, side, plane="xz"))
-    ground = Collider(Plane((0.0, -0.001, 0.0), (0.0, 1.0, 0.0)))
-    colliders = [ground] + [Collider(_DISTANT[kind]()) for kind in sorted(kinds) if kind in _DISTANT]
+    colliders = _stand_in_colliders(kinds)
     share_company(colliders)
     state = State.at_rest(model)
     dt = 1.0 / 192.0
     for collider in colliders:
-        if int(collider.shape.arrays().kind) in kinds:
-            collider.project(model, state, dt, dt)
+        collider.project(model, state, dt, dt)
 
 
 def stop_compiler(process: subprocess.Popen[bytes]) -> None:

@@ -206,7 +206,8 @@ def test_the_ground_beside_a_box_or_a_mesh_runs_in_its_pipeline_with_the_bytes_o
         frames = np.array([f.positions for f in simulate(model, scene, settings)])
         kind = {"box": ck.BOX, "mesh": ck.MESH}[beside]
         pipeline = ck.contact_kernel(ck.PLANE, ground.company)
-        assert pipeline is (ck.contact_box if kind == ck.BOX else ck.contact_mesh) if with_far else ck.contact_simple
+        expected = (ck.contact_box if kind == ck.BOX else ck.contact_mesh) if with_far else ck.contact_simple
+        assert pipeline is expected
         return frames
 
     alone, beside_far = landing(False), landing(True)
