@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from meshdeform.contact import parts
+from meshdeform.solvers import threads
 
 
 def _doubled(values: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -64,7 +65,7 @@ class _FakeClock:
         return self.now
 
 
-def _searches(picker: parts.ThreadPicker, clock: _FakeClock, cost: dict[int, float], count: int) -> list[int]:
+def _searches(picker: threads.ThreadPicker, clock: _FakeClock, cost: dict[int, float], count: int) -> list[int]:
     """`count` pieces of work through the picker; the thread count each ran with."""
     used = []
 
@@ -82,7 +83,7 @@ def test_the_thread_picker_drops_the_second_thread_where_it_is_slower() -> None:
     """Another process on one core: splitting is slower than one thread, and after its first
     trial the picker runs one thread; it tried the other count in the trial's middle window only."""
     clock = _FakeClock()
-    picker = parts.ThreadPicker(2, window=5, interval=40, clock=clock)
+    picker = threads.ThreadPicker(2, window=5, interval=40, clock=clock)
     used = _searches(picker, clock, {1: 1.0, 2: 1.3}, 40 + 15 + 10)
     assert used[:40] == [2] * 40 and used[40:45] == [2] * 5 and used[45:50] == [1] * 5 and used[50:55] == [2] * 5
     assert picker.threads == 1 and picker.switches == 1 and used[55:] == [1] * 10
@@ -90,7 +91,7 @@ def test_the_thread_picker_drops_the_second_thread_where_it_is_slower() -> None:
 
 def test_the_thread_picker_keeps_two_threads_where_they_are_faster_and_tries_less_often() -> None:
     clock = _FakeClock()
-    picker = parts.ThreadPicker(2, window=5, interval=40, clock=clock)
+    picker = threads.ThreadPicker(2, window=5, interval=40, clock=clock)
     used = _searches(picker, clock, {1: 1.0, 2: 0.6}, 40 + 15 + 80 + 15)
     assert picker.threads == 2 and picker.switches == 0
     assert used.count(1) == 10  # two trials
@@ -99,5 +100,5 @@ def test_the_thread_picker_keeps_two_threads_where_they_are_faster_and_tries_les
 
 def test_the_thread_picker_keeps_one_thread_when_one_is_all_it_may_use() -> None:
     clock = _FakeClock()
-    picker = parts.ThreadPicker(1, clock=clock)
+    picker = threads.ThreadPicker(1, clock=clock)
     assert set(_searches(picker, clock, {1: 1.0, 2: 0.1}, 200)) == {1}

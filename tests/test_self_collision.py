@@ -169,7 +169,7 @@ def test_searches_split_over_two_threads_give_the_same_bytes(monkeypatch) -> Non
     import meshdeform.contact.self_collision as self_collision
 
     model = SpringModel.from_mesh(_collapsing_sheet(12))
-    monkeypatch.setattr(self_collision, "search_threads", lambda: 1)
+    monkeypatch.setattr(self_collision, "split_threads", lambda: 1)
     one = _run(model, True, 24)  # the sheet lies folded on itself from frame 12 or so
     split = []
     search = parts.search_in_parts
@@ -178,7 +178,7 @@ def test_searches_split_over_two_threads_give_the_same_bytes(monkeypatch) -> Non
         split.append(args[2].shape[0] >= parts.MIN_QUERIES and args[5] >= 2)
         return search(*args, **kwargs)
 
-    monkeypatch.setattr(self_collision, "search_threads", lambda: 2)
+    monkeypatch.setattr(self_collision, "split_threads", lambda: 2)
     monkeypatch.setattr(self_collision, "search_in_parts", counted)
     monkeypatch.setattr(parts, "MIN_QUERIES", 8)
     monkeypatch.setattr(parts, "MIN_ROWS", 8)  # proximity and the continuous check too

@@ -45,9 +45,10 @@ import numpy as np
 
 from meshdeform.contact import self_kernels
 from meshdeform.contact.broad_phase import grid_for, strays, swept_boxes
-from meshdeform.contact.parts import ThreadPicker, by_rows, search_in_parts, search_threads
+from meshdeform.contact.parts import by_rows, search_in_parts
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
+from meshdeform.solvers.threads import ThreadPicker, split_threads
 
 
 @dataclass(frozen=True)
@@ -184,7 +185,7 @@ class SelfCollision(Constraint, Remappable):
         self._span = 1  # substeps a list of candidate pairs covers at most (`list_substeps`)
         self._margin = 0.0
         self._capacity = (0, 0)
-        #: threads the split kernels use, by measurement (`parts.ThreadPicker`)
+        #: threads the split kernels use, by measurement (`threads.ThreadPicker`)
         self._picker = ThreadPicker(1)
         #: the grid cells (1/m) of the last whole search, for the VF and the EE grid
         self._cells: tuple[float, float] | None = None
@@ -220,7 +221,7 @@ class SelfCollision(Constraint, Remappable):
         # a writable copy: the model's read-only array would make the kernels that read it and
         # the positions compile twice (Numba types a read-only array apart)
         self._rest = np.array(model.rest_positions, dtype=np.float64)
-        most = search_threads()  # in the thread that prepares the model, as the solvers' builds
+        most = split_threads()  # in the thread that prepares the model, as the solvers' builds
         if self._picker.most != most:  # (a torn model keeps what the picker measured)
             self._picker = ThreadPicker(most)
         edge = median_edge(model)
@@ -370,7 +371,7 @@ class SelfCollision(Constraint, Remappable):
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
         """The substep's contact (module docstring), its split kernels on the threads the picker
-        gives (`parts.ThreadPicker`: a substep's contact is comparable work from one to the next)."""
+        gives (`threads.ThreadPicker`: a substep's contact is comparable work from one to the next)."""
         topology = self._prepare(model)
         self._picker.timed(lambda threads: self._project(model, topology, state, time, dt, threads))
 

@@ -139,6 +139,16 @@ def pin_distance(model: SpringModel) -> np.ndarray | None:
     return np.where(finite, dist, 2.0 * top + 1.0)
 
 
+def vertex_slabs(rest_positions: np.ndarray, parts: int) -> np.ndarray:
+    """(V,) int64: each vertex's slab of `parts` slabs of equal count along the longest axis of the
+    rest positions (V, 3), ties in vertex order (the same slabs on any machine)."""
+    n = rest_positions.shape[0]
+    axis = int(np.argmax(rest_positions.max(axis=0) - rest_positions.min(axis=0))) if n else 0
+    rank = np.empty(n, dtype=np.int64)
+    rank[np.argsort(rest_positions[:, axis], kind="stable")] = np.arange(n)
+    return rank * parts // max(n, 1)
+
+
 def spring_layout(model: SpringModel, parts: int, mask: np.ndarray | None = None) -> SpringLayout:
     """Partitioned, locality-sorted order of the model's springs (or of those in `mask`)."""
     springs = np.asarray(model.springs, dtype=np.int64)
@@ -148,11 +158,7 @@ def spring_layout(model: SpringModel, parts: int, mask: np.ndarray | None = None
     b = springs[index, 1]
     n = max(model.vertex_count, 1)
     if parts > 1 and model.vertex_count >= 64 * parts:
-        rest = model.rest_positions
-        axis = int(np.argmax(rest.max(axis=0) - rest.min(axis=0)))
-        rank = np.empty(n, dtype=np.int64)
-        rank[np.argsort(rest[:, axis], kind="stable")] = np.arange(n)
-        slab = rank * parts // n
+        slab = vertex_slabs(model.rest_positions, parts)
         sa, sb = slab[a], slab[b]
         group = np.where(sa == sb, sa, parts)
     else:

@@ -28,6 +28,7 @@ byte-identical on any thread count.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numba as nb
@@ -36,6 +37,7 @@ from scipy.sparse import csr_matrix, diags
 
 from meshdeform.solvers.implicit.kernels import dot, spring_constant
 from meshdeform.solvers.jit import FAST, JIT
+from meshdeform.solvers.threads import beside
 
 #: at most this many lattice nodes (3 unknowns each; the dense solve costs their cube): a flat sheet
 #: keeps its `nodes` x `nodes`, a solid's lattice gets fewer along each side (3 x 3 x 3)
@@ -59,9 +61,12 @@ class CoarseSpace:
     group_start: (G + 1,) the springs are in groups with the same nodes; group g is springs
         group_start[g] .. group_start[g + 1] - 1.
     skip, forward, move: scratch of the dense solve, (3C,) each (`factor_spd`'s pivots left out,
-        `solve_factored`'s forward substitution and result); hessian_terms (6, HESSIAN_CHUNK) and
-        hessian_sums (W (W + 1) / 2, 6): scratch of `spring_hessian`. Arrays made inside a kernel
-        would cost every process with an empty compile cache the compiling of their allocators.
+        `solve_factored`'s forward substitution and result); hessian_terms (2, 6, HESSIAN_CHUNK) and
+        hessian_sums (2, W (W + 1) / 2, 6): scratch of `spring_hessian`, one of each per half. Arrays
+        made inside a kernel would cost every process with an empty compile cache the compiling of
+        their allocators.
+    second_half: the group from which `add_spring_hessian` sums the groups into a matrix of their
+        own (on a second thread where asked) and adds it after the first half's; 0: one sum.
     """
 
     vertex_nodes: np.ndarray
@@ -76,17 +81,36 @@ class CoarseSpace:
     move: np.ndarray
     hessian_terms: np.ndarray
     hessian_sums: np.ndarray
+    second_half: int
 
     def add_spring_hessian(
         self, x: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, stiff_t: np.ndarray,
-        stiff_c: np.ndarray, modulus: float, out: np.ndarray,
+        stiff_c: np.ndarray, modulus: float, out: np.ndarray, threads: int = 1,
     ) -> None:
         """out (3C, 3C) += Z^T H Z of the assembled springs at positions x (V, 3) (`spring_hessian`;
-        a, b, rest, stiff_t, stiff_c, modulus: the solver's spring arrays)."""
-        spring_hessian(
-            x, a, b, rest, stiff_t, stiff_c, modulus, self.springs, self.spring_nodes, self.spring_coefficients,
-            self.group_start, self.hessian_terms, self.hessian_sums, out,
-        )
+        a, b, rest, stiff_t, stiff_c, modulus: the solver's spring arrays): in one sum, or where
+        `second_half` splits the groups, the first half into out and the second into a matrix of its
+        own added after it (the halves beside each other where `threads` >= 2: the same bytes)."""
+
+        def groups(half: int, first: int, stop: int, into: np.ndarray) -> None:
+            spring_hessian(
+                x, a, b, rest, stiff_t, stiff_c, modulus, self.springs, self.spring_nodes, self.spring_coefficients,
+                self.group_start[first : stop + 1], self.hessian_terms[half], self.hessian_sums[half], into,
+            )
+
+        last = self.group_start.shape[0] - 1
+        if not self.second_half:
+            groups(0, 0, last, out)
+            return
+        second = np.zeros_like(out)
+        first_half = functools.partial(groups, 0, 0, self.second_half, out)
+        second_half = functools.partial(groups, 1, self.second_half, last, second)
+        if threads >= 2:
+            beside(first_half, second_half)
+        else:
+            first_half()
+            second_half()
+        out += second
 
     def inertia_matrix(self, inertia: np.ndarray) -> np.ndarray:
         """Z^T diag(inertia) Z (3C, 3C) for the free vertices' inertia (F,) (kg / s^2): the same
@@ -100,12 +124,14 @@ class CoarseSpace:
 
 
 def coarse_space(
-    rest_free: np.ndarray, free: np.ndarray, a: np.ndarray, b: np.ndarray, assembled: np.ndarray, nodes: int
+    rest_free: np.ndarray, free: np.ndarray, a: np.ndarray, b: np.ndarray, assembled: np.ndarray, nodes: int,
+    halves: bool = False,
 ) -> CoarseSpace | None:
     """The lattice span for free vertices at rest positions rest_free (F, 3) (free: (V,) vertex ->
     free row or -1; a, b: (S,) spring ends; assembled: (S,) bool, the springs Z^T H Z sums),
-    `nodes` lattice nodes along the longest side; None where there is nothing to span (no free
-    vertex, or fewer than 2 nodes asked for)."""
+    `nodes` lattice nodes along the longest side, its Hessian summed in two halves of the springs
+    where `halves`; None where there is nothing to span (no free vertex, or fewer than 2 nodes
+    asked for)."""
     if nodes < 2 or rest_free.shape[0] == 0:
         return None
     low = rest_free.min(axis=0)
@@ -159,6 +185,9 @@ def coarse_space(
     group_start = np.append(np.flatnonzero(new_group), springs.shape[0]).astype(np.int64)
     unknowns = 3 * int(used.shape[0])
     width = spring_nodes.shape[1]
+    # the first group that starts in the second half of the springs (0: no split)
+    second_half = int(np.searchsorted(group_start, springs.shape[0] // 2)) if halves else 0
+    second_half = second_half if 0 < second_half < group_start.shape[0] - 1 else 0
     return CoarseSpace(
         vertex_nodes=vertex_nodes.astype(np.int32),
         vertex_weights=vertex_weights,
@@ -170,8 +199,9 @@ def coarse_space(
         skip=np.zeros(unknowns, dtype=np.bool_),
         forward=np.zeros(unknowns),
         move=np.zeros(unknowns),
-        hessian_terms=np.zeros((6, HESSIAN_CHUNK)),
-        hessian_sums=np.zeros((width * (width + 1) // 2, 6)),
+        hessian_terms=np.zeros((2, 6, HESSIAN_CHUNK)),
+        hessian_sums=np.zeros((2, width * (width + 1) // 2, 6)),
+        second_half=second_half,
     )
 
 

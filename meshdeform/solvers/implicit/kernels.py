@@ -90,19 +90,24 @@ def scatter_free(x, free_vertices, solution):  # pragma: no cover - compiled
 
 @nb.njit(**FAST)
 def step_energy(  # pragma: no cover - compiled
-    x, a, b, rest, stiff_t, stiff_c, modulus, free, free_vertices, inertia, y, grad
+    x, a, b, rest, stiff_t, stiff_c, modulus, free, free_vertices, rows, inertia, y, grad
 ):
-    """The energy (J) the implicit step minimises at positions x (V, 3), and its gradient.
+    """The energy (J) the implicit step minimises at positions x (V, 3), and its gradient, over
+    the free rows `rows` and the springs a, b.
 
     E(x) = sum_free inertia_i / 2 |x_i - y_i|^2 + sum_s k_s / 2 (|x_a - x_b| - L_s)^2 with
     k_s = max(stiffness, 0) * modulus under tension or compression (the sign of l - L), so the
     energy is continuous where a spring passes its rest length. grad (F, 3) receives dE/dx of
-    the free vertices (F = free_vertices.shape[0], `free` maps a vertex to its row, -1 pinned);
-    pinned vertices enter at their current positions. Serial and in a fixed order: the same
-    bytes on any thread count (the line search compares energies).
+    the free vertices (F = free_vertices.shape[0], `free` maps a vertex to its row, -1 pinned):
+    the rows in `rows` are set to their inertia term, then each spring adds to its ends' rows;
+    pinned vertices enter at their current positions. One call over every row and spring is the
+    whole energy; calls over slabs that share no vertex, then one over the springs between them
+    (with no rows), give their parts (`ImplicitSolver._energy`). Serial and in a fixed order:
+    the same bytes on any thread count (the line search compares energies).
     """
     energy = 0.0
-    for j in range(free_vertices.shape[0]):
+    for r in range(rows.shape[0]):
+        j = rows[r]
         i = free_vertices[j]
         m = inertia[j]
         dx = x[i, 0] - y[i, 0]

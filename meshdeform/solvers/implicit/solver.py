@@ -85,6 +85,7 @@ a cloth stopped by a thin bar within a long step is not pulled through it or slu
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 from typing import ClassVar
 
@@ -96,7 +97,9 @@ from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import coarse, kernels
+from meshdeform.solvers.layout import vertex_slabs
 from meshdeform.solvers.options import CALM_COARSE, ImplicitOptions
+from meshdeform.solvers.threads import ThreadPicker, beside, split_threads
 from meshdeform.topology import SpringKind
 
 
@@ -155,6 +158,33 @@ class ImplicitSolver(ModelCache, Solver):
         self.free_vertices = np.flatnonzero(np.asarray(model.inv_mass) > 0.0).astype(np.int32)
         self.free = np.full(model.vertex_count, -1, dtype=np.int32)
         self.free[self.free_vertices] = np.arange(self.free_vertices.shape[0], dtype=np.int32)
+        # a large cloth's energy over two slabs that share no vertex, then the springs between them
+        # (`_energy`: a slab a thread): its springs in that order, copies beside the model's order
+        # of the other kernels; decided by the model alone, so the bytes are the same on any thread
+        # count
+        slab: np.ndarray | None = None
+        #: the springs' ends, rest lengths and stiffnesses as the energy reads them (S,) each
+        self.energy_springs = (self.a, self.b, self.rest, self.stiff_t, self.stiff_c)
+        #: (4,) bounds of the two slabs' springs and those between them in `energy_springs`, or None
+        self.spring_bounds: np.ndarray | None = None
+        if self.a.shape[0] >= SPLIT_SPRINGS:
+            slab = vertex_slabs(np.asarray(model.rest_positions, dtype=np.float64), 2)
+            group = np.where(slab[self.a] == slab[self.b], slab[self.a], 2)
+            order = np.argsort(group, kind="stable")
+            self.energy_springs = tuple(np.ascontiguousarray(array[order]) for array in self.energy_springs)
+            self.spring_bounds = np.concatenate([[0], np.cumsum(np.bincount(group, minlength=3))])
+        #: the free rows whose inertia each energy call adds: every row, or each slab's
+        every_row = np.arange(self.free_vertices.shape[0], dtype=np.int32)
+        self.slab_rows = (every_row,) if slab is None else tuple(
+            np.flatnonzero(slab[self.free_vertices] == side).astype(np.int32) for side in (0, 1)
+        )
+        self.no_rows = every_row[:0]
+        # two threads for the slabs where measured faster (a busy machine: one), steps timed in
+        # windows of a few: a step of such a cloth is tens of milliseconds
+        self._picker = ThreadPicker(
+            split_threads() if slab is not None else 1, window=PICKER_WINDOW, interval=4 * PICKER_WINDOW
+        )
+        self._threads = 1
         self.free_mass = np.asarray(model.mass, dtype=np.float64)[self.free_vertices]
         self.rhs = np.zeros((self.free_vertices.shape[0], 3))
         shape = self.rhs.shape
@@ -170,7 +200,7 @@ class ImplicitSolver(ModelCache, Solver):
         if self.options.method == "lbfgs":
             self.coarse_space = coarse.coarse_space(
                 np.asarray(model.rest_positions, dtype=np.float64)[self.free_vertices], self.free, self.a, self.b,
-                kinds != SpringKind.BENDING, int(self.options.coarse or 0),
+                kinds != SpringKind.BENDING, int(self.options.coarse or 0), halves=slab is not None,
             )
         edges = rest[kinds == SpringKind.STRUCTURAL]
         edges = edges if edges.size else rest
@@ -229,6 +259,11 @@ class ImplicitSolver(ModelCache, Solver):
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         if not self._prepared(model):
             self._prepare(model)
+        self._picker.timed(lambda threads: self._step(state, dt, control, threads))
+
+    def _step(self, state: State, dt: float, control: Control, threads: int) -> None:
+        """One step (the module docstring), its energy's slabs on `threads` threads."""
+        self._threads = threads
         if dt != self._dt:
             self._factorise(dt)
         x, v = state.positions, state.velocities
@@ -330,10 +365,28 @@ class ImplicitSolver(ModelCache, Solver):
             kernels.scatter_free(x, self.free_vertices, self.solution)
 
     def _energy(self, x: np.ndarray, y: np.ndarray, grad: np.ndarray) -> float:
-        return float(kernels.step_energy(
-            x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, self.free,
-            self.free_vertices, self.inertia, y, grad,
-        ))
+        """The step's energy at x (V, 3) and its gradient into grad (F, 3) (`kernels.step_energy`):
+        one call, or on a split model the two slabs (beside each other on two threads) and then
+        the springs between them, summed in that order whatever the threads."""
+
+        a, b, rest, stiff_t, stiff_c = self.energy_springs
+
+        def part(rows: np.ndarray, first: int, stop: int) -> float:
+            return kernels.step_energy(
+                x, a[first:stop], b[first:stop], rest[first:stop], stiff_t[first:stop], stiff_c[first:stop],
+                self.modulus, self.free, self.free_vertices, rows, self.inertia, y, grad,
+            )
+
+        bounds = self.spring_bounds
+        if bounds is None:
+            return float(part(self.slab_rows[0], 0, a.shape[0]))
+        slab_0 = functools.partial(part, self.slab_rows[0], bounds[0], bounds[1])
+        slab_1 = functools.partial(part, self.slab_rows[1], bounds[1], bounds[2])
+        if self._threads >= 2:
+            first, second = beside(slab_0, slab_1)
+        else:
+            first, second = slab_0(), slab_1()
+        return float(first + second + part(self.no_rows, bounds[2], bounds[3]))
 
     def _coarse_correction(self, x: np.ndarray, y: np.ndarray) -> float:
         """Up to `COARSE_STEPS` Newton steps on the coarse space's displacements (`coarse` module
@@ -343,7 +396,9 @@ class ImplicitSolver(ModelCache, Solver):
         space = self.coarse_space
         fv = self.free_vertices
         matrix = self.coarse_inertia.copy()
-        space.add_spring_hessian(x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, matrix)
+        space.add_spring_hessian(
+            x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, matrix, self._threads
+        )
         skip = space.skip
         coarse.factor_spd(matrix, skip)
         gradient = np.empty(3 * space.count)
@@ -462,6 +517,11 @@ SINK_FRACTION = 1.0 / 16.0
 #: springs do: a stiff body's compression would be held and given back as a bounce (the values
 #: tried and what they did: docs/performance.md, "Faster implicit steps, a woven default tried")
 IMPACT_SINKS = 4.0
+#: springs from which a model's energy is evaluated in two slabs, a thread each where measured
+#: faster (`_energy`): below it, handing a slab to a thread costs about what it saves
+SPLIT_SPRINGS = 50_000
+#: steps in each window of the thread count's trials (`threads.ThreadPicker`), the first after 4 windows
+PICKER_WINDOW = 5
 #: Newton steps on the coarse space before each step's L-BFGS iterations (`_coarse_correction`)
 COARSE_STEPS = 2
 #: L-BFGS history length (Liu, Bouaziz, Kavan 2017 use 5)

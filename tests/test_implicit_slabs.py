@@ -1,0 +1,104 @@
+"""The implicit solver on a large cloth: its step energy and coarse Hessian in two slabs (a thread
+each where faster) are the whole energy and Hessian, and the bytes do not depend on the threads."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from factories import TOP_CORNERS, grid_cloth
+
+from meshdeform.simulate import Scene, Settings, simulate
+from meshdeform.solvers.implicit import solver as implicit
+from meshdeform.solvers.implicit.solver import SPLIT_SPRINGS, ImplicitSolver
+from meshdeform.solvers.options import ImplicitOptions
+
+N = 100  # 59 000 springs: past SPLIT_SPRINGS
+
+
+@pytest.fixture(scope="module")
+def cloth():
+    return grid_cloth(N, pins=TOP_CORNERS)
+
+
+def _prepared(model, threads: int) -> ImplicitSolver:
+    solver = ImplicitSolver(ImplicitOptions(coarse=5))
+    solver._prepare(model)
+    solver._factorise(1.0 / 48.0)
+    solver._threads = threads
+    return solver
+
+
+def test_a_large_cloth_is_split_and_a_small_one_is_not(cloth) -> None:
+    assert cloth.model.springs.shape[0] >= SPLIT_SPRINGS
+    solver = _prepared(cloth.model, 2)
+    bounds = solver.spring_bounds
+    assert bounds is not None and bounds[-1] == solver.a.shape[0]
+    between = bounds[3] - bounds[2]
+    assert 0 < between < 0.02 * bounds[3]  # two slabs along the cloth, few springs across
+    assert solver.coarse_space.second_half > 0
+    small = _prepared(grid_cloth(20, pins=TOP_CORNERS).model, 2)
+    assert small.spring_bounds is None and small.coarse_space.second_half == 0
+
+
+def test_the_energy_in_two_slabs_is_the_whole_energy_and_gradient(cloth) -> None:
+    """Against a direct NumPy sum over the model's springs (tension or compression stiffness by the
+    sign of l - L), on positions where springs are stretched and compressed; and the same bytes on
+    one thread and two."""
+    model = cloth.model
+    rng = np.random.default_rng(5)
+    rest = np.asarray(model.rest_positions, dtype=np.float64)
+    x = rest + rng.normal(0.0, 0.002, rest.shape)
+    y = x + rng.normal(0.0, 0.002, rest.shape)
+    results = []
+    for threads in (1, 2):
+        solver = _prepared(model, threads)
+        gradient = np.zeros((solver.free_vertices.shape[0], 3))
+        results.append((solver._energy(x, y, gradient), gradient))
+    assert results[0][0] == results[1][0] and np.array_equal(results[0][1], results[1][1])
+    energy, gradient = results[0]
+
+    free = np.asarray(model.inv_mass) > 0.0
+    inertia = solver.inertia
+    springs = np.asarray(model.springs)
+    d = x[springs[:, 0]] - x[springs[:, 1]]
+    length = np.linalg.norm(d, axis=1)
+    stretch = length - np.asarray(model.rest_lengths)
+    modulus = model.material.stretch_modulus
+    k = np.where(stretch > 0.0, np.asarray(model.stiffness), np.asarray(model.compression)).clip(min=0.0) * modulus
+    expected = 0.5 * (inertia * ((x - y)[free] ** 2).sum(axis=1)).sum() + 0.5 * (k * stretch**2).sum()
+    force = (k * stretch / length)[:, None] * d
+    full = np.zeros_like(x)
+    full[free] = inertia[:, None] * (x - y)[free]
+    np.add.at(full, springs[:, 0], force)
+    np.add.at(full, springs[:, 1], -force)
+    assert energy == pytest.approx(expected, rel=1e-12)
+    assert np.abs(gradient - full[free]).max() <= 1e-9 * np.abs(full[free]).max()
+
+
+def test_the_coarse_hessian_in_two_halves_is_the_one_sum(cloth) -> None:
+    model = cloth.model
+    solver = _prepared(model, 1)
+    space = solver.coarse_space
+    rng = np.random.default_rng(8)
+    x = np.asarray(model.rest_positions, dtype=np.float64) * 1.05 + rng.normal(0.0, 0.001, (model.vertex_count, 3))
+    args = (x, solver.a, solver.b, solver.rest, solver.stiff_t, solver.stiff_c, solver.modulus)
+    halves = [solver.coarse_inertia.copy() for _ in (1, 2)]
+    for threads, matrix in zip((1, 2), halves, strict=True):
+        space.add_spring_hessian(*args, matrix, threads)
+    assert np.array_equal(halves[0], halves[1])
+    one_sum = replace(space, second_half=0)
+    whole = solver.coarse_inertia.copy()
+    one_sum.add_spring_hessian(*args, whole)
+    assert np.allclose(halves[0], whole, rtol=1e-12, atol=1e-9 * np.abs(whole).max())
+    assert np.array_equal(halves[0], halves[0].T)
+
+
+def test_a_split_cloth_runs_to_the_same_bytes_on_one_thread_and_two(cloth, monkeypatch) -> None:
+    frames = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(implicit, "split_threads", lambda threads=threads: threads)
+        run = simulate(cloth.model, Scene(), Settings(solver="implicit", frames=3))
+        frames[threads] = [frame.welded_positions.copy() for frame in run]
+    assert all(np.array_equal(a, b) for a, b in zip(frames[1], frames[2], strict=True))
