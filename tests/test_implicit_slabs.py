@@ -33,13 +33,13 @@ def _prepared(model, threads: int) -> ImplicitSolver:
 def test_a_large_cloth_is_split_and_a_small_one_is_not(cloth) -> None:
     assert cloth.model.springs.shape[0] >= SPLIT_SPRINGS
     solver = _prepared(cloth.model, 2)
-    bounds = solver.spring_bounds
-    assert bounds is not None and bounds[-1] == solver.a.shape[0]
-    between = bounds[3] - bounds[2]
-    assert 0 < between < 0.02 * bounds[3]  # two slabs along the cloth, few springs across
+    parts = solver.energy_parts
+    assert len(parts) == 3 and sum(part[1].shape[0] for part in parts) == solver.a.shape[0]
+    assert parts[0][0].shape[0] + parts[1][0].shape[0] == solver.free_vertices.shape[0] and not parts[2][0].size
+    assert 0 < parts[2][1].shape[0] < 0.02 * solver.a.shape[0]  # two slabs along the cloth, few springs across
     assert solver.coarse_space.second_half > 0
     small = _prepared(grid_cloth(20, pins=TOP_CORNERS).model, 2)
-    assert small.spring_bounds is None and small.coarse_space.second_half == 0
+    assert len(small.energy_parts) == 1 and small.coarse_space.second_half == 0
 
 
 def test_the_energy_in_two_slabs_is_the_whole_energy_and_gradient(cloth) -> None:

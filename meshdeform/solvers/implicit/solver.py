@@ -159,26 +159,27 @@ class ImplicitSolver(ModelCache, Solver):
         self.free = np.full(model.vertex_count, -1, dtype=np.int32)
         self.free[self.free_vertices] = np.arange(self.free_vertices.shape[0], dtype=np.int32)
         # a large cloth's energy over two slabs that share no vertex, then the springs between them
-        # (`_energy`: a slab a thread): its springs in that order, copies beside the model's order
-        # of the other kernels; decided by the model alone, so the bytes are the same on any thread
-        # count
+        # (`_energy`: a slab a thread), from copies of its springs in that order beside the model's
+        # order of the other kernels; decided by the model alone, so the bytes are the same on any
+        # thread count
+        every_row = np.arange(self.free_vertices.shape[0], dtype=np.int32)
+        springs = (self.a, self.b, self.rest, self.stiff_t, self.stiff_c)
         slab: np.ndarray | None = None
-        #: the springs' ends, rest lengths and stiffnesses as the energy reads them (S,) each
-        self.energy_springs = (self.a, self.b, self.rest, self.stiff_t, self.stiff_c)
-        #: (4,) bounds of the two slabs' springs and those between them in `energy_springs`, or None
-        self.spring_bounds: np.ndarray | None = None
+        #: the calls of `kernels.step_energy` that make the energy: (free rows whose inertia it adds,
+        #: spring ends a and b, rest lengths, tension and compression stiffnesses) for the whole
+        #: cloth, or for each slab and then the springs between them (no rows)
+        self.energy_parts: tuple[tuple[np.ndarray, ...], ...] = ((every_row, *springs),)
         if self.a.shape[0] >= SPLIT_SPRINGS:
             slab = vertex_slabs(np.asarray(model.rest_positions, dtype=np.float64), 2)
             group = np.where(slab[self.a] == slab[self.b], slab[self.a], 2)
             order = np.argsort(group, kind="stable")
-            self.energy_springs = tuple(np.ascontiguousarray(array[order]) for array in self.energy_springs)
-            self.spring_bounds = np.concatenate([[0], np.cumsum(np.bincount(group, minlength=3))])
-        #: the free rows whose inertia each energy call adds: every row, or each slab's
-        every_row = np.arange(self.free_vertices.shape[0], dtype=np.int32)
-        self.slab_rows = (every_row,) if slab is None else tuple(
-            np.flatnonzero(slab[self.free_vertices] == side).astype(np.int32) for side in (0, 1)
-        )
-        self.no_rows = every_row[:0]
+            ordered = [np.ascontiguousarray(array[order]) for array in springs]
+            bounds = np.concatenate([[0], np.cumsum(np.bincount(group, minlength=3))])
+            rows = [np.flatnonzero(slab[self.free_vertices] == side).astype(np.int32) for side in (0, 1)]
+            rows.append(every_row[:0])
+            self.energy_parts = tuple(
+                (rows[part], *(array[bounds[part] : bounds[part + 1]] for array in ordered)) for part in range(3)
+            )
         # two threads for the slabs where measured faster (a busy machine: one), steps timed in
         # windows of a few: a step of such a cloth is tens of milliseconds
         self._picker = ThreadPicker(
@@ -365,28 +366,25 @@ class ImplicitSolver(ModelCache, Solver):
             kernels.scatter_free(x, self.free_vertices, self.solution)
 
     def _energy(self, x: np.ndarray, y: np.ndarray, grad: np.ndarray) -> float:
-        """The step's energy at x (V, 3) and its gradient into grad (F, 3) (`kernels.step_energy`):
-        one call, or on a split model the two slabs (beside each other on two threads) and then
+        """The step's energy at x (V, 3) and its gradient into grad (F, 3) (`kernels.step_energy`
+        over `energy_parts`): one call, or the two slabs (beside each other on two threads) and then
         the springs between them, summed in that order whatever the threads."""
 
-        a, b, rest, stiff_t, stiff_c = self.energy_springs
-
-        def part(rows: np.ndarray, first: int, stop: int) -> float:
+        def part(rows: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, stiff_t: np.ndarray,
+                 stiff_c: np.ndarray) -> float:
             return kernels.step_energy(
-                x, a[first:stop], b[first:stop], rest[first:stop], stiff_t[first:stop], stiff_c[first:stop],
-                self.modulus, self.free, self.free_vertices, rows, self.inertia, y, grad,
+                x, a, b, rest, stiff_t, stiff_c, self.modulus, self.free, self.free_vertices, rows, self.inertia, y,
+                grad,
             )
 
-        bounds = self.spring_bounds
-        if bounds is None:
-            return float(part(self.slab_rows[0], 0, a.shape[0]))
-        slab_0 = functools.partial(part, self.slab_rows[0], bounds[0], bounds[1])
-        slab_1 = functools.partial(part, self.slab_rows[1], bounds[1], bounds[2])
+        if len(self.energy_parts) == 1:
+            return float(part(*self.energy_parts[0]))
+        slab_0, slab_1, between = self.energy_parts
         if self._threads >= 2:
-            first, second = beside(slab_0, slab_1)
+            first, second = beside(functools.partial(part, *slab_0), functools.partial(part, *slab_1))
         else:
-            first, second = slab_0(), slab_1()
-        return float(first + second + part(self.no_rows, bounds[2], bounds[3]))
+            first, second = part(*slab_0), part(*slab_1)
+        return float(first + second + part(*between))
 
     def _coarse_correction(self, x: np.ndarray, y: np.ndarray) -> float:
         """Up to `COARSE_STEPS` Newton steps on the coarse space's displacements (`coarse` module
