@@ -14,7 +14,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 from scipy.spatial import cKDTree
 
-from meshdeform.contact import self_kernels
+from meshdeform.contact import broad_phase, self_kernels
 from meshdeform.contact.broad_phase import overlapping_pairs
 from meshdeform.contact.self_collision import SelfCollision, SelfCollisionSettings
 from meshdeform.mesh import Mesh
@@ -203,6 +203,23 @@ def test_broad_phase_finds_exactly_the_overlapping_boxes(dense_factor: float) ->
     overlap = np.all((elo[:, None] <= ehi[None]) & (ehi[:, None] >= elo[None]), axis=2)
     assert set(map(tuple, same.tolist())) == {(a, b) for a, b in zip(*np.nonzero(overlap), strict=True) if a < b}
     assert len(same) == np.count_nonzero(np.triu(overlap, 1))
+
+
+def test_the_scan_grid_finds_exactly_the_overlapping_boxes_in_element_order() -> None:
+    """The one-cell grid of a search with few queries (`broad_phase.scan_grid`): every element whose
+    box overlaps the query's, each once, in element order; against NumPy's all-pairs test."""
+    rng = np.random.default_rng(11)
+    qlo = rng.uniform(-1, 1, (40, 3))
+    qhi = qlo + rng.uniform(0, 0.3, (40, 3))
+    qlo[0], qhi[0] = -2.0, 2.0  # a box around all of them
+    elo = rng.uniform(-1, 1, (500, 3))
+    ehi = elo + rng.uniform(0, 0.3, (500, 3))
+    overlap = np.all((qlo[:, None] <= ehi[None]) & (qhi[:, None] >= elo[None]), axis=2)
+    found = np.empty(8, dtype=np.int64)
+    for q in range(qlo.shape[0]):
+        count, found = broad_phase.query_grown(qlo, qhi, q, elo, ehi, *broad_phase.scan_grid(500), -1, found)
+        assert found[:count].tolist() == np.flatnonzero(overlap[q]).tolist()
+    assert overlap.any(axis=1).sum() > 10  # the boxes do meet
 
 
 def test_the_dense_and_the_hashed_grid_report_the_same_pairs_in_the_same_order() -> None:

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from meshdeform.contact import self_kernels
-from meshdeform.contact.broad_phase import grid_for, strays, swept_boxes
+from meshdeform.contact.broad_phase import SCAN_QUERIES, grid_for, scan_grid, strays, swept_boxes
 from meshdeform.contact.parts import by_rows, search_in_parts
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
@@ -287,9 +287,16 @@ class SelfCollision(Constraint, Remappable):
         shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, self._span, reach)
         everyone = fresh.shape[0] == x0.shape[0]
         capacity = self._capacity if everyone else (0, 0)
-        # a partial search keeps the cells of the last whole one (`grid_for`)
+        # a partial search keeps the cells of the last whole one (`grid_for`), and where it has only
+        # a few queries of a kind they read every box (`scan_grid`)
         vf_cell, ee_cell = (None, None) if everyone or self._cells is None else self._cells
-        vf_grid = grid_for(qlo, qhi, tlo, thi, inv_cell=vf_cell)
+
+        def grid(queries: int, *boxes: np.ndarray, inv_cell: float | None) -> tuple:
+            if not everyone and queries < SCAN_QUERIES:
+                return scan_grid(boxes[2].shape[0])
+            return grid_for(*boxes, inv_cell=inv_cell)
+
+        vf_grid = grid(fresh.shape[0], qlo, qhi, tlo, thi, inv_cell=vf_cell)
         found_vf = [
             search_in_parts(
                 self_kernels.vf_candidates, (carried, rest), fresh,
@@ -300,10 +307,11 @@ class SelfCollision(Constraint, Remappable):
         if not everyone:
             found_vf.append(search_in_parts(
                 self_kernels.vf_candidates, (carried, rest), np.flatnonzero(triangle_fresh),
-                (stale, qlo, qhi, tlo, thi, True, *grid_for(tlo, thi, qlo, qhi, inv_cell=vf_grid[0]), *shared),
+                (stale, qlo, qhi, tlo, thi, True, *grid(int(np.count_nonzero(triangle_fresh)), tlo, thi, qlo, qhi,
+                                                          inv_cell=vf_cell), *shared),
                 0, threads,
             ))  # fmt: skip
-        ee_grid = grid_for(elo, ehi, elo, ehi, inv_cell=ee_cell)
+        ee_grid = grid(int(np.count_nonzero(edge_fresh)), elo, ehi, elo, ehi, inv_cell=ee_cell)
         if edge_fresh.all():  # every edge against every edge: pairs of entries cell by cell
             found_ee = search_in_parts(
                 self_kernels.ee_candidates_in_cells, (carried, rest), np.arange(ee_grid[1].shape[0] - 1),
