@@ -187,9 +187,11 @@ class ImplicitSolver(ModelCache, Solver):
                 (rows[part], *(array[bounds[part] : bounds[part + 1]] for array in ordered)) for part in range(3)
             )
         # two threads for the slabs where measured faster (a busy machine: one), steps timed in
-        # windows of a few: a step of such a cloth is tens of milliseconds
+        # windows of a few (a step of such a cloth is tens of milliseconds), switching at a smaller
+        # gain than the picker's default: two threads make a step only 10-15 % faster
         self._picker = ThreadPicker(
-            split_threads() if slab is not None else 1, window=PICKER_WINDOW, interval=4 * PICKER_WINDOW
+            split_threads() if slab is not None else 1, window=PICKER_WINDOW, interval=4 * PICKER_WINDOW,
+            margin=PICKER_MARGIN,
         )
         self._threads = 1
         self.free_mass = np.asarray(model.mass, dtype=np.float64)[self.free_vertices]
@@ -526,6 +528,8 @@ IMPACT_SINKS = 4.0
 SPLIT_SPRINGS = 50_000
 #: steps in each window of the thread count's trials (`threads.ThreadPicker`), the first after 4 windows
 PICKER_WINDOW = 5
+#: the gain (a fraction of a window's seconds) at which the picker switches the thread count
+PICKER_MARGIN = 0.05
 #: Newton steps on the coarse space before each step's L-BFGS iterations (`_coarse_correction`)
 COARSE_STEPS = 2
 #: L-BFGS history length (Liu, Bouaziz, Kavan 2017 use 5)
