@@ -29,7 +29,7 @@ def helper_pool() -> ThreadPoolExecutor:
     global _pool, _pool_pid
     with _pool_lock:
         if _pool is None or _pool_pid != os.getpid():
-            _pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="meshdeform-search")
+            _pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="meshdeform-split")
             _pool_pid = os.getpid()
         return _pool
 
