@@ -178,7 +178,7 @@ class ImplicitSolver(ModelCache, Solver):
         if self.a.shape[0] >= SPLIT_SPRINGS:
             slab = vertex_slabs(np.asarray(model.rest_positions, dtype=np.float64), 2)
             group = np.where(slab[self.a] == slab[self.b], slab[self.a], 2)
-            order = np.argsort(group, kind="stable")
+            order = np.concatenate([np.flatnonzero(group == part) for part in range(3)])  # stable, by part
             ordered = [np.ascontiguousarray(array[order]) for array in springs]
             bounds = np.concatenate([[0], np.cumsum(np.bincount(group, minlength=3))])
             rows = [np.flatnonzero(slab[self.free_vertices] == side).astype(np.int32) for side in (0, 1)]
