@@ -36,9 +36,10 @@ v' = 3 / (2 dt) (x' - 4/3 x_n + 1/3 x_n-1).
 
 On a large cloth (`SPLIT_SPRINGS` springs or more) the step energy is summed over two slabs of
 vertices along the rest shape's longest axis and then the few springs between them, and the
-coarse Hessian over two halves of its groups, each pair a thread each while `threads.ThreadPicker`
-measures two faster than one (the back-substitutions stay on one: cholespy holds the GIL); the
-split is decided by the spring count alone, so the bytes do not depend on the threads.
+coarse Hessian over two halves of its groups; the two slabs, and the two halves, run on a thread
+each while `threads.ThreadPicker` measures two faster than one (the back-substitutions stay on one:
+cholespy holds the GIL). The split is decided by the spring count alone, so the bytes do not depend
+on the threads.
 
 Air damping: c = -ln(1 - damping) (1/s), so that velocity decays as (1 - damping) ** t as with
 every solver (`meshdeform.solvers.options`); a free vertex falls at exactly the terminal
