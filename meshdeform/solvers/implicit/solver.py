@@ -104,6 +104,7 @@ from meshdeform.model import SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import coarse, kernels
+from meshdeform.solvers.implicit.anchors import ContactAnchors
 from meshdeform.solvers.layout import vertex_slabs
 from meshdeform.solvers.options import CALM_COARSE, ImplicitOptions
 from meshdeform.solvers.threads import ThreadPicker, beside, split_threads
@@ -206,6 +207,11 @@ class ImplicitSolver(ModelCache, Solver):
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
             self.rho = np.zeros(HISTORY)
         self.factor: cholespy.CholeskySolverD | None = None
+        #: the matrix's lower triangle as CSC (indptr, indices, values) and its diagonal (F,)
+        self._matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._diagonal = np.zeros(0)
+        #: the held contacts tied down in the matrix (L-BFGS only: local/global's matrix is exact)
+        self.anchors = ContactAnchors(self.free_vertices.shape[0]) if self.options.method == "lbfgs" else None
         self.coarse_space: coarse.CoarseSpace | None = None
         if self.options.method == "lbfgs":
             self.coarse_space = coarse.coarse_space(
@@ -255,16 +261,26 @@ class ImplicitSolver(ModelCache, Solver):
         del fa, fb, off, both, diag, diagonal
         self.factor = None  # free the old factor before building the new one
         if nf:
-            lower = coo_matrix((vals, (rows, cols)), shape=(nf, nf)).tocsc()  # sums duplicates
+            lower = coo_matrix((vals, (rows, cols)), shape=(nf, nf)).tocsc()
             del rows, cols, vals
-            self.factor = cholespy.CholeskySolverD(
-                nf, lower.indptr.astype(np.int32, copy=False), lower.indices.astype(np.int32, copy=False), lower.data,
-                cholespy.MatrixType.CSC,
-            )
+            lower.sum_duplicates()  # sorted rows: each column's diagonal entry comes first
+            self._matrix = (lower.indptr.astype(np.int32), lower.indices.astype(np.int32), lower.data)
+            self._diagonal = lower.data[lower.indptr[:-1]].copy()
+            self._factor()
         self.beta2 = beta2
         self._dt = dt
         if self.coarse_space is not None:
             self.coarse_inertia = self.coarse_space.inertia_matrix(self.inertia)
+
+    def _factor(self) -> None:
+        """Factorise the matrix `_factorise` assembled, the anchored rows' diagonal raised
+        (`anchors` module docstring)."""
+        indptr, indices, data = self._matrix
+        if self.anchors is not None and self.anchors.anchored.any():
+            data = data.copy()
+            data[indptr[:-1]] = self.anchors.raised_diagonal(self._diagonal)
+        self.factor = None  # free the old factor before building the new one
+        self.factor = cholespy.CholeskySolverD(indptr.shape[0] - 1, indptr, indices, data, cholespy.MatrixType.CSC)
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         if not self._prepared(model):
@@ -307,6 +323,8 @@ class ImplicitSolver(ModelCache, Solver):
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
         # the step's start (x_n, v_n) becomes the next step's history: fresh arrays each step
+        if self.anchors is not None and self.anchors.update(self.contact_rows) and self.factor is not None:
+            self._factor()
         x_n, v_n = np.empty_like(x), np.empty_like(v)
         x_hat, y = self.x_hat, self.y
         kernels.bdf2_start(

@@ -1,0 +1,76 @@
+"""Contact anchors: the held contacts of the implicit solver's steps, tied down in its matrix.
+
+Why: `implicit`'s L-BFGS iterations precondition with the prefactored projective-dynamics matrix,
+which knows nothing of contact, and then remove from the direction the motion of each held
+contact along its push (`kernels.remove_normal`). Where a stiff cloth lies on an obstacle, its
+free vertices next to the held ones are pulled towards the obstacle by their springs; the matrix
+answers that pull as if the held vertices could follow, with the whole patch moving into the
+obstacle almost rigidly (against its inertia only), and the filter then holds the held vertices
+back while their free neighbours keep a move of up to a metre within a step of 5 ms. The trust
+region (`TRUST_FRACTION`) scales every such step down to millimetres, so the iterations stall and
+the cloth stays stretched: a 10 000 N/m sheet folded over a bar onto the ground reached 2.8x its
+rest lengths (docs/performance.md, "Contact anchors in the implicit solver's matrix").
+
+What: the matrix's diagonal is raised by `ANCHOR` times itself on the rows of the vertices held
+recently, so the preconditioner moves them little and their neighbours as if tied to them (an
+elastic tie, in every direction: the filter and the L-BFGS history still let a held vertex
+slide); the energy, its gradient and the filters are unchanged, so the step minimises the same
+energy, only better preconditioned. Refactorising costs a whole factorisation (cholespy offers no
+numeric-only update), so the anchored set follows the contacts loosely: a row stays anchored for
+`ANCHOR_WINDOW` steps after it was last held, and the matrix is refactorised only when more than
+`ANCHOR_SLACK` of the held rows (and more than `ANCHOR_FLOOR` of all rows) are not anchored, or
+more than `ANCHOR_SLACK` of the anchored rows were not held within the window (the scenes of
+benchmarks/contact.py refactorise 5 to 30 times in their 480 steps). The set depends on the
+simulation alone: the same bytes on any thread count.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: the fraction of its own diagonal added to an anchored row of the matrix (0.1 to 1 held a stiff
+#: cloth on an obstacle alike; 10 and more made the anchors stick, stretching the cloth elsewhere)
+ANCHOR = 0.5
+#: steps a row stays anchored after it was last held (3 frames at the contact steps, 8 a frame)
+ANCHOR_WINDOW = 24
+#: the fraction of held rows not anchored (or of anchored rows no longer held) that refactorises
+ANCHOR_SLACK = 0.25
+#: the fraction of all rows that must be held and not anchored before that refactorises: a contact
+#: spreading over a large mesh (a 8 171-vertex bunny landing on a sphere) renews the set 9 times
+#: instead of 20, each a factorisation of 30 ms; 0.05 left a crumpling cloth's pile unanchored
+ANCHOR_FLOOR = 0.02
+
+
+class ContactAnchors:
+    """Which free rows (F of them) the matrix anchors, and when that set is renewed.
+
+    `anchored` (F,) bool: the rows whose diagonal the current factor raises by `ANCHOR`.
+    """
+
+    def __init__(self, rows: int) -> None:
+        self.anchored = np.zeros(rows, dtype=np.bool_)
+        self._last_held = np.full(rows, -ANCHOR_WINDOW - 1, dtype=np.int64)
+        self._step = 0
+        #: how often the anchored set was renewed (each a refactorisation)
+        self.renewals = 0
+
+    def update(self, held: np.ndarray) -> bool:
+        """Record one step's held rows `held` (K,) int (free rows). Returns True when the anchored
+        set was renewed (to the rows held within the window): the caller refactorises."""
+        self._step += 1
+        self._last_held[held] = self._step
+        recent = self._last_held > self._step - ANCHOR_WINDOW
+        loose = int(np.count_nonzero(~self.anchored[held]))
+        anchored = int(np.count_nonzero(self.anchored))
+        stale = int(np.count_nonzero(self.anchored & ~recent))
+        if loose > max(ANCHOR_SLACK * held.shape[0], ANCHOR_FLOOR * self.anchored.shape[0]) or (
+            stale > ANCHOR_SLACK * anchored
+        ):
+            self.anchored = recent
+            self.renewals += 1
+            return True
+        return False
+
+    def raised_diagonal(self, diagonal: np.ndarray) -> np.ndarray:
+        """The matrix diagonal (F,) with the anchored rows raised by `ANCHOR` of themselves."""
+        return np.where(self.anchored, (1.0 + ANCHOR) * diagonal, diagonal)
