@@ -60,7 +60,7 @@ DEFAULT_BLENDER = (
 )
 
 #: the meshdeform settings run by default: each solver's defaults, finer steps, a strain limit, and
-#: stiffer springs (the material's stretch_modulus, 1000 N/m by default)
+#: softer and stiffer springs (the material's stretch_modulus, 10 000 N/m by default)
 DEFAULT_CONFIGS = (
     "xpbd",
     "xpbd:substeps=44",
@@ -73,8 +73,8 @@ DEFAULT_CONFIGS = (
     "implicit",
     "implicit:substeps=16",
     "implicit:iterations=6",
-    "implicit:stretch_modulus=3000",
-    "implicit:stretch_modulus=10000",
+    "implicit:stretch_modulus=1000",
+    "implicit:stretch_modulus=30000",
 )
 
 BLENDER_SIDE = textwrap.dedent(

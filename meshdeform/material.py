@@ -65,16 +65,20 @@ class Material:
     """Spring kinds plus mass: area density (kg/m^2; kg/m for polylines) or a fixed per-vertex mass.
 
     stretch_modulus: N/m, the spring constant of a spring of stiffness 1 (see the module
-    docstring for how each solver uses it). The default 1000 N/m lets a 1 m cloth of 0.2 kg/m^2
-    hanging from two corners sag about 2 to 3 mm.
+    docstring for how each solver uses it). On a grid it is also about the sheet's resistance
+    to stretch per unit width (N per m of width per unit strain), whatever the resolution. The
+    default 10 000 N/m is a light woven fabric (woven cotton measures some 10 to 50 kN/m along
+    its threads; knits and jersey 100 to 1000 N/m): a 1 m cloth of 0.2 kg/m^2 hanging from two
+    corners sags about 0.2 mm by stretching, and a 256 x 256 one stretches 1.03 at the pins
+    (1000 N/m: 1.25, rubbery; docs/performance.md, "The woven default material").
     """
 
     structural: KindMaterial = field(default_factory=lambda: KindMaterial(stiffness=1.0, damping=0.1))
     shear: KindMaterial = field(default_factory=lambda: KindMaterial(stiffness=0.5, damping=0.1))
-    bending: KindMaterial = field(default_factory=lambda: KindMaterial(stiffness=0.05, damping=0.1))
+    bending: KindMaterial = field(default_factory=lambda: KindMaterial(stiffness=0.005, damping=0.1))
     density: float = 0.2
     vertex_mass: float | None = None
-    stretch_modulus: float = 1000.0
+    stretch_modulus: float = 10000.0
 
     def kind(self, kind: SpringKind | int) -> KindMaterial:
         return getattr(self, KIND_NAMES[int(kind)])

@@ -29,7 +29,7 @@ import numpy as np
 import typer
 
 from meshdeform.io import write_obj
-from meshdeform.material import Material
+from meshdeform.material import KindMaterial, Material
 from meshdeform.mesh import Mesh, grid_mesh
 from meshdeform.model import SpringModel
 
@@ -38,6 +38,9 @@ Plane = Literal["xy", "xz"]
 Pin = str | int
 
 TOP_CORNERS: tuple[str, str] = ("top-left", "top-right")
+#: a knit (1000 N/m, the default material until 2026-12-05; the default is a woven 10 000 N/m):
+#: scenes built around a cloth that stretches, crumples into itself or drapes within a few frames
+KNIT = Material(stretch_modulus=1000.0, bending=KindMaterial(stiffness=0.05))
 
 _SIDES = {
     "left": lambda i, j, nx, ny: i == 0,

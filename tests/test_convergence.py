@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from factories import TOP_CORNERS, grid_cloth, grid_pins, grid_sheet, write_grid
+from factories import KNIT, TOP_CORNERS, grid_cloth, grid_pins, grid_sheet, write_grid
 
 from meshdeform.material import KindMaterial, Material
 from meshdeform.model import SpringModel
@@ -53,8 +53,9 @@ def sag(model: SpringModel, frame: Frame) -> float:
     return float(drop[~model.pinned].mean())
 
 
-def hanging(n: int) -> SpringModel:
-    return grid_cloth(n, pins=TOP_CORNERS).model
+def hanging(n: int, material: Material | None = None) -> SpringModel:
+    """The n x n cloth of 1 m hanging from its two top corners (the default material unless given)."""
+    return grid_cloth(n, pins=TOP_CORNERS, material=material).model
 
 
 def assert_one_shape(model: SpringModel, solver: str, most: int = 40, **options: object) -> tuple[float, Frame]:
@@ -85,8 +86,10 @@ def test_implicit_settles_to_one_shape_whatever_the_iterations_and_substeps(n: i
 def test_xpbd_warm_started_settles_to_one_shape_on_the_material_equilibrium() -> None:
     """With `warm_start` the xpbd cloth keeps its forces from substep to substep: 10 or 40
     iterations, 22 or 44 substeps (of 3 iterations: 2 diverge warm started on 22) settle alike,
-    on the equilibrium of the material."""
-    model = hanging(12)
+    on the equilibrium of the material. On the knit: warm start is stable only while k dt^2 w
+    stays below about 2 (docs/performance.md, "Convergence"), and the default woven material's
+    10x stiffer springs diverge at 22 substeps."""
+    model = hanging(12, KNIT)
     settled, _ = assert_one_shape(model, "xpbd", warm_start=1.0, iterations=3)
     assert settled == pytest.approx(sag(model, settle(model, "springs")), rel=0.02)
 
@@ -137,7 +140,7 @@ def test_the_report_gives_the_residual_per_frame_and_warns_when_not_converged(tm
 #: settings at which each solver's sweeps converge on the 12 x 12 cloth (solvers not listed: their
 #: defaults); what the defaults give instead is item 2's business (the tests above)
 CONVERGED_SETTINGS: dict[str, dict[str, object]] = {
-    "xpbd": {"substeps": 44, "iterations": 20},
+    "xpbd": {"substeps": 88, "iterations": 20},  # 44 x 20 is 23 % too low at 10 000 N/m
     "verlet": {"substeps": 576, "iterations": 2},
 }
 #: solvers whose shape is not the material's by design: `anchor` pulls every vertex to its rest
@@ -197,7 +200,7 @@ def pushed_strip(solver: str, compression: float, push: float) -> float:
         name: KindMaterial(stiffness=s, compression=s * compression)
         for name, s in (("structural", 1.0), ("shear", 0.5), ("bending", 0.05))
     }
-    material = Material(**kinds, density=2.0)
+    material = Material(**kinds, density=2.0, stretch_modulus=1000.0)  # a knit
     model = SpringModel.from_mesh(mesh, material, pinned_input=grid_pins(nx, ny, ["left", "right"]))
     start = model.rest_positions[np.flatnonzero(model.pinned)].copy()
     right = start[:, 0] > 0.5

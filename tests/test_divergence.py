@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from factories import TOP_CORNERS, grid_cloth, grid_pins, grid_sheet, write_grid
+from factories import KNIT, TOP_CORNERS, grid_cloth, grid_pins, grid_sheet, write_grid
 from typer.testing import CliRunner
 
 from meshdeform.errors import SimulationDiverged
@@ -74,7 +74,7 @@ def test_an_explosion_held_finite_by_tethers_stops_as_stretched() -> None:
 def sheet_on_the_ground(strength: float) -> tuple[SpringModel, Scene, Settings]:
     """A 1 m sheet lying on a ground with friction, hit at t = 0.1 s (frame 3) by a radial push of
     `strength` m/s from 0.5 m above its centre (the push spreads over 20 ms)."""
-    model = grid_cloth(8, plane="xz").model
+    model = grid_cloth(8, plane="xz", material=KNIT).model
     ground = Collider(Plane((0.0, -0.01, 0.0), (0.0, 1.0, 0.0)), thickness=0.005, friction=0.5)
     push = Impact(time=0.1, radius=0.3, strength=strength, duration=0.02, point=(0.5, 0.5, 0.5), direction="radial")
     return model, Scene(forces=[push], constraints=[ground]), Settings(solver="springs", frames=24)
@@ -113,7 +113,7 @@ def test_a_200_m_free_fall_onto_the_ground_reaches_60_m_per_s_and_runs_through()
 def strip_pulled_apart(tear_at: float | None) -> tuple[SpringModel, Scene, Settings]:
     """A 1 x 0.25 m strip whose right edge is pulled away from its pinned left edge at 10 m/s,
     without gravity; `tear_at`: the strip may tear everywhere beyond this stretch."""
-    mesh, model, _ = grid_cloth(5, 2, size=(1.0, 0.25), pins=("left", "right"))
+    mesh, model, _ = grid_cloth(5, 2, size=(1.0, 0.25), pins=("left", "right"), material=KNIT)
     rest = model.rest_positions[model.pinned]
     right = rest[:, 0] > 0.5
 

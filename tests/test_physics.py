@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from factories import TOP_CORNERS, grid_cloth
+from factories import KNIT, TOP_CORNERS, grid_cloth
 
 from meshdeform.errors import SimulationDiverged
 from meshdeform.material import KindMaterial, Material
@@ -118,6 +118,7 @@ def sag(iterations: int) -> float:
         structural=KindMaterial(stiffness=0.05),
         shear=KindMaterial(stiffness=0.02),
         bending=KindMaterial(stiffness=0.002),
+        stretch_modulus=1000.0,  # a soft knit: a sag of centimetres, measured to 5 %
     )
     mesh, model, _ = grid_cloth(12, pins=TOP_CORNERS, material=material)
     # tethers off: they cap stretch along pin paths; this checks the compliance alone
@@ -270,37 +271,46 @@ def test_hanging_cloth_comes_to_rest(name: str) -> None:
     assert all(f.at_rest for f in frames[last.rest_frame - 1 :])
 
 
-def test_implicit_swinging_cloth_comes_to_rest() -> None:
+@pytest.mark.parametrize(("material", "seconds"), [(KNIT, 10), (None, 20)], ids=["knit", "woven default"])
+def test_implicit_swinging_cloth_comes_to_rest(material: Material | None, seconds: int) -> None:
     """The issue's scene: a 12 x 12 sheet lying flat, two corners of one edge pinned, falls, swings
-    and must be at rest (max speed below 1e-4 m/s) after 10 s at the solver's defaults (one step of
-    6 iterations a frame, with the damping applied after the step, still moved at 1.2e-2 m/s)."""
-    model = grid_cloth(12, pins=TOP_CORNERS, plane="xz").model
-    frames = list(simulate(model, Scene(), Settings(solver="implicit", frames=240)))
+    and must be at rest (max speed below 1e-4 m/s) at the solver's defaults: on the knit (the
+    default material when the issue was filed: one step of 6 iterations a frame, with the damping
+    applied after the step, still moved at 1.2e-2 m/s after 10 s) within 10 s; on the default woven
+    material within 20 s (measured: at rest from 16.5 s, where `springs` rests from 10 s: the calm
+    steps' 4 iterations converge the free edge's last half millimetre towards the pins' plane
+    slowly; docs/performance.md, "The woven default material")."""
+    model = grid_cloth(12, pins=TOP_CORNERS, plane="xz", material=material).model
+    frames = list(simulate(model, Scene(), Settings(solver="implicit", frames=24 * seconds)))
     assert min(f.welded_positions[:, 1].min() for f in frames) < -0.9  # it did fall and swing down
     assert frames[-1].max_speed < 1e-4
     assert frames[-1].rest_frame is not None
 
 
-def _falling_sheet(solver: str, **options: object) -> np.ndarray:
+def _falling_sheet(solver: str, material: Material | None = None, **options: object) -> np.ndarray:
     """Positions (F, V, 3) of a 16 x 16 sheet lying flat, two corners of one edge pinned, falling
     and swinging down for 1.5 s, at the solver's defaults but for `options`."""
-    model = grid_cloth(16, pins=TOP_CORNERS, plane="xz").model
+    model = grid_cloth(16, pins=TOP_CORNERS, plane="xz", material=material).model
     settings = Settings(solver=solver, frames=36, options=solver_class(solver).options_class(**options))
     return np.array([f.welded_positions for f in simulate(model, Scene(), settings)])
 
 
-def test_implicit_calm_steps_follow_a_falling_sheet() -> None:
+@pytest.mark.parametrize(("material", "gap"), [(KNIT, 0.03), (None, 0.06)], ids=["knit", "woven default"])
+def test_implicit_calm_steps_follow_a_falling_sheet(material: Material | None, gap: float) -> None:
     """With nothing to touch, implicit takes 2 steps of 4 iterations a frame (its calm steps), which
     its coarse-space Newton steps keep on the path of `springs` (explicit Hooke springs in short
     stable steps: a different integrator); without the coarse space the same steps turn the sheet
-    down like a strong damping (0.46 m behind, measured), which is what the coarse space is for."""
-    reference = _falling_sheet("springs")
-    calm = _falling_sheet("implicit")
-    lagging = _falling_sheet("implicit", coarse=0)
+    down like a strong damping, which is what the coarse space is for. Measured: the knit 0.13 m
+    from `springs` at most (0.46 without the coarse space), its lowest point 4.5 mm off at frame 12;
+    the stiffer woven default 0.18 m (1.3 without), 39 mm at frame 12 (0.63 m without)."""
+    reference = _falling_sheet("springs", material)
+    calm = _falling_sheet("implicit", material)
+    lagging = _falling_sheet("implicit", material, coarse=0)
     assert np.linalg.norm(calm - reference, axis=2).max() < 0.2
     assert np.linalg.norm(lagging - reference, axis=2).max() > 0.3
-    # half a second in, the sheet hangs about 0.9 m down on both, where the lagging one is near 0.7
-    assert abs(calm[11][:, 1].min() - reference[11][:, 1].min()) < 0.03
+    # half a second in, the sheet hangs about 0.9 m down on both, where the lagging one is 0.7 or above
+    assert abs(calm[11][:, 1].min() - reference[11][:, 1].min()) < gap
+    assert abs(lagging[11][:, 1].min() - reference[11][:, 1].min()) > 0.15
 
 
 def test_calm_steps_only_where_nothing_touches_the_cloth() -> None:

@@ -55,6 +55,7 @@ iterations = 8
 # a limp cloth that drapes within the 30 frames (verlet's bending springs have the material's
 # spring constant: at the default 0.05 the cloth tents over the ball and reaches the floor later)
 [material]
+stretch_modulus = 1000.0   # a knit
 bending = {{ stiffness = 0.001 }}
 
 [[colliders]]

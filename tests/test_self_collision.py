@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factories import grid_sheet
+from factories import KNIT, grid_sheet
 from intersections import intersecting_pairs
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
@@ -44,7 +44,7 @@ def _run(model: SpringModel, self_collision: bool, frames: int, state: State | N
 
 @pytest.fixture(scope="module")
 def collapse() -> tuple[SpringModel, list[np.ndarray], list[np.ndarray]]:
-    model = SpringModel.from_mesh(_collapsing_sheet(24))
+    model = SpringModel.from_mesh(_collapsing_sheet(24), KNIT)
     return model, _run(model, False, 24), _run(model, True, 24)
 
 
@@ -393,7 +393,7 @@ def test_check_names_self_collision_and_refuses_a_typo(tmp_path) -> None:
 def test_every_solver_keeps_the_collapsing_sheet_free_of_intersections(solver: str) -> None:
     """Each solver lets this 16 x 16 sheet fold through itself without self-collision (8 to 8,000
     pairs measured) and none with it."""
-    model = SpringModel.from_mesh(_collapsing_sheet(16))
+    model = SpringModel.from_mesh(_collapsing_sheet(16), KNIT)
 
     def worst(self_collision: bool) -> int:
         ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 0.3, 0.01)

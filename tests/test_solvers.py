@@ -79,7 +79,9 @@ def test_options_of_another_solver_are_refused() -> None:
 
 @pytest.mark.parametrize("name", NAMES)
 def test_step_moves_free_vertices_and_keeps_pins(name: str) -> None:
-    model = cloth()
+    """Five steps of 1/96 s under gravity: a horizontal cloth pinned at two corners falls (its free
+    vertices by millimetres on average, whatever the material's stiffness), and its pins stay."""
+    model = grid_cloth(8, pins=TOP_CORNERS, plane="xz").model
     solver = make_solver(name)
     state = State.at_rest(model)
     control = Control(np.tile([0.0, -9.81, 0.0], (model.vertex_count, 1)))
