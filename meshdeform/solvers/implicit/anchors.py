@@ -18,9 +18,10 @@ slide); the energy, its gradient and the filters are unchanged, so the step mini
 energy, only better preconditioned. Refactorising costs a whole factorisation (cholespy offers no
 numeric-only update), so the anchored set follows the contacts loosely: a row stays anchored for
 `ANCHOR_WINDOW` steps after it was last held, and the matrix is refactorised only when more than
-`ANCHOR_SLACK` of the held rows (and more than `ANCHOR_FLOOR` of all rows) are not anchored, or
-more than `ANCHOR_SLACK` of the anchored rows were not held within the window (the scenes of
-benchmarks/contact.py refactorise 5 to 30 times in their 480 steps). The set depends on the
+`ANCHOR_SLACK` of the held rows (and more than `ANCHOR_FLOOR` rows) are not anchored, or more than
+`ANCHOR_SLACK` of the anchored rows were not held within the window (the scenes of
+benchmarks/contact.py refactorise 5 to 30 times in their 480 steps, a 128 x 128 sheet draping over a
+sphere 13 times in 576). The set depends on the
 simulation alone: the same bytes on any thread count.
 """
 
@@ -35,10 +36,9 @@ ANCHOR = 0.5
 ANCHOR_WINDOW = 24
 #: the fraction of held rows not anchored (or of anchored rows no longer held) that refactorises
 ANCHOR_SLACK = 0.25
-#: the fraction of all rows that must be held and not anchored before that refactorises: a contact
-#: spreading over a large mesh (a 8 171-vertex bunny landing on a sphere) renews the set 9 times
-#: instead of 20, each a factorisation of 30 ms; 0.05 left a crumpling cloth's pile unanchored
-ANCHOR_FLOOR = 0.02
+#: held rows that may stay unanchored whatever their fraction: a contact of a few vertices does not
+#: refactorise (docs/performance.md has the floors tried)
+ANCHOR_FLOOR = 32
 
 
 class ContactAnchors:
@@ -63,9 +63,7 @@ class ContactAnchors:
         loose = int(np.count_nonzero(~self.anchored[held]))
         anchored = int(np.count_nonzero(self.anchored))
         stale = int(np.count_nonzero(self.anchored & ~recent))
-        if loose > max(ANCHOR_SLACK * held.shape[0], ANCHOR_FLOOR * self.anchored.shape[0]) or (
-            stale > ANCHOR_SLACK * anchored
-        ):
+        if loose > max(ANCHOR_SLACK * held.shape[0], ANCHOR_FLOOR) or stale > ANCHOR_SLACK * anchored:
             self.anchored = recent
             self.renewals += 1
             return True
