@@ -87,7 +87,9 @@ alone (`_sink_pressed`, at most `SINK_FRACTION` of an edge), so the collider's p
 step carries the contact's normal impulse and friction; and each iteration
 moves no vertex further than a quarter of an edge while there is contact (`TRUST_FRACTION`), so
 a cloth stopped by a thin bar within a long step is not pulled through it or slung across it
-(it hooked around the bar at 4 to 7x stretch).
+(it hooked around the bar at 4 to 7x stretch). The vertices held in recent steps are tied down in
+the prefactored matrix (`anchors`): a matrix that knows nothing of the contact sends their free
+neighbours into the obstacle, and a stiff cloth lying on it then stalls stretched.
 """
 
 from __future__ import annotations
