@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshdeform.solvers.implicit.anchors import ANCHOR, ANCHOR_WINDOW, ContactAnchors
+from meshdeform.solvers.implicit.anchors import ANCHOR, ANCHOR_WINDOW, LARGE_ROWS, ContactAnchors
 
 
 def test_a_lasting_contact_is_anchored_once_and_released_after_the_window() -> None:
@@ -51,3 +51,13 @@ def test_the_raised_diagonal_touches_the_anchored_rows_only() -> None:
     raised = anchors.raised_diagonal(diagonal)
     assert np.array_equal(raised[:40], diagonal[:40] * (1.0 + ANCHOR))
     assert np.array_equal(raised[40:], diagonal[40:])
+
+
+def test_a_large_cloth_keeps_its_anchors_longer() -> None:
+    """From `LARGE_ROWS` rows (a factorisation costs several steps) the window and the slack are
+    doubled: the same spreading contact renews the set less often than on a small cloth."""
+    def renewals(rows: int) -> int:
+        anchors = ContactAnchors(rows)
+        return sum(anchors.update(np.arange(100 + 20 * step)) for step in range(100))
+
+    assert renewals(LARGE_ROWS) < renewals(LARGE_ROWS - 1)

@@ -21,7 +21,8 @@ numeric-only update), so the anchored set follows the contacts loosely: a row st
 `ANCHOR_SLACK` of the held rows (and more than `ANCHOR_FLOOR` rows) are not anchored, or more than
 `ANCHOR_SLACK` of the anchored rows were not held within the window (the scenes of
 benchmarks/contact.py refactorise 5 to 30 times in their 480 steps, a 128 x 128 sheet draping over a
-sphere 13 times in 576). The set depends on the
+sphere 13 times in 576; from `LARGE_ROWS` rows, where a factorisation costs several steps, the
+window and the slack are doubled). The set depends on the
 simulation alone: the same bytes on any thread count.
 """
 
@@ -39,6 +40,11 @@ ANCHOR_SLACK = 0.25
 #: held rows that may stay unanchored whatever their fraction: a contact of a few vertices does not
 #: refactorise (docs/performance.md has the floors tried)
 ANCHOR_FLOOR = 32
+#: from this many rows a factorisation costs several steps (0.37 s at 256 x 256 against 60 ms a
+#: step), so the set is kept twice as long and renewed at twice the slack: a 256 x 256 woven sheet
+#: draped on a sphere renewed it 37 times in 24 frames (14 of its 24 s), now 16 (16 s), at the same
+#: worst stretch
+LARGE_ROWS = 32_768
 
 
 class ContactAnchors:
@@ -49,7 +55,11 @@ class ContactAnchors:
 
     def __init__(self, rows: int) -> None:
         self.anchored = np.zeros(rows, dtype=np.bool_)
-        self._last_held = np.full(rows, -ANCHOR_WINDOW - 1, dtype=np.int64)
+        large = rows >= LARGE_ROWS
+        #: steps a row stays anchored after it was last held, and the slack of a renewal
+        self.window = 2 * ANCHOR_WINDOW if large else ANCHOR_WINDOW
+        self.slack = 2 * ANCHOR_SLACK if large else ANCHOR_SLACK
+        self._last_held = np.full(rows, -self.window - 1, dtype=np.int64)
         self._step = 0
         #: how often the anchored set was renewed (each a refactorisation)
         self.renewals = 0
@@ -59,11 +69,11 @@ class ContactAnchors:
         set was renewed (to the rows held within the window): the caller refactorises."""
         self._step += 1
         self._last_held[held] = self._step
-        recent = self._last_held > self._step - ANCHOR_WINDOW
+        recent = self._last_held > self._step - self.window
         loose = int(np.count_nonzero(~self.anchored[held]))
         anchored = int(np.count_nonzero(self.anchored))
         stale = int(np.count_nonzero(self.anchored & ~recent))
-        if loose > max(ANCHOR_SLACK * held.shape[0], ANCHOR_FLOOR) or stale > ANCHOR_SLACK * anchored:
+        if loose > max(self.slack * held.shape[0], ANCHOR_FLOOR) or stale > self.slack * anchored:
             self.anchored = recent
             self.renewals += 1
             return True
