@@ -61,8 +61,6 @@ class ContactAnchors:
         self.slack = 2 * ANCHOR_SLACK if large else ANCHOR_SLACK
         self._last_held = np.full(rows, -self.window - 1, dtype=np.int64)
         self._step = 0
-        #: how often the anchored set was renewed (each a refactorisation)
-        self.renewals = 0
 
     def update(self, held: np.ndarray) -> bool:
         """Record one step's held rows `held` (K,) int (free rows). Returns True when the anchored
@@ -75,7 +73,6 @@ class ContactAnchors:
         stale = int(np.count_nonzero(self.anchored & ~recent))
         if loose > max(self.slack * held.shape[0], ANCHOR_FLOOR) or stale > self.slack * anchored:
             self.anchored = recent
-            self.renewals += 1
             return True
         return False
 

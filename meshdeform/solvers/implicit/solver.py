@@ -209,9 +209,8 @@ class ImplicitSolver(ModelCache, Solver):
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
             self.rho = np.zeros(HISTORY)
         self.factor: cholespy.CholeskySolverD | None = None
-        #: the matrix's lower triangle as CSC (indptr, indices, values) and its diagonal (F,)
+        #: the matrix's lower triangle as CSC (indptr, indices, values), each column's diagonal first
         self._matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._diagonal = np.zeros(0)
         #: the held contacts tied down in the matrix (L-BFGS only: local/global's matrix is exact)
         self.anchors = ContactAnchors(self.free_vertices.shape[0]) if self.options.method == "lbfgs" else None
         self.coarse_space: coarse.CoarseSpace | None = None
@@ -267,7 +266,6 @@ class ImplicitSolver(ModelCache, Solver):
             del rows, cols, vals
             lower.sum_duplicates()  # sorted rows: each column's diagonal entry comes first
             self._matrix = (lower.indptr.astype(np.int32), lower.indices.astype(np.int32), lower.data)
-            self._diagonal = lower.data[lower.indptr[:-1]].copy()
             self._factor()
         self.beta2 = beta2
         self._dt = dt
@@ -280,7 +278,7 @@ class ImplicitSolver(ModelCache, Solver):
         indptr, indices, data = self._matrix
         if self.anchors is not None and self.anchors.anchored.any():
             data = data.copy()
-            data[indptr[:-1]] = self.anchors.raised_diagonal(self._diagonal)
+            data[indptr[:-1]] = self.anchors.raised_diagonal(data[indptr[:-1]])
         self.factor = None  # free the old factor before building the new one
         self.factor = cholespy.CholeskySolverD(indptr.shape[0] - 1, indptr, indices, data, cholespy.MatrixType.CSC)
 
@@ -324,9 +322,9 @@ class ImplicitSolver(ModelCache, Solver):
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
-        # the step's start (x_n, v_n) becomes the next step's history: fresh arrays each step
         if self.anchors is not None and self.anchors.update(self.contact_rows) and self.factor is not None:
-            self._factor()
+            self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
+        # the step's start (x_n, v_n) becomes the next step's history: fresh arrays each step
         x_n, v_n = np.empty_like(x), np.empty_like(v)
         x_hat, y = self.x_hat, self.y
         kernels.bdf2_start(
