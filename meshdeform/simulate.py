@@ -124,6 +124,12 @@ class Settings:
                 f"subframes must be 1 to the {self.substeps} substeps a frame, not {self.subframes}"
             )
 
+    def with_frames(self, frames: int) -> Settings:
+        """These settings for `frames` frames, the substeps left to the solver where they were
+        (`dataclasses.replace` would pass the resolved count on as given, and with it lose the
+        calm and slow steps)."""
+        return replace(self, frames=frames, substeps=None if self.substeps_defaulted else self.substeps)
+
     @property
     def subframe_substeps(self) -> tuple[int, ...]:
         """The substeps (1 .. substeps - 1, increasing) after which a frame's in-between states are
@@ -161,6 +167,8 @@ class Frame:
     this one; empty unless asked for.
     force_residual: the free vertices' force imbalance relative to their load at the end of the
         frame (see the module docstring); at rest above `CONVERGED_RESIDUAL`: not converged.
+    substeps: the solver steps the frame took (the settings' substeps, or the solver's
+        `slow_steps` where the cloth moved slowly: `slow_steps_for`); 0 for `initial_frame`.
     """
 
     index: int
@@ -179,6 +187,7 @@ class Frame:
     contact: ContactWork | None = None
     subframes: tuple[tuple[float, np.ndarray], ...] = ()
     force_residual: float = 0.0
+    substeps: int = 0
 
 
 def initial_frame(model: SpringModel, state: State | None = None) -> Frame:
@@ -267,6 +276,12 @@ SPEED_LIMIT = 1000.0
 #: scanned meshes) are measured against that length by the guard, so a sliver drawn out to a
 #: normal edge's length does not count as a blow-up (the frames' max_stretch stays exact)
 SLIVER_FRACTION = 0.25
+#: a frame takes the solver's slow steps (`slow_steps_for`) where the cloth's fastest vertex at the
+#: end of the frame before moves at most this fraction of its median structural rest length in one
+#: of them: a cloth landing on an obstacle (1-3 m/s in the contact benchmarks' 40 x 40 sheets,
+#: 0.6 edges a step at 4 a frame) keeps the defaults, one lying or draping on it (0.2-0.5 m/s)
+#: takes the slow steps (docs/performance.md, "Slow steps")
+SLOW_STEP_EDGES = 0.35
 
 
 def _speed_limit(diagonal: float, gravity: np.ndarray, time: float) -> float:
@@ -331,6 +346,34 @@ def steps_for(settings: Settings, scene: Scene, model: SpringModel | None = None
     return replace(settings, substeps=substeps, options=options)
 
 
+def slow_steps_for(settings: Settings, scene: Scene) -> tuple[int, int] | None:
+    """The (substeps, iterations) of a run's frames in which the cloth moves slowly
+    (`moves_slowly`), for a run at `settings` as `steps_for` resolved them: the solver's
+    `slow_steps` where the scene is not calm, nothing tears (a tear is decided substep by
+    substep), the substeps and the iterations were both left to the solver (and not raised by
+    `Solver.contact_substeps`) and the in-between states kept fit in them; None otherwise (every
+    frame at the settings' steps).
+
+    Why: a frame with contact needs short steps where an obstacle stops part of the cloth within a
+    step (an impact: the implicit solver's few iterations cannot resolve a long one), but a cloth
+    lying, draping or sliding slowly on its obstacles holds at half as many steps (with more
+    iterations each), and each step saved is a collider and a self-collision pass saved
+    (docs/performance.md, "Slow steps")."""
+    steps = solver_class(settings.solver).slow_steps
+    if steps is None or calm(scene) or scene.tearing is not None:
+        return None
+    if not settings.substeps_defaulted or settings.options.iterations is not None:
+        return None
+    return steps if int(settings.subframes) <= steps[0] else None
+
+
+def moves_slowly(speed: float, edge: float, fps: float, substeps: int) -> bool:
+    """Whether a frame of `substeps` steps at `fps` (frames/s) moves a cloth whose fastest vertex
+    goes at `speed` (m/s) by at most `SLOW_STEP_EDGES` of its median structural rest length
+    `edge` (m) a step."""
+    return speed <= SLOW_STEP_EDGES * edge * fps * substeps
+
+
 def simulate(
     model: SpringModel,
     scene: Scene | None = None,
@@ -378,8 +421,18 @@ def simulate(
         not forces and not constraints and pin_motion is None and tearing is None and self_collision is None
     )
     keep_after = settings.subframe_substeps  # substeps whose state the frame keeps (motion blur)
+    # frames in which the cloth moves slowly at the solver's slow steps (`slow_steps_for`), judged
+    # by its speed at the end of the frame before
+    slow = slow_steps_for(settings, scene)
+    slow_keep_after = replace(settings, substeps=slow[0]).subframe_substeps if slow is not None else ()
+    edge = float(np.median(structural.rest)) if structural.rest.size else 0.0
+    speed = float(guard_kernels.guard_figures(state.positions, state.velocities, center)[2])
     for frame in range(1, settings.frames + 1):
         kept: list[tuple[float, np.ndarray]] = []
+        frame_substeps, control.iterations, frame_keep_after = substeps, None, keep_after
+        if slow is not None and moves_slowly(speed, edge, settings.fps, slow[0]):
+            (frame_substeps, control.iterations), frame_keep_after = slow, slow_keep_after
+        dt = 1.0 / (settings.fps * frame_substeps)
         if whole_frames:  # in runs of substeps between the states kept: the same bytes
             done = 0
             for until in (*keep_after, substeps):
@@ -391,10 +444,10 @@ def simulate(
                 done = until
                 if until < substeps:
                     kept.append((state.time, model.to_input_layout(state.positions.copy())))
-        for substep in range(1, 1 + (0 if whole_frames else substeps)):
+        for substep in range(1, 1 + (0 if whole_frames else frame_substeps)):
             t0 = state.time
-            step_count += 1
-            t1 = start_time + step_count * dt
+            # counted in this frame's steps (the bytes of steps counted one by one where every frame has as many)
+            t1 = start_time + ((frame - 1) * frame_substeps + substep) * dt
             if forces:
                 accelerations[:] = gravity
                 for force in forces:
@@ -431,7 +484,7 @@ def simulate(
                     control = Control(accelerations=accelerations, pulled=scene.pulled(model.vertex_count))
                     structural = _Structural.of(model)
                     balance = _Balance.of(model)
-            if substep in keep_after:
+            if substep in frame_keep_after:
                 kept.append((state.time, model.to_input_layout(state.positions.copy())))
         positions = state.positions
         finite, reach, speed = guard_kernels.guard_figures(positions, state.velocities, center)
@@ -494,6 +547,7 @@ def simulate(
             contact=self_collision.take_work() if self_collision is not None else None,
             subframes=tuple(kept),
             force_residual=residual,
+            substeps=frame_substeps,
             **torn,
         )
 

@@ -38,7 +38,6 @@ import subprocess
 import sys
 import threading
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
 import numba
@@ -110,7 +109,7 @@ def _step_stand_in(settings: Settings, calm_scene: bool, self_collision: bool, k
     constraints = [] if calm_scene else _stand_in_colliders(kinds | {ck.PLANE})
     scene = Scene(constraints=constraints, self_collision=SelfCollision() if self_collision else None)
     try:
-        for _ in simulate(model, scene, replace(settings, frames=1)):
+        for _ in simulate(model, scene, settings.with_frames(1)):
             pass
     except Exception:  # an optimisation only: the run reports its own errors
         return

@@ -16,7 +16,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -121,7 +121,7 @@ def _run_job(
     from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.live import RunPreview
     from meshdeform.scene.colliders import ContactStats
-    from meshdeform.simulate import Frame, converged, convergence_warning, initial_frame, simulate
+    from meshdeform.simulate import Frame, converged, convergence_warning, initial_frame, simulate, slow_steps_for
     from meshdeform.strain import VertexStrain
     from pipeline import compile_ahead
     from pipeline.build import build_simulation
@@ -146,7 +146,7 @@ def _run_job(
         compile_ahead.compile_colliders(built.scene)  # meanwhile the process compiles the solver's
     first, last = output_indices(recipe)
     if last < settings.frames:  # nothing after the last frame written is simulated
-        settings = replace(settings, frames=last)
+        settings = settings.with_frames(last)
     require_disk_space(estimate_run(recipe, mesh, model).total_bytes, Path(out_dir))  # before any frame is run
     formats = list(dict.fromkeys(recipe.output.formats or ["obj"]))
     # made now: opened on the staging folder once it exists
@@ -156,6 +156,7 @@ def _run_job(
 
     max_stretch: list[float] = []
     max_speed: list[float] = []
+    frame_substeps: list[int] = []  # the steps each frame took (`meshdeform.simulate.slow_steps_for`)
     force_residual: list[float] = []
     last_frame = None
     rest_frame: int | None = None
@@ -223,6 +224,7 @@ def _run_job(
                 sim_seconds += time.perf_counter() - tick
                 max_stretch.append(round(frame.max_stretch, 9))
                 max_speed.append(round(frame.max_speed, 9))
+                frame_substeps.append(frame.substeps)
                 force_residual.append(round(frame.force_residual, 6))
                 last_frame = frame
                 rest_frame = frame.rest_frame  # first frame of the still run that lasts to the end
@@ -276,6 +278,7 @@ def _run_job(
             "fps": settings.fps,
             "substeps": settings.substeps,
             "iterations": settings.iterations,
+            **({"frame_substeps": frame_substeps} if slow_steps_for(settings, built.scene) is not None else {}),
             "damping": settings.options.damping,
             "frames": len(max_stretch),
             "start_frame": recipe.simulation.start_frame,

@@ -45,7 +45,7 @@ def _run(model: SpringModel, self_collision: bool, frames: int, state: State | N
 @pytest.fixture(scope="module")
 def collapse() -> tuple[SpringModel, list[np.ndarray], list[np.ndarray]]:
     model = SpringModel.from_mesh(_collapsing_sheet(24), KNIT)
-    return model, _run(model, False, 24), _run(model, True, 24)
+    return model, _run(model, False, 30), _run(model, True, 30)
 
 
 def test_the_collapsing_sheet_interpenetrates_without_self_collision(collapse) -> None:
@@ -399,7 +399,7 @@ def test_every_solver_keeps_the_collapsing_sheet_free_of_intersections(solver: s
         ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 0.3, 0.01)
         contact = SelfCollision(SelfCollisionSettings(thickness=THICKNESS), [ground]) if self_collision else None
         scene = Scene(constraints=[ground], self_collision=contact)
-        frames = simulate(model, scene, Settings(solver=solver, frames=24))
+        frames = simulate(model, scene, Settings(solver=solver, frames=30))
         return max(intersecting_pairs(f.welded_positions, model.triangles) for f in frames)
 
     assert worst(False) > 0

@@ -43,6 +43,9 @@ class Control:
     #: back into the obstacle after its iterations (`_sink_pressed`); the cloth's own layers it
     #: releases in the last iteration
     self_contact: np.ndarray | None = None
+    #: iterations of this step in place of the solver's options (None: the options'); `simulate`
+    #: sets it for a frame at the solver's `slow_steps`
+    iterations: int | None = None
 
 
 class Solver(ABC):
@@ -59,6 +62,11 @@ class Solver(ABC):
         was given (`meshdeform.simulate.steps_for`); None: the defaults everywhere. A solver
         whose defaults are set by contact (implicit: a long step that stops part of the cloth
         needs more iterations than a few give) runs a calm scene in fewer, longer steps.
+    slow_steps: (substeps, iterations) per frame for the frames of a scene that is not calm in
+        which the cloth moves slowly (`meshdeform.simulate.moves_slowly`), where neither count
+        was given; the frames in which it moves fast keep the defaults (`steps_for`), which an
+        impact on an obstacle needs. None: the same steps in every frame. The solver then meets
+        steps of two lengths in one run (and `Control.iterations`).
     options_class: the options it takes (`meshdeform.solvers.options`).
     parallel_kernels: whether its steps launch Numba's parallel builds (xpbd, verlet): those
         must not be launched from two threads at once under Numba's workqueue threading layer,
@@ -73,6 +81,7 @@ class Solver(ABC):
     default_substeps: ClassVar[int]
     default_iterations: ClassVar[int] = 0
     calm_steps: ClassVar[tuple[int, int] | None] = None
+    slow_steps: ClassVar[tuple[int, int] | None] = None
     options_class: ClassVar[type[SolverOptions]]
     parallel_kernels: ClassVar[bool] = False
 

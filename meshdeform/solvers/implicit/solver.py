@@ -70,7 +70,11 @@ flickered between 1.05 and 1.7 stretch at 4 steps a frame; docs/performance.md h
 Where nothing touches the cloth (no constraint, self-collision or tearing) and neither count is
 given, 2 steps of 4 iterations run instead (`calm_steps`, `meshdeform.simulate.steps_for`): with
 the coarse steps they follow a falling, swinging sheet as closely as 8 x 3 without them did, at
-twice the speed.
+twice the speed. Where something touches the cloth, the frames in which it moves slowly take 4
+steps of 5 iterations (`slow_steps`, `meshdeform.simulate.slow_steps_for`; with the contact
+anchors below a cloth lying or draping on its obstacles holds at those): a step of another
+length than the last refactorises the matrix and starts BDF2's history afresh, as at the first
+step (its contacts stay held).
 
 Constraints (colliders, self-collision, tethers) move vertices after the step; BDF2 would
 extrapolate those vertices' former path through the correction (a landed vertex still falling
@@ -125,6 +129,7 @@ class ImplicitSolver(ModelCache, Solver):
     default_substeps: ClassVar[int] = 8
     default_iterations: ClassVar[int] = 3
     calm_steps: ClassVar[tuple[int, int] | None] = (2, 4)
+    slow_steps: ClassVar[tuple[int, int] | None] = (4, 5)
 
     @classmethod
     def calm_options(cls, options: ImplicitOptions) -> ImplicitOptions:
@@ -290,7 +295,9 @@ class ImplicitSolver(ModelCache, Solver):
     def _step(self, state: State, dt: float, control: Control, threads: int) -> None:
         """One step (the module docstring), its energy's slabs on `threads` threads."""
         self._threads = threads
-        if dt != self._dt:
+        iterations = control.iterations or self.iterations
+        new_length = dt != self._dt
+        if new_length:
             self._factorise(dt)
         x, v = state.positions, state.velocities
         accel = control.accelerations
@@ -322,6 +329,9 @@ class ImplicitSolver(ModelCache, Solver):
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
+            if new_length:  # BDF2's history is of steps of another length: start it afresh (the contacts stay)
+                self.x_prev = x - dt * v + 0.5 * dt * dt * accel
+                self.v_prev = v - dt * accel
         if self.anchors is not None and self.anchors.update(self.contact_rows) and self.factor is not None:
             self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
         # the step's start (x_n, v_n) becomes the next step's history: fresh arrays each step
@@ -335,11 +345,11 @@ class ImplicitSolver(ModelCache, Solver):
             x[self.free_vertices] = y[self.free_vertices]
         elif self.factor is not None:
             if self.options.method == "lbfgs":
-                gradient = self._quasi_newton(x, y)
+                gradient = self._quasi_newton(x, y, iterations)
                 if self.contact_rows.shape[0]:
                     self._sink_pressed(x, y, gradient)
             else:
-                self._local_global(x, y)
+                self._local_global(x, y, iterations)
         kernels.bdf2_finish(x, v, x_hat, x_n, state.previous, self.free, dt, self.x_out)
         self.x_prev = x_n
         self.v_prev = v_n
@@ -382,9 +392,9 @@ class ImplicitSolver(ModelCache, Solver):
         self.contact_impacts = np.zeros(0, dtype=np.bool_)
         self.contact_self = np.zeros(0, dtype=np.bool_)
 
-    def _local_global(self, x: np.ndarray, y: np.ndarray) -> None:
-        """Liu et al.'s iterations: project every spring, solve the prefactored system, repeat."""
-        for _ in range(self.iterations):
+    def _local_global(self, x: np.ndarray, y: np.ndarray, iterations: int) -> None:
+        """Liu et al.'s `iterations`: project every spring, solve the prefactored system, repeat."""
+        for _ in range(iterations):
             kernels.pd_rhs(
                 x, self.a, self.b, self.rest, self.weight, self.stiff_t, self.stiff_c, self.modulus,
                 self.free, self.inertia, y, self.rhs,
@@ -450,8 +460,8 @@ class ImplicitSolver(ModelCache, Solver):
             self.grad, self.trial_grad = self.trial_grad, self.grad
         return energy
 
-    def _quasi_newton(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """L-BFGS on the step's energy from x (= y on the free vertices), in place; returns the
+    def _quasi_newton(self, x: np.ndarray, y: np.ndarray, iterations: int) -> np.ndarray:
+        """`iterations` of L-BFGS on the step's energy from x (= y on the free vertices), in place; returns the
         energy's gradient (F, 3) at the x it leaves (one of the solver's buffers).
 
         The initial inverse Hessian is the prefactored matrix's inverse: one L-BFGS iteration
@@ -479,11 +489,11 @@ class ImplicitSolver(ModelCache, Solver):
         slots: list[int] = []  # history slots, newest first
         alpha = np.zeros(HISTORY)
         no_rows, no_normals = self.contact_rows[:0], self.contact_normals[:0]
-        for iteration in range(self.iterations):
+        for iteration in range(iterations):
             # contacts held while pressed (the docstring); self-collision's released in the last
             if self.contact_rows.shape[0]:
                 held = self._pressed(grad, x, y)
-                if iteration + 1 == self.iterations:
+                if iteration + 1 == iterations:
                     held &= ~self.contact_self
                 rows, normals = self.contact_rows[held], self.contact_normals[held]
             else:
@@ -514,7 +524,7 @@ class ImplicitSolver(ModelCache, Solver):
             else:  # no decrease even at the smallest step: x is as good as this direction gets
                 kernels.place(x, fv, base, direction, 0.0)
                 return grad
-            if iteration + 1 == self.iterations:
+            if iteration + 1 == iterations:
                 return trial_grad
             slot = next(k for k in range(HISTORY) if k not in slots) if len(slots) < HISTORY else slots.pop()
             curvature = kernels.lbfgs_remember(
