@@ -451,18 +451,23 @@ MARGIN_FRACTION = 0.25
 
 #: the time (s) a list of candidate pairs covers at most, rounded to whole substeps (`_Pairs`,
 #: `list_substeps`): a longer span keeps the pairs whose relative motion could close their gap
-#: within it, but sweeps wider boxes. 4 substeps of xpbd's default 22 a frame at 24 fps, 2 of
-#: implicit's 8 (docs/performance.md, "Self-collision's pair lists over a span of time" and
-#: "Edge pairs cell by cell")
+#: within it, but sweeps wider boxes. 4 substeps of xpbd's default 22 a frame at 24 fps (implicit's
+#: few steps take `LIST_MIN_SUBSTEPS`; docs/performance.md, "Self-collision's pair lists over a span
+#: of time", "Edge pairs cell by cell" and "Slow steps")
 LIST_SPAN = 8.2e-3
+#: the fewest substeps a list covers: implicit's few, long steps (8 or 4 a frame) search less
+#: often at a wider reach and gain (3 against `LIST_SPAN`'s 2 and 1: 1.05-1.3x on the contact
+#: benchmarks with self-collision), where xpbd's 22 a frame keep `LIST_SPAN`'s 4 (3 was slower)
+LIST_MIN_SUBSTEPS = 3
 #: when more than this fraction of the vertices strayed from their paths, the whole list is
 #: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone
 REGATHER_FRACTION = 0.5
 
 
 def list_substeps(dt: float) -> int:
-    """Substeps of dt (s) that a list of candidate pairs covers: `LIST_SPAN` rounded, at least 1."""
-    return max(1, round(LIST_SPAN / dt)) if dt > 0.0 else 1
+    """Substeps of dt (s) that a list of candidate pairs covers: `LIST_SPAN` rounded, at least
+    `LIST_MIN_SUBSTEPS`."""
+    return max(LIST_MIN_SUBSTEPS, round(LIST_SPAN / dt)) if dt > 0.0 else LIST_MIN_SUBSTEPS
 
 
 #: the thickness self-collision keeps is at most this fraction of the median rest edge length
