@@ -369,7 +369,7 @@ def test_check_prints_the_estimate_without_and_with_a_mesh(tmp_path: Path) -> No
 
 
 def test_check_with_a_mesh_estimates_the_steps_a_calm_run_takes(tmp_path: Path) -> None:
-    """Without colliders, self-collision or tearing the default solver takes its calm steps (2 x 4,
+    """Without colliders, self-collision or tearing the default solver takes its calm steps (2 x 3,
     `meshdeform.simulate.steps_for`), which only the built scene tells: with --mesh the estimate
     counts them; without a mesh it counts the solver's defaults (8 x 3), an upper bound."""
     recipe = tmp_path / "r.toml"
@@ -381,7 +381,7 @@ def test_check_with_a_mesh_estimates_the_steps_a_calm_run_takes(tmp_path: Path) 
     result = runner.invoke(app, ["check", str(recipe), "--mesh", str(mesh)])
     assert result.exit_code == 0, result.output
     lines = result.stdout.splitlines()
-    assert re.match(r"estimate: \d+ springs x 2 substeps x 4 iterations x 10 frames", lines[1]), lines[1]
+    assert re.match(r"estimate: \d+ springs x 2 substeps x 3 iterations x 10 frames", lines[1]), lines[1]
     assert lines[2].endswith("2 substeps"), lines[2]  # the model line says what will run
 
 

@@ -68,10 +68,12 @@ iterations each: 4 steps settle and rest as well, but under collider contact a s
 part of the cloth is too long for a few iterations to resolve (a sheet draped over a sphere
 flickered between 1.05 and 1.7 stretch at 4 steps a frame; docs/performance.md has the figures).
 Where nothing touches the cloth (no constraint, self-collision or tearing) and neither count is
-given, 2 steps of 4 iterations run instead (`calm_steps`, `meshdeform.simulate.steps_for`): with
+given, 2 steps of 3 iterations run instead (`calm_steps`, `meshdeform.simulate.steps_for`): with
 the coarse steps they follow a falling, swinging sheet as closely as 8 x 3 without them did, at
-twice the speed. Where something touches the cloth, the frames in which it moves slowly take 4
-steps of 5 iterations (`slow_steps`, `meshdeform.simulate.slow_steps_for`; with the contact
+three times the speed (4 iterations: the same path and stretch, 1.15-1.25x slower; the knit
+rests sooner, the woven default later: docs/performance.md, "Calm steps of 3 iterations").
+Where something touches the cloth, the frames in which it moves slowly take 4 steps of 5
+iterations (`slow_steps`, `meshdeform.simulate.slow_steps_for`; with the contact
 anchors below a cloth lying or draping on its obstacles holds at those): a step of another
 length than the last refactorises the matrix and starts BDF2's history afresh, as at the first
 step (its contacts stay held).
@@ -128,7 +130,7 @@ class ImplicitSolver(ModelCache, Solver):
     options_class: ClassVar[type[ImplicitOptions]] = ImplicitOptions
     default_substeps: ClassVar[int] = 8
     default_iterations: ClassVar[int] = 3
-    calm_steps: ClassVar[tuple[int, int] | None] = (2, 4)
+    calm_steps: ClassVar[tuple[int, int] | None] = (2, 3)
     slow_steps: ClassVar[tuple[int, int] | None] = (4, 5)
 
     @classmethod
