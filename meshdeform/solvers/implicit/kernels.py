@@ -7,6 +7,9 @@ import numpy as np
 
 from meshdeform.solvers.jit import FAST, JIT
 
+#: metres: a constraint's move of a vertex up to this is rounding, not a push (`constrained_rows`)
+MOVE_TOLERANCE = 1e-12
+
 
 @nb.njit(inline="always", **JIT)
 def spring_constant(stretch, stiff_t, stiff_c, modulus):  # pragma: no cover - compiled
@@ -174,15 +177,20 @@ def place(x, free_vertices, base, direction, step):  # pragma: no cover - compil
 
 
 @nb.njit(**JIT)
-def constrained_rows(x, v, x_was, v_was, free, normal, depth, moved, pushed):  # pragma: no cover - compiled
+def constrained_rows(  # pragma: no cover - compiled
+    x, v, x_was, v_was, free, speed_tolerance, normal, depth, moved, pushed
+):
     """The vertices a constraint changed since the last step, and which way it pushed them.
 
     x, v (V, 3): positions and velocities now; x_was, v_was: what the last step left. Fills
-    moved (V,) bool, the rows whose position or velocity differs, and pushed (V,) bool, the free
-    vertices (free >= 0) whose position moved; normal (V, 3) receives the unit direction of that
+    moved (V,) bool, the rows whose position moved by more than `MOVE_TOLERANCE` (m) or whose
+    velocity changed by more than `speed_tolerance` (m/s), and pushed (V,) bool, the free
+    vertices (free >= 0) whose position moved so; normal (V, 3) receives the unit direction of that
     move (x - x_was) on the pushed rows (a collider's contact normal, or the way back along a
-    crossing path) and depth (V,) its length (m). The caller's arrays: an array made in a kernel
-    costs every process with an empty compile cache the compiling of its allocator.
+    crossing path) and depth (V,) its length (m). Changes within the tolerances are rounding (a
+    constraint that projects a pair back to the distance it already has): they restart nothing.
+    The caller's arrays: an array made in a kernel costs every process with an empty compile
+    cache the compiling of its allocator.
     """
     n = x.shape[0]
     for i in range(n):
@@ -191,17 +199,21 @@ def constrained_rows(x, v, x_was, v_was, free, normal, depth, moved, pushed):  #
         dx = x[i, 0] - x_was[i, 0]
         dy = x[i, 1] - x_was[i, 1]
         dz = x[i, 2] - x_was[i, 2]
-        if dx != 0.0 or dy != 0.0 or dz != 0.0:
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if length > MOVE_TOLERANCE:
             moved[i] = True
-            length = np.sqrt(dx * dx + dy * dy + dz * dz)
-            if free[i] >= 0 and length > 1e-12:
+            if free[i] >= 0:
                 pushed[i] = True
                 depth[i] = length
                 normal[i, 0] = dx / length
                 normal[i, 1] = dy / length
                 normal[i, 2] = dz / length
-        elif v[i, 0] != v_was[i, 0] or v[i, 1] != v_was[i, 1] or v[i, 2] != v_was[i, 2]:
-            moved[i] = True
+        else:
+            du = v[i, 0] - v_was[i, 0]
+            dv = v[i, 1] - v_was[i, 1]
+            dw = v[i, 2] - v_was[i, 2]
+            if du * du + dv * dv + dw * dw > speed_tolerance * speed_tolerance:
+                moved[i] = True
 
 
 @nb.njit(**JIT)

@@ -81,7 +81,10 @@ step (its contacts stay held).
 Constraints (colliders, self-collision, tethers) move vertices after the step; BDF2 would
 extrapolate those vertices' former path through the correction (a landed vertex still falling
 in its history bounces back up), so a vertex whose position or velocity is not what the last
-step left starts its history afresh where it is, as at the first step. Contact is also taken
+step left starts its history afresh where it is, as at the first step; a change within rounding
+(`kernels.MOVE_TOLERANCE`: self-collision projects two layers closer than its thickness back to
+the distance they already have) restarts nothing, as a restart drops the air drag from the
+vertex's history and so moves it apart from its neighbours. Contact is also taken
 into the next step's L-BFGS iterations (Baraff and Witkin 1998's filtered directions, as an
 active set; `local_global` does not): a vertex the last constraints pushed is held along that
 push (the contact normal) while the forces press it into the obstacle (after an impact on a
@@ -314,7 +317,10 @@ class ImplicitSolver(ModelCache, Solver):
             # collision, tethers) start their history afresh from where they are: BDF2's
             # extrapolation of their former path would carry on through the contact
             moved, pushed = self._moved, self._pushed
-            kernels.constrained_rows(x, v, self.x_out, self.v_out, self.free, self._normal, self._depth, moved, pushed)
+            kernels.constrained_rows(
+                x, v, self.x_out, self.v_out, self.free, kernels.MOVE_TOLERANCE / dt, self._normal, self._depth, moved,
+                pushed,
+            )
             if control.pulled is not None:  # a soft pin's pull is no obstacle: never held against
                 pushed &= ~control.pulled
             if moved.any():
