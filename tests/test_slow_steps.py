@@ -93,3 +93,22 @@ def test_a_sheet_dropped_on_a_ball_lands_at_the_default_steps_and_lies_at_the_sl
         positions = data["positions"].astype(np.float64)
     assert positions[..., 1].min() > -1.5 + 0.01 - 0.001
     assert (np.linalg.norm(positions - [0.5, -1.3, 0.5], axis=-1) - 0.2).min() > 0.01 - 0.001
+
+
+def test_in_between_states_change_no_frame_of_a_run_at_slow_steps() -> None:
+    """Motion blur's in-between states (up to the slow steps' 4) are kept from the steps each
+    frame takes, slow or not: the frames are the bytes of the run without them, and each kept
+    state lies between its frame and the one before."""
+    cloth = grid_cloth(24, plane="xz")
+    scene = Scene(constraints=[_ground(-1.0)])
+    plain = list(simulate(cloth.model, scene, Settings(solver="implicit", frames=24)))
+    assert {f.substeps for f in plain} == {ImplicitSolver.slow_steps[0], Settings(solver="implicit").substeps}
+    for subframes in (2, 4):
+        scene = Scene(constraints=[_ground(-1.0)])
+        blurred = list(simulate(cloth.model, scene, Settings(solver="implicit", frames=24, subframes=subframes)))
+        previous = 0.0
+        for a, b in zip(plain, blurred, strict=True):
+            assert a.positions.tobytes() == b.positions.tobytes() and a.substeps == b.substeps
+            times = [t for t, _ in b.subframes]
+            assert len(times) == subframes - 1 and previous < min(times) and max(times) < b.time
+            previous = b.time
