@@ -323,6 +323,8 @@ class ImplicitSolver(ModelCache, Solver):
             )
             if control.pulled is not None:  # a soft pin's pull is no obstacle: never held against
                 pushed &= ~control.pulled
+            if new_length:  # BDF2's history is of steps of another length: every row starts afresh
+                moved[:] = True
             if moved.any():
                 self.x_prev[moved] = x[moved] - dt * v[moved] + 0.5 * dt * dt * accel[moved]
                 self.v_prev[moved] = v[moved] - dt * accel[moved]
@@ -337,9 +339,6 @@ class ImplicitSolver(ModelCache, Solver):
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
-            if new_length:  # BDF2's history is of steps of another length: start it afresh (the contacts stay)
-                self.x_prev = x - dt * v + 0.5 * dt * dt * accel
-                self.v_prev = v - dt * accel
         if self.anchors is not None and self.anchors.update(self.contact_rows) and self.factor is not None:
             self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
         # the step's start (x_n, v_n) becomes the next step's history: fresh arrays each step
