@@ -15,8 +15,8 @@ What: the matrix's diagonal is raised by `ANCHOR` times itself on the rows of th
 recently, so the preconditioner moves them little and their neighbours as if tied to them (an
 elastic tie, in every direction: the filter and the L-BFGS history still let a held vertex
 slide); the energy, its gradient and the filters are unchanged, so the step minimises the same
-energy, only better preconditioned. Refactorising costs a whole factorisation (cholespy offers no
-numeric-only update), so the anchored set follows the contacts loosely: a row stays anchored for
+energy, only better preconditioned. Refactorising costs a numeric factorisation (CHOLMOD's through
+cholespy a whole one), so the anchored set follows the contacts loosely: a row stays anchored for
 `ANCHOR_WINDOW` steps after it was last held, and the matrix is refactorised only when more than
 `ANCHOR_SLACK` of the held rows (and more than `ANCHOR_FLOOR` rows) are not anchored, or more than
 `ANCHOR_SLACK` of the anchored rows were not held within the window (the scenes of

@@ -26,9 +26,11 @@ gradient. (A matrix of the structural springs alone, 5 entries a row, is faster 
 few iterations then barely resist shear, and a cloth crumpling on a collider collapsed into a
 ball: docs/performance.md.) The matrix is symmetric
 positive definite (mass > 0 on every free vertex, weights > 0), so it is factorised by sparse
-Cholesky (CHOLMOD through cholespy, with its fill-reducing ordering): one triangle L instead of
-SuperLU's L and U, less memory and a faster back-substitution. Only the lower triangle of the
-matrix is passed (CSC, duplicates summed by SciPy, which leaves CHOLMOD less to convert), and
+Cholesky (`cholesky.factorise`: CHOLMOD through cholespy for small cloths, our own two-threaded
+nested-dissection factor for large ones): one triangle L instead of SuperLU's L and U, less
+memory and a faster back-substitution. Only the lower triangle of the matrix is passed (CSC,
+duplicates summed by SciPy), a new step length or anchored set refactorises on the same
+pattern, and
 nothing but the factor and (n, 3) buffers is kept (one for local/global, 2 HISTORY + 5 for
 L-BFGS: 15 MB at 65k vertices); docs/performance.md has the
 sizes. Pinned vertices are eliminated (their current positions go to the right-hand side). Then
@@ -37,9 +39,8 @@ v' = 3 / (2 dt) (x' - 4/3 x_n + 1/3 x_n-1).
 On a large cloth (`SPLIT_SPRINGS` springs or more) the step energy is summed over two slabs of
 vertices along the rest shape's longest axis and then the few springs between them, and the
 coarse Hessian over two halves of its groups; the two slabs, and the two halves, run on a thread
-each while `threads.ThreadPicker` measures two faster than one (the back-substitutions stay on one:
-cholespy holds the GIL). The split is decided by the spring count alone, so the bytes do not depend
-on the threads.
+each while `threads.ThreadPicker` measures two faster than one, and so do the large factor's two
+halves. The splits are decided by the model alone, so the bytes do not depend on the threads.
 
 Air damping: c = -ln(1 - damping) (1/s), so that velocity decays as (1 - damping) ** t as with
 every solver (`meshdeform.solvers.options`); a free vertex falls at exactly the terminal
@@ -107,7 +108,6 @@ import functools
 from dataclasses import replace
 from typing import ClassVar
 
-import cholespy
 import numpy as np
 from scipy.sparse import coo_matrix
 
@@ -116,6 +116,7 @@ from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import coarse, kernels
 from meshdeform.solvers.implicit.anchors import ContactAnchors
+from meshdeform.solvers.implicit.cholesky import CholmodFactor, SparseCholesky, factorise
 from meshdeform.solvers.layout import vertex_slabs
 from meshdeform.solvers.options import CALM_COARSE, ImplicitOptions
 from meshdeform.solvers.threads import ThreadPicker, beside, split_threads
@@ -209,6 +210,8 @@ class ImplicitSolver(ModelCache, Solver):
         )
         self._threads = 1
         self.free_mass = np.asarray(model.mass, dtype=np.float64)[self.free_vertices]
+        #: (F, 3) rest positions of the free vertices (m): the factor's ordering splits them in space
+        self.free_rest = np.asarray(model.rest_positions, dtype=np.float64)[self.free_vertices]
         self.rhs = np.zeros((self.free_vertices.shape[0], 3))
         shape = self.rhs.shape
         if self.options.method == "local_global":  # the global step's result, (F, 3)
@@ -218,7 +221,7 @@ class ImplicitSolver(ModelCache, Solver):
             self.direction, self.base, self.residual = np.zeros(shape), np.zeros(shape), np.zeros(shape)
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
             self.rho = np.zeros(HISTORY)
-        self.factor: cholespy.CholeskySolverD | None = None
+        self.factor: SparseCholesky | CholmodFactor | None = None
         #: the matrix's lower triangle as CSC (indptr, indices, values), each column's diagonal first
         self._matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: the held contacts tied down in the matrix (L-BFGS only: local/global's matrix is exact)
@@ -226,7 +229,7 @@ class ImplicitSolver(ModelCache, Solver):
         self.coarse_space: coarse.CoarseSpace | None = None
         if self.options.method == "lbfgs":
             self.coarse_space = coarse.coarse_space(
-                np.asarray(model.rest_positions, dtype=np.float64)[self.free_vertices], self.free, self.a, self.b,
+                self.free_rest, self.free, self.a, self.b,
                 kinds != SpringKind.BENDING, int(self.options.coarse or 0), halves=slab is not None,
             )
         edges = rest[kinds == SpringKind.STRUCTURAL]
@@ -270,7 +273,6 @@ class ImplicitSolver(ModelCache, Solver):
         cols = np.concatenate([diagonal, np.minimum(fa, fb)])
         vals = np.concatenate([diag, off])
         del fa, fb, off, both, diag, diagonal
-        self.factor = None  # free the old factor before building the new one
         if nf:
             lower = coo_matrix((vals, (rows, cols)), shape=(nf, nf)).tocsc()
             del rows, cols, vals
@@ -289,8 +291,12 @@ class ImplicitSolver(ModelCache, Solver):
         if self.anchors is not None and self.anchors.anchored.any():
             data = data.copy()
             data[indptr[:-1]] = self.anchors.raised_diagonal(data[indptr[:-1]])
-        self.factor = None  # free the old factor before building the new one
-        self.factor = cholespy.CholeskySolverD(indptr.shape[0] - 1, indptr, indices, data, cholespy.MatrixType.CSC)
+        if self.factor is not None and self.factor.has_pattern(indptr, indices):
+            self.factor.refactor(data)  # the ordering and symbolic analysis kept
+        else:
+            self.factor = None  # free the old factor before building the new one
+            self.factor = factorise(indptr, indices, data, self.free_rest)
+        self.factor.threads = self._threads
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         if not self._prepared(model):
@@ -300,6 +306,8 @@ class ImplicitSolver(ModelCache, Solver):
     def _step(self, state: State, dt: float, control: Control, threads: int) -> None:
         """One step (the module docstring), its energy's slabs on `threads` threads."""
         self._threads = threads
+        if self.factor is not None:
+            self.factor.threads = threads
         iterations = control.iterations or self.iterations
         new_length = dt != self._dt
         if new_length:

@@ -1,0 +1,782 @@
+"""Sparse Cholesky factorisation A = L L^T of the implicit solver's matrix (`factorise`).
+
+Below `OWN_FACTOR_ROWS` rows, CHOLMOD's simplicial factor through cholespy (`CholmodFactor`):
+its solves run on one thread about 1.8x as fast as ours. From there on our own
+(`SparseCholesky`), which runs on two threads: cholespy holds the GIL in its factorisation and
+its solves, copies every right-hand side into column-major doubles and back, and keeps no
+symbolic analysis between factorisations (CHOLMOD's supernodal factor through cvxopt solves
+slower and is GPL-3; METIS's nested dissection through pymetis takes 0.25 s on a 256 x 256
+cloth). Measurements: docs/performance.md, "A Cholesky factor of our own".
+
+The ordering is a geometric nested dissection of the matrix's graph (`_nested_dissection`):
+the rows are split at the median of the rest positions along their widest axis, the rows of
+one side that touch the other form the separator, numbered after both halves, recursively
+(George 1973; Heath and Raghavan's Cartesian nested dissection, 1995). No row of one half is
+coupled to the other, so each half is a union of whole subtrees of the elimination tree. The
+factor is the up-looking row-by-row algorithm of Davis's CSparse (`cs_chol`, "Direct Methods for
+Sparse Linear Systems", 2006, ch. 4): row k of L is a sparse triangular solve against the rows
+of its descendants. The two halves are factorised beside each other (`threads.beside`), the
+top separator's rows after them. The solves run over supernodes (runs of columns with one
+pattern, held as dense blocks): forward by columns, the updates a half makes to the separator's
+rows summed apart and subtracted after; backward by columns, each reading only its ancestors.
+Each row's arithmetic is the same whichever thread runs it, in the same order, so the factor
+and every solution are the same bytes on one thread or two.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import NamedTuple
+
+import cholespy
+import numba as nb
+import numpy as np
+from scipy.sparse import coo_matrix
+
+from meshdeform.solvers.jit import FAST, JIT
+from meshdeform.solvers.threads import beside
+
+#: matrices of at least this many rows get our own factor, smaller ones CHOLMOD's: a 96 x 96
+#: cloth (9 216 rows) ran 8 % faster with CHOLMOD's, a 128 x 128 one 5 % and a 180 x 180 one 9 %
+#: faster with ours; CHOLMOD's factor takes 10 % less memory
+OWN_FACTOR_ROWS = 20_000
+#: matrices of fewer rows are factorised and solved on one thread: below it handing work to a
+#: second thread costs about what it saves
+MIN_PARALLEL_ROWS = 5_000
+#: nested dissection stops at parts of this many rows (they keep their order along the last
+#: split's axis): 8 gave the least fill on a 256 x 256 cloth (2.77 M entries; 16: 2.81 M, 64: 3.10 M)
+LEAF_ROWS = 8
+#: relaxed supernodes (`_relaxed_supernodes`): the zeros a block may hold, as a fraction of its
+#: entries, and its most columns
+BLOCK_SLACK = 0.5
+BLOCK_WIDEST = 32
+
+
+@nb.njit(**JIT)
+def _nested_dissection(graph_ptr, graph_cols, points, leaf):  # pragma: no cover - compiled
+    """(n,) int64 elimination order of the graph (CSR, `graph_ptr`, `graph_cols`, no self
+    loops) of rows at `points` (n, 3), and the sizes of the top split's two halves (numbered
+    first, then the separator). Each part of more than `leaf` rows is sorted along its widest
+    axis (stable), cut at the median, and the rows of the side with the fewer rows touching the
+    other side become its separator."""
+    n = points.shape[0]
+    order = np.arange(n)
+    mark = np.zeros(n, dtype=np.int64)  # 4 * part number + side (1, 2; 3 separator)
+    stack = np.empty((n + 1, 2), dtype=np.int64)
+    stack[0, 0] = 0
+    stack[0, 1] = n
+    depth = 1
+    part = 0
+    halves = (n, 0)
+    sorted_rows = np.empty(n, dtype=np.int64)
+    while depth > 0:
+        depth -= 1
+        lo = stack[depth, 0]
+        hi = stack[depth, 1]
+        m = hi - lo
+        if m <= leaf:
+            continue
+        part += 1
+        axis = 0
+        width = -1.0
+        for a in range(3):
+            low = np.inf
+            high = -np.inf
+            for k in range(lo, hi):
+                c = points[order[k], a]
+                low = min(low, c)
+                high = max(high, c)
+            if high - low > width:
+                width = high - low
+                axis = a
+        coordinates = np.empty(m)
+        for k in range(m):
+            coordinates[k] = points[order[lo + k], axis]
+        ranks = np.argsort(coordinates, kind="mergesort")
+        for k in range(m):
+            v = order[lo + ranks[k]]
+            sorted_rows[k] = v
+            mark[v] = 4 * part + (1 if k < m // 2 else 2)
+        touching = np.zeros(3, dtype=np.int64)
+        for k in range(m):
+            v = sorted_rows[k]
+            own = mark[v] - 4 * part
+            for p in range(graph_ptr[v], graph_ptr[v + 1]):
+                if mark[graph_cols[p]] == 4 * part + 3 - own:
+                    touching[own] += 1
+                    break
+        cut = 1 if touching[1] <= touching[2] else 2
+        for k in range(m):
+            v = sorted_rows[k]
+            if mark[v] == 4 * part + cut:
+                for p in range(graph_ptr[v], graph_ptr[v + 1]):
+                    if mark[graph_cols[p]] == 4 * part + 3 - cut:
+                        mark[v] = 4 * part + 3
+                        break
+        at = lo
+        sizes = np.zeros(3, dtype=np.int64)
+        for side in range(1, 4):
+            start = at
+            for k in range(m):
+                v = sorted_rows[k]
+                if mark[v] == 4 * part + side:
+                    order[at] = v
+                    at += 1
+            sizes[side - 1] = at - start
+            if side < 3 and at > start:
+                stack[depth, 0] = start
+                stack[depth, 1] = at
+                depth += 1
+        if part == 1:
+            halves = (sizes[0], sizes[1])
+    return order, halves
+
+
+@nb.njit(**JIT)
+def _elimination_tree(row_ptr, row_cols):  # pragma: no cover - compiled
+    """(n,) int64 parent of each row in the elimination tree (-1 at a root) of the symmetric
+    matrix whose lower triangle has rows `row_ptr`, `row_cols` (CSR, columns <= row; Liu's
+    algorithm with path compression, CSparse's `cs_etree`)."""
+    n = row_ptr.shape[0] - 1
+    parent = np.full(n, -1, dtype=np.int64)
+    ancestor = np.full(n, -1, dtype=np.int64)
+    for k in range(n):
+        for p in range(row_ptr[k], row_ptr[k + 1]):
+            i = row_cols[p]
+            while i != -1 and i < k:
+                following = ancestor[i]
+                ancestor[i] = k
+                if following == -1:
+                    parent[i] = k
+                i = following
+    return parent
+
+
+@nb.njit(inline="always", **JIT)
+def _row_pattern(k, row_ptr, row_cols, parent, flag, stack):  # pragma: no cover - compiled
+    """The columns j < k of row k of L (CSparse's `cs_ereach`), into stack[top:n] in an order
+    where each column comes before its ancestors; returns top. flag (n,) marks the visited rows
+    with k (any earlier marks are < k)."""
+    n = stack.shape[0]
+    top = n
+    flag[k] = k
+    for p in range(row_ptr[k], row_ptr[k + 1]):
+        i = row_cols[p]
+        if i >= k:
+            continue
+        length = 0
+        while flag[i] != k:
+            stack[length] = i
+            length += 1
+            flag[i] = k
+            i = parent[i]
+        while length > 0:
+            length -= 1
+            top -= 1
+            stack[top] = stack[length]
+    return top
+
+
+@nb.njit(**JIT)
+def _column_counts(row_ptr, row_cols, parent):  # pragma: no cover - compiled
+    """(n,) int64 entries of each column of L, its diagonal included."""
+    n = row_ptr.shape[0] - 1
+    counts = np.ones(n, dtype=np.int64)
+    flag = np.full(n, -1, dtype=np.int64)
+    stack = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        top = _row_pattern(k, row_ptr, row_cols, parent, flag, stack)
+        for p in range(top, n):
+            counts[stack[p]] += 1
+    return counts
+
+
+@nb.njit(**JIT)
+def _column_rows(row_ptr, row_cols, parent, col_ptr):  # pragma: no cover - compiled
+    """(entries,) int32: the rows of each column of L (from col_ptr), ascending, its diagonal
+    first: row k is appended to the columns of its pattern as the factorisation will."""
+    n = parent.shape[0]
+    l_rows = np.empty(col_ptr[n], dtype=np.int32)
+    fill = col_ptr[:-1].copy()
+    flag = np.full(n, -1, dtype=np.int64)
+    stack = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        top = _row_pattern(k, row_ptr, row_cols, parent, flag, stack)
+        for p in range(top, n):
+            j = stack[p]
+            l_rows[fill[j]] = k
+            fill[j] += 1
+        l_rows[fill[k]] = k
+        fill[k] += 1
+    return l_rows
+
+
+@nb.njit(**FAST)
+def _factor_rows(first, last, row_ptr, row_cols, row_vals, parent, column_node, start, rows_ptr, pattern, vals_ptr,
+                 vals, fill):  # pragma: no cover - compiled
+    """Rows first .. last - 1 (each after all its descendants) of L = chol(A), up-looking
+    (CSparse's `cs_chol`), straight into the supernodes' blocks (`Supernodes`; zeroed before):
+    row k's entry in column j goes to the block position of row k, found from fill[j] (where
+    column j's entries so far end) along the block's rows; the updates read the entries before
+    it, zeros included. Returns the first row whose pivot is not positive (the matrix is not
+    positive definite there), else -1."""
+    n = parent.shape[0]
+    work = np.zeros(n)
+    flag = np.full(n, -1, dtype=np.int64)
+    stack = np.empty(n, dtype=np.int64)
+    for k in range(first, last):
+        top = _row_pattern(k, row_ptr, row_cols, parent, flag, stack)
+        diagonal = 0.0
+        for p in range(row_ptr[k], row_ptr[k + 1]):
+            j = row_cols[p]
+            if j == k:
+                diagonal = row_vals[p]
+            else:
+                work[j] = row_vals[p]
+        for p in range(top, n):
+            j = stack[p]
+            s = column_node[j]
+            c = j - start[s]
+            w = start[s + 1] - start[s]
+            at = rows_ptr[s]
+            base = vals_ptr[s]
+            value = work[j] * vals[base + c * w + c]  # the diagonal holds 1 / L_jj
+            work[j] = 0.0
+            position = fill[j]
+            while pattern[at + position] != k:
+                position += 1
+            for q in range(c + 1, position):
+                work[pattern[at + q]] -= vals[base + q * w + c] * value
+            diagonal -= value * value
+            vals[base + position * w + c] = value
+            fill[j] = position + 1
+        if not diagonal > 0.0:
+            return k
+        s = column_node[k]
+        c = k - start[s]
+        vals[vals_ptr[s] + c * (start[s + 1] - start[s]) + c] = 1.0 / np.sqrt(diagonal)
+        fill[k] = c + 1
+    return -1
+
+
+@nb.njit(**JIT)
+def _relaxed_supernodes(col_ptr, parent, owner, slack, widest):  # pragma: no cover - compiled
+    """(S + 1,) the first column of each supernode, then n. A supernode is a run of columns
+    j, j + 1, ... each the parent of the one before (so their rows below the run are the last
+    column's), of one owner (a thread's half or the separator), at most `widest` wide, grown
+    while its block (triangle included) holds at most 1 + `slack` times the entries of its
+    columns (the rest are zeros): Ashcraft and Grimes's relaxed supernodes (1989), whose wider
+    blocks the solves go through with fewer passes over the rows below."""
+    n = parent.shape[0]
+    first = np.empty(n + 1, dtype=np.int64)
+    count = 0
+    j = 0
+    while j < n:
+        j0 = j
+        entries = col_ptr[j + 1] - col_ptr[j]
+        while j + 1 < n and parent[j] == j + 1 and owner[j + 1] == owner[j0] and j + 2 - j0 <= widest:
+            width = j + 2 - j0
+            below = col_ptr[j + 2] - col_ptr[j + 1] - 1
+            if (width + below) * width > (1.0 + slack) * (entries + col_ptr[j + 2] - col_ptr[j + 1]):
+                break
+            entries += col_ptr[j + 2] - col_ptr[j + 1]
+            j += 1
+        first[count] = j0
+        count += 1
+        j += 1
+    first[count] = n
+    return first[: count + 1].copy()
+
+
+@nb.njit(inline="always", **FAST)
+def _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, ys):  # pragma: no cover - compiled
+    """L y = b in place on y (n + 2 T, 3) for the supernodes first .. last - 1: each one's
+    triangle, then its part taken from the rows below it. ys (3, widest) holds the supernode's
+    solved columns transposed (each row's sums then run over contiguous memory); supernodes of
+    1 to 3 columns, most of them, go through loops of their own with those columns in
+    registers, as CHOLMOD's simplicial solves do."""
+    y0 = ys[0]
+    y1 = ys[1]
+    y2 = ys[2]
+    for s in range(first, last):
+        j0 = start[s]
+        w = start[s + 1] - j0
+        at = rows_ptr[s]
+        h = rows_ptr[s + 1] - at
+        base = vals_ptr[s]
+        for c in range(w):
+            row_at = base + c * w
+            s0 = y[j0 + c, 0]
+            s1 = y[j0 + c, 1]
+            s2 = y[j0 + c, 2]
+            for cc in range(c):
+                v = vals[row_at + cc]
+                s0 -= v * y0[cc]
+                s1 -= v * y1[cc]
+                s2 -= v * y2[cc]
+            inverse = vals[row_at + c]
+            y0[c] = s0 * inverse
+            y1[c] = s1 * inverse
+            y2[c] = s2 * inverse
+            y[j0 + c, 0] = y0[c]
+            y[j0 + c, 1] = y1[c]
+            y[j0 + c, 2] = y2[c]
+        if w == 1:
+            a0, a1, a2 = y0[0], y1[0], y2[0]
+            for pos in range(1, h):
+                i = rows[at + pos]
+                v = vals[base + pos]
+                y[i, 0] -= v * a0
+                y[i, 1] -= v * a1
+                y[i, 2] -= v * a2
+        elif w == 2:
+            a0, a1, a2 = y0[0], y1[0], y2[0]
+            b0, b1, b2 = y0[1], y1[1], y2[1]
+            for pos in range(2, h):
+                i = rows[at + pos]
+                row_at = base + 2 * pos
+                v = vals[row_at]
+                u = vals[row_at + 1]
+                y[i, 0] -= v * a0 + u * b0
+                y[i, 1] -= v * a1 + u * b1
+                y[i, 2] -= v * a2 + u * b2
+        elif w == 3:
+            a0, a1, a2 = y0[0], y1[0], y2[0]
+            b0, b1, b2 = y0[1], y1[1], y2[1]
+            c0, c1, c2 = y0[2], y1[2], y2[2]
+            for pos in range(3, h):
+                i = rows[at + pos]
+                row_at = base + 3 * pos
+                v = vals[row_at]
+                u = vals[row_at + 1]
+                t = vals[row_at + 2]
+                y[i, 0] -= v * a0 + u * b0 + t * c0
+                y[i, 1] -= v * a1 + u * b1 + t * c1
+                y[i, 2] -= v * a2 + u * b2 + t * c2
+        else:
+            for pos in range(w, h):
+                row_at = base + pos * w
+                t0 = 0.0
+                t1 = 0.0
+                t2 = 0.0
+                for c in range(w):
+                    v = vals[row_at + c]
+                    t0 += v * y0[c]
+                    t1 += v * y1[c]
+                    t2 += v * y2[c]
+                i = rows[at + pos]
+                y[i, 0] -= t0
+                y[i, 1] -= t1
+                y[i, 2] -= t2
+
+
+@nb.njit(inline="always", **FAST)
+def _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, xs, zs):  # pragma: no cover - compiled
+    """L^T x = y in place on x (n + 2 T, 3) for the supernodes last - 1 down to first (each after
+    every ancestor): each one's sums over the rows below it (read only) into zs (3, widest),
+    then its triangle, its solved columns kept transposed in xs (3, widest); 1 to 3 columns
+    in registers, as in `_forward`."""
+    x0 = xs[0]
+    x1 = xs[1]
+    x2 = xs[2]
+    z0 = zs[0]
+    z1 = zs[1]
+    z2 = zs[2]
+    for s in range(last - 1, first - 1, -1):
+        j0 = start[s]
+        w = start[s + 1] - j0
+        at = rows_ptr[s]
+        h = rows_ptr[s + 1] - at
+        base = vals_ptr[s]
+        if w == 1:
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            for pos in range(1, h):
+                i = rows[at + pos]
+                v = vals[base + pos]
+                a0 += v * x[i, 0]
+                a1 += v * x[i, 1]
+                a2 += v * x[i, 2]
+            z0[0], z1[0], z2[0] = a0, a1, a2
+        elif w == 2:
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            b0 = 0.0
+            b1 = 0.0
+            b2 = 0.0
+            for pos in range(2, h):
+                i = rows[at + pos]
+                row_at = base + 2 * pos
+                v = vals[row_at]
+                u = vals[row_at + 1]
+                e0 = x[i, 0]
+                e1 = x[i, 1]
+                e2 = x[i, 2]
+                a0 += v * e0
+                a1 += v * e1
+                a2 += v * e2
+                b0 += u * e0
+                b1 += u * e1
+                b2 += u * e2
+            z0[0], z1[0], z2[0] = a0, a1, a2
+            z0[1], z1[1], z2[1] = b0, b1, b2
+        elif w == 3:
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            b0 = 0.0
+            b1 = 0.0
+            b2 = 0.0
+            c0 = 0.0
+            c1 = 0.0
+            c2 = 0.0
+            for pos in range(3, h):
+                i = rows[at + pos]
+                row_at = base + 3 * pos
+                v = vals[row_at]
+                u = vals[row_at + 1]
+                t = vals[row_at + 2]
+                e0 = x[i, 0]
+                e1 = x[i, 1]
+                e2 = x[i, 2]
+                a0 += v * e0
+                a1 += v * e1
+                a2 += v * e2
+                b0 += u * e0
+                b1 += u * e1
+                b2 += u * e2
+                c0 += t * e0
+                c1 += t * e1
+                c2 += t * e2
+            z0[0], z1[0], z2[0] = a0, a1, a2
+            z0[1], z1[1], z2[1] = b0, b1, b2
+            z0[2], z1[2], z2[2] = c0, c1, c2
+        else:
+            for c in range(w):
+                z0[c] = 0.0
+                z1[c] = 0.0
+                z2[c] = 0.0
+            for pos in range(w, h):
+                i = rows[at + pos]
+                e0 = x[i, 0]
+                e1 = x[i, 1]
+                e2 = x[i, 2]
+                row_at = base + pos * w
+                for c in range(w):
+                    v = vals[row_at + c]
+                    z0[c] += v * e0
+                    z1[c] += v * e1
+                    z2[c] += v * e2
+        for c in range(w - 1, -1, -1):
+            s0 = x[j0 + c, 0] - z0[c]
+            s1 = x[j0 + c, 1] - z1[c]
+            s2 = x[j0 + c, 2] - z2[c]
+            for cc in range(c + 1, w):
+                v = vals[base + cc * w + c]
+                s0 -= v * x0[cc]
+                s1 -= v * x1[cc]
+                s2 -= v * x2[cc]
+            inverse = vals[base + c * w + c]
+            x0[c] = s0 * inverse
+            x1[c] = s1 * inverse
+            x2[c] = s2 * inverse
+            x[j0 + c, 0] = x0[c]
+            x[j0 + c, 1] = x1[c]
+            x[j0 + c, 2] = x2[c]
+
+
+@nb.njit(**FAST)
+def _forward_share(first, last, start, rows_ptr, rows, vals_ptr, vals, y, widest):  # pragma: no cover - compiled
+    """`_forward` over one thread's share of supernodes."""
+    _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, np.empty((3, widest)))
+
+
+@nb.njit(**FAST)
+def _backward_share(first, last, start, rows_ptr, rows, vals_ptr, vals, x, widest):  # pragma: no cover - compiled
+    """`_backward` over one thread's share of supernodes."""
+    _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, np.empty((3, widest)), np.empty((3, widest)))
+
+
+@nb.njit(**FAST)
+def _separator_solves(top_rows, first, start, rows_ptr, rows, vals_ptr, vals, y, widest):  # pragma: no cover
+    """Between the threads' forward and backward passes, on y (n + 2 T, 3): each half's updates
+    of the T separator rows (rows n .. n + T - 1, then the next T: minus its sums, from zero)
+    added to those rows in the same order whatever the threads; the separator's supernodes
+    (first to the last) forward and backward; the solved separator rows copied to both halves'
+    rows for their backward pass."""
+    n = y.shape[0] - 2 * top_rows.shape[0]
+    count = top_rows.shape[0]
+    for half in range(2):
+        for k in range(count):
+            i = top_rows[k]
+            y[i, 0] += y[n + half * count + k, 0]
+            y[i, 1] += y[n + half * count + k, 1]
+            y[i, 2] += y[n + half * count + k, 2]
+    last = start.shape[0] - 1
+    scratch = np.empty((3, widest))
+    _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, scratch)
+    _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, scratch, np.empty((3, widest)))
+    for half in range(2):
+        for k in range(count):
+            i = top_rows[k]
+            y[n + half * count + k, 0] = y[i, 0]
+            y[n + half * count + k, 1] = y[i, 1]
+            y[n + half * count + k, 2] = y[i, 2]
+
+
+@nb.njit(**FAST)
+def _solve_whole(b, order, start, rows_ptr, rows, vals_ptr, vals, widest, work, x):  # pragma: no cover - compiled
+    """The whole solve on one thread in one call (a small matrix: every supernode in one share,
+    no separator): b (n, 3) permuted into work, forward, backward, back into x."""
+    for k in range(order.shape[0]):
+        i = order[k]
+        work[k, 0] = b[i, 0]
+        work[k, 1] = b[i, 1]
+        work[k, 2] = b[i, 2]
+    last = start.shape[0] - 1
+    scratch = np.empty((3, widest))
+    _forward(0, last, start, rows_ptr, rows, vals_ptr, vals, work, scratch)
+    _backward(0, last, start, rows_ptr, rows, vals_ptr, vals, work, scratch, np.empty((3, widest)))
+    for k in range(order.shape[0]):
+        i = order[k]
+        x[i, 0] = work[k, 0]
+        x[i, 1] = work[k, 1]
+        x[i, 2] = work[k, 2]
+
+
+@nb.njit(**FAST)
+def _permute_in(b, order, out):  # pragma: no cover - compiled
+    """out[k] = b[order[k]] for (n, 3) arrays."""
+    for k in range(order.shape[0]):
+        i = order[k]
+        out[k, 0] = b[i, 0]
+        out[k, 1] = b[i, 1]
+        out[k, 2] = b[i, 2]
+
+
+@nb.njit(**FAST)
+def _permute_out(work, order, x):  # pragma: no cover - compiled
+    """x[order[k]] = work[k] for (n, 3) arrays."""
+    for k in range(order.shape[0]):
+        i = order[k]
+        x[i, 0] = work[k, 0]
+        x[i, 1] = work[k, 1]
+        x[i, 2] = work[k, 2]
+
+
+class Supernodes(NamedTuple):
+    """L's supernodes: S runs of columns (`start` (S + 1,): the first of each, then n) that share
+    one pattern of rows, held as dense h x w blocks, row-major (`vals` from `vals_ptr` (S + 1,)),
+    zeros where a column has no entry, 1 / L_jj on the diagonal. `rows` (R,) int32, from
+    `rows_ptr` (S + 1,): each block's rows in the solves' work array (n + 2 T rows: a half's rows
+    in the T separator rows are its own copies, n + T k + slot); `pattern`: the same rows in L.
+    `shares`: the supernodes (first, last + 1) of each thread's half and of the separator, in
+    that order; `widest`: the widest supernode's columns. (float32 blocks solved 3 % faster but
+    broke free fall's exactness.)"""
+
+    start: np.ndarray
+    rows_ptr: np.ndarray
+    rows: np.ndarray
+    pattern: np.ndarray
+    vals_ptr: np.ndarray
+    vals: np.ndarray
+    shares: tuple[tuple[int, int], tuple[int, int], tuple[int, int]]
+    widest: int
+
+
+class SparseCholesky:
+    """A = L L^T of a symmetric positive definite (n, n) matrix given by its lower triangle in
+    CSC (`indptr` (n + 1,), `indices`, `data`: each column's rows ascending, diagonal first), its
+    rows at `points` (n, 3) (rest positions, m: the ordering's geometry), and solves of A x = b
+    for (n, 3) right-hand sides (`solve`). `refactor` takes new values on the same pattern and
+    keeps the ordering and the symbolic analysis.
+
+    threads: 1 or 2 (`beside`), settable between calls; the results are the same bytes either way.
+    """
+
+    def __init__(
+        self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray, threads: int = 2
+    ) -> None:
+        n = indptr.shape[0] - 1
+        self.size = n
+        self.threads = threads
+        indptr = np.asarray(indptr, dtype=np.int64)
+        indices = np.asarray(indices, dtype=np.int64)
+        self._indptr, self._indices = indptr, indices
+        columns = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
+        off = indices != columns
+        a, b = indices[off], columns[off]
+        graph = coo_matrix(
+            (np.ones(2 * a.shape[0], dtype=np.int8), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)
+        ).tocsr()
+        self.order, halves = _nested_dissection(
+            graph.indptr.astype(np.int64), graph.indices.astype(np.int64),
+            np.ascontiguousarray(points, dtype=np.float64), LEAF_ROWS,
+        )
+        rank = np.empty(n, dtype=np.int64)
+        rank[self.order] = np.arange(n, dtype=np.int64)
+        # the permuted matrix's lower triangle by rows; `_value_source` maps each of its entries to `data`
+        pi, pj = rank[indices], rank[columns]
+        entry = np.arange(indices.shape[0], dtype=np.float64)
+        permuted = coo_matrix((entry + 1.0, (np.maximum(pi, pj), np.minimum(pi, pj))), shape=(n, n)).tocsr()
+        permuted.sort_indices()
+        self._row_ptr = permuted.indptr.astype(np.int64)
+        self._row_cols = permuted.indices.astype(np.int64)
+        self._value_source = (permuted.data - 1.0).astype(np.int64)
+        self._parent = _elimination_tree(self._row_ptr, self._row_cols)
+        counts = _column_counts(self._row_ptr, self._row_cols, self._parent)
+        col_ptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(counts, out=col_ptr[1:])
+        #: entries of L (its lower triangle, diagonal included)
+        self.entries = int(col_ptr[-1])
+        # the threads' shares of rows: the top split's halves (whole subtrees each), then its separator
+        first, second = (int(h) for h in halves)
+        if n < MIN_PARALLEL_ROWS or not (first and second):
+            first, second = n, 0
+        self._row_shares = ((0, first), (first, first + second), (first + second, n))
+        self._separator_rows = np.arange(first + second, n, dtype=np.int64)
+        self._supernodes = self._supernode_structure(col_ptr, _column_rows(self._row_ptr, self._row_cols,
+                                                                         self._parent, col_ptr))
+        self._column_node = np.repeat(
+            np.arange(self._supernodes.start.shape[0] - 1, dtype=np.int64), np.diff(self._supernodes.start)
+        )
+        self._work = np.empty((n + 2 * (n - first - second), 3))  # (n + 2 T, 3): `Supernodes`
+        self.refactor(data)
+
+    def has_pattern(self, indptr: np.ndarray, indices: np.ndarray) -> bool:
+        """Whether a matrix of this lower-triangle pattern (CSC) is the factorised one's."""
+        return np.array_equal(indptr, self._indptr) and np.array_equal(indices, self._indices)
+
+    def refactor(self, data: np.ndarray) -> None:
+        """Factorise the matrix of the same pattern with values `data` (as the constructor's)."""
+        row_vals = np.asarray(data, dtype=np.float64)[self._value_source]
+        nodes = self._supernodes
+        nodes.vals[:] = 0.0
+        fill = np.arange(self.size, dtype=np.int64) - nodes.start[self._column_node]  # each diagonal's position
+
+        def rows(share: int) -> int:
+            low, high = self._row_shares[share]
+            return _factor_rows(
+                low, high, self._row_ptr, self._row_cols, row_vals, self._parent, self._column_node, nodes.start,
+                nodes.rows_ptr, nodes.pattern, nodes.vals_ptr, nodes.vals, fill,
+            )
+
+        failed = self._in_two(functools.partial(rows, 0), functools.partial(rows, 1))
+        failed.append(rows(2))
+        bad = [k for k in failed if k is not None and k >= 0]
+        if bad:
+            raise ValueError(f"the implicit solver's matrix is not positive definite (row {int(self.order[min(bad)])})")
+
+    def _supernode_structure(self, col_ptr: np.ndarray, l_rows: np.ndarray) -> Supernodes:
+        """L's relaxed supernodes (`_relaxed_supernodes`), cut where the threads' shares change,
+        from the pattern of L: its columns' rows `l_rows` from `col_ptr` (n + 1,)."""
+        n = self.size
+        owner = np.full(n, 2, dtype=np.int64)
+        for side in (0, 1):
+            owner[slice(*self._row_shares[side])] = side
+        start = _relaxed_supernodes(col_ptr, self._parent, owner, BLOCK_SLACK, BLOCK_WIDEST)
+        first_columns, last_columns = start[:-1], start[1:] - 1
+        widths = start[1:] - first_columns
+        below = np.diff(col_ptr)[last_columns] - 1  # the last column's rows under its diagonal
+        heights = widths + below
+        rows_ptr = np.zeros(heights.shape[0] + 1, dtype=np.int64)
+        np.cumsum(heights, out=rows_ptr[1:])
+        # each supernode's rows: its own columns, then the last column's rows below its diagonal
+        offset = np.arange(rows_ptr[-1]) - np.repeat(rows_ptr[:-1], heights)
+        node = np.repeat(np.arange(heights.shape[0]), heights)
+        own = offset < widths[node]
+        rows = np.where(
+            own, first_columns[node] + offset,
+            l_rows[np.minimum(col_ptr[last_columns[node]] + 1 + offset - widths[node], self.entries - 1)],
+        ).astype(np.int32)
+        vals_ptr = np.zeros(heights.shape[0] + 1, dtype=np.int64)
+        np.cumsum(heights * widths, out=vals_ptr[1:])
+        # a half's supernodes write their sums for the separator's rows into rows of their own
+        # (n + T k + slot, k the half) and read the solved separator there in the backward pass
+        low, high = self._row_shares[2]
+        slot = np.full(n, -1, dtype=np.int64)
+        slot[low:high] = np.arange(high - low, dtype=np.int64)
+        row_owner = np.repeat(owner[first_columns], heights)
+        private = (slot[rows] >= 0) & (row_owner < 2)
+        node_owner = owner[first_columns]
+        return Supernodes(
+            start=start,
+            rows_ptr=rows_ptr,
+            rows=np.where(private, n + row_owner * (high - low) + slot[rows], rows).astype(np.int32),
+            pattern=rows,
+            vals_ptr=vals_ptr,
+            vals=np.zeros(int(vals_ptr[-1])),
+            shares=tuple((int(np.searchsorted(node_owner, side)), int(np.searchsorted(node_owner, side, "right")))
+                         for side in (0, 1, 2)),
+            widest=int(widths.max()) if widths.shape[0] else 1,
+        )
+
+    def _in_two(self, first: Callable[[], int | None], second: Callable[[], int | None]) -> list[int | None]:
+        """[first(), second()]: beside each other on two threads where both shares hold rows."""
+        (low, middle), (_, high), _ = self._row_shares
+        if self.threads >= 2 and low < middle < high:
+            return list(beside(first, second))
+        return [first(), second()]
+
+    def solve(self, b: np.ndarray, x: np.ndarray) -> None:
+        """x (n, 3) = A^-1 b (n, 3); x and b may be the same array."""
+        nodes, work = self._supernodes, self._work
+        structure = (nodes.start, nodes.rows_ptr, nodes.rows, nodes.vals_ptr, nodes.vals)
+        (first, middle), (_, top), _ = nodes.shares
+        if middle == top == nodes.start.shape[0] - 1:  # one share: no separator
+            _solve_whole(b, self.order, *structure, nodes.widest, work, x)
+            return
+        _permute_in(b, self.order, work)
+        work[self.size :] = 0.0
+        self._in_two(
+            functools.partial(_forward_share, first, middle, *structure, work, nodes.widest),
+            functools.partial(_forward_share, middle, top, *structure, work, nodes.widest),
+        )
+        _separator_solves(self._separator_rows, top, *structure, work, nodes.widest)
+        self._in_two(
+            functools.partial(_backward_share, first, middle, *structure, work, nodes.widest),
+            functools.partial(_backward_share, middle, top, *structure, work, nodes.widest),
+        )
+        _permute_out(work, self.order, x)
+
+
+class CholmodFactor:
+    """CHOLMOD's simplicial factor through cholespy, with `SparseCholesky`'s interface: the
+    lower triangle in CSC (`indptr` int32 (n + 1,), `indices` int32, `data`). `threads` is
+    accepted and unused (cholespy runs on one); `refactor` factorises anew."""
+
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> None:
+        self.threads = 1
+        self._indptr = np.asarray(indptr, dtype=np.int32)
+        self._indices = np.asarray(indices, dtype=np.int32)
+        self.refactor(data)
+
+    def has_pattern(self, indptr: np.ndarray, indices: np.ndarray) -> bool:
+        """Whether a matrix of this lower-triangle pattern (CSC) is the factorised one's."""
+        return np.array_equal(indptr, self._indptr) and np.array_equal(indices, self._indices)
+
+    def refactor(self, data: np.ndarray) -> None:
+        """Factorise the matrix of the same pattern with values `data`."""
+        self._factor = None  # free the old factor before building the new one
+        self._factor = cholespy.CholeskySolverD(
+            self._indptr.shape[0] - 1, self._indptr, self._indices, np.asarray(data, dtype=np.float64),
+            cholespy.MatrixType.CSC,
+        )
+
+    def solve(self, b: np.ndarray, x: np.ndarray) -> None:
+        """x (n, 3) = A^-1 b (n, 3)."""
+        self._factor.solve(b, x)
+
+
+def factorise(
+    indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray
+) -> SparseCholesky | CholmodFactor:
+    """The factor of the SPD matrix whose lower triangle is `indptr`, `indices`, `data` (CSC,
+    each column's diagonal first), its rows at `points` (n, 3): CHOLMOD's below
+    `OWN_FACTOR_ROWS` rows, ours from there on (the module docstring)."""
+    if indptr.shape[0] - 1 < OWN_FACTOR_ROWS:
+        return CholmodFactor(indptr, indices, data)
+    return SparseCholesky(indptr, indices, data, points)
