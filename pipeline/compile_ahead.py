@@ -30,10 +30,16 @@ helper has compiled by then (its files are written whole and renamed into place)
 can help: self-collision or colliders whose kernels are in neither this process nor the cache, two
 cores and two Numba threads for this job (a batch of as many jobs as cores gives each one). The job
 stops the helper when it ends.
+
+A large run's own kernels (`Solver.large_kernels`: implicit's Cholesky factor of its own from
+20 000 vertices, about 3 s to compile) are reached by the first step before anything else: the
+`start` thread compiles them first, and where they are not cached the helper process is started
+for the solver's step kernels meanwhile.
 """
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 import threading
@@ -62,6 +68,7 @@ from meshdeform.scene.colliders import (
 )
 from meshdeform.simulate import Settings, calm, simulate
 from meshdeform.solvers import solver_class
+from meshdeform.solvers.base import LargeKernels
 from meshdeform.solvers.dispatch import HOST, available
 
 __all__ = ["compile_colliders", "start", "start_compiler", "stop_compiler"]
@@ -86,16 +93,30 @@ def start(settings: Settings, scene: Scene, vertices: int) -> threading.Thread |
     """A started background thread stepping the stand-in for `settings` and `scene` of a run of
     `vertices` (welded) vertices (join it before the process ends, so that Numba's cache files
     are complete), or None for a solver with parallel builds or a run under `MIN_VERTICES`."""
-    if solver_class(settings.solver).parallel_kernels or vertices < MIN_VERTICES:
+    solver = solver_class(settings.solver)
+    if solver.parallel_kernels or vertices < MIN_VERTICES:
         return None
+    large = solver.large_kernels(vertices)
     thread = threading.Thread(
-        target=_step_stand_in,
-        args=(settings, calm(scene), scene.self_collision is not None, collider_kinds(scene.constraints)),
+        target=_compile_ahead,
+        args=(settings, calm(scene), scene.self_collision is not None, collider_kinds(scene.constraints), large),
         name="meshdeform-compile-ahead",
         daemon=True,
     )
     thread.start()
     return thread
+
+
+def _compile_ahead(
+    settings: Settings, calm_scene: bool, self_collision: bool, kinds: frozenset[int], large: LargeKernels | None
+) -> None:
+    """The background thread's work: the solver's kernels for a large run first (`large`, which
+    the run's first step reaches before the kernels the stand-in's steps compile), then one
+    frame of the stand-in (`_step_stand_in`)."""
+    if large is not None:
+        with contextlib.suppress(Exception):  # an optimisation only: the run reports its own errors
+            large.compile()
+    _step_stand_in(settings, calm_scene, self_collision, kinds)
 
 
 def _step_stand_in(settings: Settings, calm_scene: bool, self_collision: bool, kinds: frozenset[int]) -> None:
@@ -124,16 +145,19 @@ def _stand_in_colliders(kinds: frozenset[int]) -> list[Collider]:
     ]
 
 
-def start_compiler(settings: Settings, scene: Scene) -> subprocess.Popen[bytes] | None:
+def start_compiler(settings: Settings, scene: Scene, vertices: int) -> subprocess.Popen[bytes] | None:
     """A started process compiling kernels into Numba's disk cache for a run of `settings` and
-    `scene` (module docstring): self-collision's where it is on and they are not cached, and the
-    solver's where the run's colliders' contact build is not cached either (this process then
-    compiles that build first: `compile_colliders`); None where it cannot help. Stop it with
-    `stop_compiler` when the job ends."""
+    `scene` on `vertices` vertices (module docstring): self-collision's where it is on and they
+    are not cached, and the solver's where the run's colliders' contact build is not cached
+    either (this process then compiles that build first: `compile_colliders`), or the large
+    run's kernels (`Solver.large_kernels`) are not (the `start` thread compiles those first);
+    None where it cannot help. Stop it with `stop_compiler` when the job ends."""
     kinds = collider_kinds(scene.constraints)
     self_collision = scene.self_collision is not None and not available(self_kernels.vf_candidates)
     colliders = not all(available(ck.contact_kernel(kind, kinds)) for kind in kinds)
-    if not (self_collision or colliders) or numba.get_num_threads() < 2 or HOST.cores() < 2:
+    large = solver_class(settings.solver).large_kernels(vertices)
+    large_uncached = large is not None and vertices >= MIN_VERTICES and not large.cached()
+    if not (self_collision or colliders or large_uncached) or numba.get_num_threads() < 2 or HOST.cores() < 2:
         return None
     # started where this process found the package, whose folder then comes first on the child's
     # `sys.path` (`python -m` puts its working folder there): the same code as this process runs

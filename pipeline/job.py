@@ -140,7 +140,7 @@ def _run_job(
     thread = compile_ahead.start(settings, built.scene, model.vertex_count)
     if thread is not None:
         ahead.append(thread)
-    compiler = compile_ahead.start_compiler(settings, built.scene)
+    compiler = compile_ahead.start_compiler(settings, built.scene, model.vertex_count)
     if compiler is not None:
         ahead.append(compiler)
         compile_ahead.compile_colliders(built.scene)  # meanwhile the process compiles the solver's

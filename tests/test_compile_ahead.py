@@ -12,6 +12,7 @@ from meshdeform.scene import Scene
 from meshdeform.scene.colliders import Collider, Plane
 from meshdeform.simulate import Settings, simulate
 from meshdeform.solvers import SOLVERS, solver_class
+from meshdeform.solvers.implicit import cholesky
 from pipeline import compile_ahead
 
 
@@ -59,6 +60,29 @@ def test_a_job_that_fails_after_starting_the_stand_in_waits_for_it(tmp_path, mon
     assert not [t for t in threading.enumerate() if t.name == "meshdeform-compile-ahead"]
 
 
+@pytest.mark.parametrize("vertices", [256 * 256, cholesky.OWN_FACTOR_ROWS - 1])
+def test_a_large_implicit_run_s_thread_compiles_its_factor_s_kernels_first(vertices: int, monkeypatch) -> None:
+    """From `cholesky.OWN_FACTOR_ROWS` vertices the implicit solver factorises with its own
+    Cholesky factor, whose kernels the run's first step reaches first: the thread compiles them
+    before its stand-in's frame; below, not at all."""
+    calls: list[str] = []
+    monkeypatch.setattr(cholesky, "compile_kernels", lambda: calls.append("factor"))
+    stepped = compile_ahead._step_stand_in
+    monkeypatch.setattr(compile_ahead, "_step_stand_in", lambda *args: (calls.append("stand-in"), stepped(*args)))
+    thread = compile_ahead.start(Settings(solver="implicit", frames=1), Scene(), vertices)
+    assert thread is not None
+    thread.join()
+    assert calls == (["factor", "stand-in"] if vertices >= cholesky.OWN_FACTOR_ROWS else ["stand-in"])
+
+
+def test_the_factor_s_kernels_compile_on_a_split_matrix() -> None:
+    """`cholesky.compile_kernels` runs every kernel `kernels_cached` asks the cache for, the
+    separator's included (its 6 x 6 grid is split in two halves and a separator)."""
+    cholesky.compile_kernels()
+    assert all(kernel.signatures for kernel in cholesky.KERNELS)
+    assert cholesky.kernels_cached()
+
+
 def test_the_stand_in_s_distant_shapes_are_of_the_kind_they_stand_in_for() -> None:
     """Each collider kind but the plane has a shape far above the stand-in, of that kind: the
     stand-in's ground then runs in the contact pipeline the run's colliders compile."""
@@ -85,19 +109,28 @@ def test_a_compiler_process_starts_only_where_it_can_help(monkeypatch) -> None:
     monkeypatch.setattr(compile_ahead, "available", lambda kernel: False)
     monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 2.0)
     monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
-    assert compile_ahead.start_compiler(Settings(), Scene()) is None  # neither self-collision nor colliders
-    process = compile_ahead.start_compiler(Settings(), Scene(constraints=[Collider(Plane((0, 0, 0), (0, 1, 0)))]))
+    assert compile_ahead.start_compiler(Settings(), Scene(), 100) is None  # neither self-collision nor colliders
+    # a large implicit run whose own factor's kernels are not cached: the helper compiles the
+    # step's kernels while this process's thread compiles the factor's (`start`)
+    monkeypatch.setattr(cholesky, "kernels_cached", lambda: False)
+    process = compile_ahead.start_compiler(Settings(solver="implicit"), Scene(), 256 * 256)
+    assert process is not None
+    compile_ahead.stop_compiler(process)
+    assert compile_ahead.start_compiler(Settings(solver="implicit"), Scene(), cholesky.OWN_FACTOR_ROWS - 1) is None
+    monkeypatch.setattr(cholesky, "kernels_cached", lambda: True)
+    assert compile_ahead.start_compiler(Settings(solver="implicit"), Scene(), 256 * 256) is None
+    process = compile_ahead.start_compiler(Settings(), Scene(constraints=[Collider(Plane((0, 0, 0), (0, 1, 0)))]), 100)
     assert process is not None  # the solver's kernels, while this process compiles the ground's
     compile_ahead.stop_compiler(process)
     assert process.poll() is not None
     monkeypatch.setattr(numba, "get_num_threads", lambda: 1)  # a batch job's share: one core
-    assert compile_ahead.start_compiler(Settings(), _self_collision_scene()) is None
+    assert compile_ahead.start_compiler(Settings(), _self_collision_scene(), 100) is None
     monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
     monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 1.0)
-    assert compile_ahead.start_compiler(Settings(), _self_collision_scene()) is None
+    assert compile_ahead.start_compiler(Settings(), _self_collision_scene(), 100) is None
     monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 2.0)
     monkeypatch.setattr(compile_ahead, "available", lambda kernel: True)  # a warm cache
-    assert compile_ahead.start_compiler(Settings(), _self_collision_scene()) is None
+    assert compile_ahead.start_compiler(Settings(), _self_collision_scene(), 100) is None
 
 
 def test_the_compiler_process_fills_an_empty_cache_with_self_collision_s_kernels(tmp_path, monkeypatch) -> None:
@@ -110,7 +143,7 @@ def test_the_compiler_process_fills_an_empty_cache_with_self_collision_s_kernels
     monkeypatch.setattr(compile_ahead, "available", lambda kernel: False)
     monkeypatch.setattr(compile_ahead.HOST, "cores", lambda: 2.0)
     monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
-    process = compile_ahead.start_compiler(Settings(), _self_collision_scene())
+    process = compile_ahead.start_compiler(Settings(), _self_collision_scene(), 100)
     assert process is not None
     assert process.wait(timeout=300) == 0
     written = {path.name.rsplit("-", 1)[0] for path in cache.rglob("*.nbi")}  # "module.function-line.py311.nbi"
@@ -128,7 +161,7 @@ def test_a_job_stops_a_compiler_process_still_running(tmp_path, monkeypatch) -> 
 
     started: list[subprocess.Popen[bytes]] = []
 
-    def sleeper(settings, scene) -> subprocess.Popen[bytes]:
+    def sleeper(settings, scene, vertices) -> subprocess.Popen[bytes]:
         process = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
         started.append(process)
         return process

@@ -14,13 +14,22 @@ Each solver takes its own options (`Solver.options_class`, see `meshdeform.solve
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from meshdeform.model import SpringModel, State
 from meshdeform.solvers.options import SolverOptions
+
+
+class LargeKernels(NamedTuple):
+    """Kernels a large run compiles beyond those of a small cloth's step (`Solver.large_kernels`):
+    `compile()` compiles (or loads) them, `cached()` says whether Numba's disk cache holds them."""
+
+    compile: Callable[[], None]
+    cached: Callable[[], bool]
 
 
 @dataclass
@@ -99,6 +108,13 @@ class Solver(ABC):
         solver whose step runs many steps of its own between the constraints (the explicit
         ones) asks for more: constraints act only between substeps."""
         return 0
+
+    @classmethod
+    def large_kernels(cls, vertices: int) -> LargeKernels | None:
+        """The kernels a run of `vertices` vertices compiles beyond those a small cloth's step does
+        (the compile-ahead stand-in's, `pipeline.compile_ahead`), None where there are none (this
+        default)."""
+        return None
 
     @classmethod
     def calm_options(cls, options: SolverOptions) -> SolverOptions:

@@ -34,6 +34,7 @@ import numba as nb
 import numpy as np
 from scipy.sparse import coo_matrix
 
+from meshdeform.solvers.dispatch import available
 from meshdeform.solvers.jit import FAST, JIT
 from meshdeform.solvers.threads import beside
 
@@ -54,22 +55,23 @@ BLOCK_WIDEST = 32
 
 
 @nb.njit(**JIT)
-def _nested_dissection(graph_ptr, graph_cols, points, leaf):  # pragma: no cover - compiled
-    """(n,) int64 elimination order of the graph (CSR, `graph_ptr`, `graph_cols`, no self
-    loops) of rows at `points` (n, 3), and the sizes of the top split's two halves (numbered
-    first, then the separator). Each part of more than `leaf` rows is sorted along its widest
-    axis (stable), cut at the median, and the rows of the side with the fewer rows touching the
-    other side become its separator."""
+def _nested_dissection(graph_ptr, graph_cols, points, lists, leaf, mark, buffer, stack):  # pragma: no cover
+    """Nested dissection of the graph (CSR, `graph_ptr`, `graph_cols`, no self loops) of rows at
+    `points` (n, 3), in place on `lists` (3, n): on entry the rows sorted along x, y and z
+    (stable); on return each list holds the elimination order (the halves of each split first,
+    then its separator), the parts of at most `leaf` rows in the order along each list's axis:
+    lists[0] is the order used. Each larger part is cut at the median along its widest axis, and
+    the rows of the side with the fewer rows touching the other side become its separator; every
+    list is partitioned stably, so each part's rows stay sorted along every axis (no sort after
+    the first). mark, buffer (n,) and stack (n + 1, 2) int64 are scratch. Returns the sizes of the
+    top split's two halves."""
     n = points.shape[0]
-    order = np.arange(n)
-    mark = np.zeros(n, dtype=np.int64)  # 4 * part number + side (1, 2; 3 separator)
-    stack = np.empty((n + 1, 2), dtype=np.int64)
     stack[0, 0] = 0
     stack[0, 1] = n
     depth = 1
     part = 0
-    halves = (n, 0)
-    sorted_rows = np.empty(n, dtype=np.int64)
+    first_half = n
+    second_half = 0
     while depth > 0:
         depth -= 1
         lo = stack[depth, 0]
@@ -81,79 +83,63 @@ def _nested_dissection(graph_ptr, graph_cols, points, leaf):  # pragma: no cover
         axis = 0
         width = -1.0
         for a in range(3):
-            low = np.inf
-            high = -np.inf
-            for k in range(lo, hi):
-                c = points[order[k], a]
-                low = min(low, c)
-                high = max(high, c)
-            if high - low > width:
-                width = high - low
+            extent = points[lists[a, hi - 1], a] - points[lists[a, lo], a]
+            if extent > width:
+                width = extent
                 axis = a
-        coordinates = np.empty(m)
         for k in range(m):
-            coordinates[k] = points[order[lo + k], axis]
-        ranks = np.argsort(coordinates, kind="mergesort")
+            mark[lists[axis, lo + k]] = 4 * part + (1 if k < m // 2 else 2)
+        touching_first = 0
+        touching_second = 0
         for k in range(m):
-            v = order[lo + ranks[k]]
-            sorted_rows[k] = v
-            mark[v] = 4 * part + (1 if k < m // 2 else 2)
-        touching = np.zeros(3, dtype=np.int64)
-        for k in range(m):
-            v = sorted_rows[k]
+            v = lists[axis, lo + k]
             own = mark[v] - 4 * part
             for p in range(graph_ptr[v], graph_ptr[v + 1]):
                 if mark[graph_cols[p]] == 4 * part + 3 - own:
-                    touching[own] += 1
+                    if own == 1:
+                        touching_first += 1
+                    else:
+                        touching_second += 1
                     break
-        cut = 1 if touching[1] <= touching[2] else 2
+        cut = 1 if touching_first <= touching_second else 2
         for k in range(m):
-            v = sorted_rows[k]
+            v = lists[axis, lo + k]
             if mark[v] == 4 * part + cut:
                 for p in range(graph_ptr[v], graph_ptr[v + 1]):
                     if mark[graph_cols[p]] == 4 * part + 3 - cut:
                         mark[v] = 4 * part + 3
                         break
-        at = lo
-        sizes = np.zeros(3, dtype=np.int64)
-        for side in range(1, 4):
-            start = at
+        size_first = 0
+        size_second = 0
+        for a in range(3):
+            at = 0
+            for side in range(1, 4):
+                for k in range(m):
+                    v = lists[a, lo + k]
+                    if mark[v] == 4 * part + side:
+                        buffer[at] = v
+                        at += 1
+                if side == 1:
+                    size_first = at
+                elif side == 2:
+                    size_second = at - size_first
             for k in range(m):
-                v = sorted_rows[k]
-                if mark[v] == 4 * part + side:
-                    order[at] = v
-                    at += 1
-            sizes[side - 1] = at - start
-            if side < 3 and at > start:
-                stack[depth, 0] = start
-                stack[depth, 1] = at
-                depth += 1
+                lists[a, lo + k] = buffer[k]
+        if size_first:
+            stack[depth, 0] = lo
+            stack[depth, 1] = lo + size_first
+            depth += 1
+        if size_second:
+            stack[depth, 0] = lo + size_first
+            stack[depth, 1] = lo + size_first + size_second
+            depth += 1
         if part == 1:
-            halves = (sizes[0], sizes[1])
-    return order, halves
+            first_half = size_first
+            second_half = size_second
+    return first_half, second_half
 
 
 @nb.njit(**JIT)
-def _elimination_tree(row_ptr, row_cols):  # pragma: no cover - compiled
-    """(n,) int64 parent of each row in the elimination tree (-1 at a root) of the symmetric
-    matrix whose lower triangle has rows `row_ptr`, `row_cols` (CSR, columns <= row; Liu's
-    algorithm with path compression, CSparse's `cs_etree`)."""
-    n = row_ptr.shape[0] - 1
-    parent = np.full(n, -1, dtype=np.int64)
-    ancestor = np.full(n, -1, dtype=np.int64)
-    for k in range(n):
-        for p in range(row_ptr[k], row_ptr[k + 1]):
-            i = row_cols[p]
-            while i != -1 and i < k:
-                following = ancestor[i]
-                ancestor[i] = k
-                if following == -1:
-                    parent[i] = k
-                i = following
-    return parent
-
-
-@nb.njit(inline="always", **JIT)
 def _row_pattern(k, row_ptr, row_cols, parent, flag, stack):  # pragma: no cover - compiled
     """The columns j < k of row k of L (CSparse's `cs_ereach`), into stack[top:n] in an order
     where each column comes before its ancestors; returns top. flag (n,) marks the visited rows
@@ -179,52 +165,64 @@ def _row_pattern(k, row_ptr, row_cols, parent, flag, stack):  # pragma: no cover
 
 
 @nb.njit(**JIT)
-def _column_counts(row_ptr, row_cols, parent):  # pragma: no cover - compiled
-    """(n,) int64 entries of each column of L, its diagonal included."""
+def _symbolic(row_ptr, row_cols, parent, col_ptr, l_rows, flag, stack):  # pragma: no cover - compiled
+    """The symbolic factorisation of the symmetric matrix whose lower triangle has rows `row_ptr`,
+    `row_cols` (CSR, columns <= row), into the caller's arrays: with `l_rows` empty (0,), the
+    elimination tree (parent (n,): each row's, -1 at a root; Liu's algorithm with path
+    compression, CSparse's `cs_etree`, `flag` as its ancestors) and each column's entries in L
+    (col_ptr (n + 1,), its cumulative sums); given l_rows (entries,) int32, the rows of each column,
+    ascending, its diagonal first, as the factorisation appends them. flag, stack (n,) int64."""
     n = row_ptr.shape[0] - 1
-    counts = np.ones(n, dtype=np.int64)
-    flag = np.full(n, -1, dtype=np.int64)
-    stack = np.empty(n, dtype=np.int64)
+    if l_rows.shape[0] == 0:
+        for k in range(n):
+            parent[k] = -1
+            flag[k] = -1
+        for k in range(n):
+            for p in range(row_ptr[k], row_ptr[k + 1]):
+                i = row_cols[p]
+                while i != -1 and i < k:
+                    following = flag[i]
+                    flag[i] = k
+                    if following == -1:
+                        parent[i] = k
+                    i = following
+        for k in range(n + 1):
+            col_ptr[k] = 0
+    for k in range(n):
+        flag[k] = -1
     for k in range(n):
         top = _row_pattern(k, row_ptr, row_cols, parent, flag, stack)
-        for p in range(top, n):
-            counts[stack[p]] += 1
-    return counts
-
-
-@nb.njit(**JIT)
-def _column_rows(row_ptr, row_cols, parent, col_ptr):  # pragma: no cover - compiled
-    """(entries,) int32: the rows of each column of L (from col_ptr), ascending, its diagonal
-    first: row k is appended to the columns of its pattern as the factorisation will."""
-    n = parent.shape[0]
-    l_rows = np.empty(col_ptr[n], dtype=np.int32)
-    fill = col_ptr[:-1].copy()
-    flag = np.full(n, -1, dtype=np.int64)
-    stack = np.empty(n, dtype=np.int64)
-    for k in range(n):
-        top = _row_pattern(k, row_ptr, row_cols, parent, flag, stack)
-        for p in range(top, n):
-            j = stack[p]
-            l_rows[fill[j]] = k
-            fill[j] += 1
-        l_rows[fill[k]] = k
-        fill[k] += 1
-    return l_rows
+        if l_rows.shape[0] == 0:
+            for p in range(top, n):
+                col_ptr[stack[p] + 1] += 1
+            col_ptr[k + 1] += 1
+        else:  # col_ptr[j] counts column j's rows so far; put back below
+            for p in range(top, n):
+                j = stack[p]
+                l_rows[col_ptr[j]] = k
+                col_ptr[j] += 1
+            l_rows[col_ptr[k]] = k
+            col_ptr[k] += 1
+    if l_rows.shape[0] == 0:
+        for k in range(n):
+            col_ptr[k + 1] += col_ptr[k]
+    else:
+        for k in range(n, 0, -1):
+            col_ptr[k] = col_ptr[k - 1]
+        col_ptr[0] = 0
 
 
 @nb.njit(**FAST)
 def _factor_rows(first, last, row_ptr, row_cols, row_vals, parent, column_node, start, rows_ptr, pattern, vals_ptr,
-                 vals, fill):  # pragma: no cover - compiled
+                 vals, fill, work, flag, stack):  # pragma: no cover - compiled
     """Rows first .. last - 1 (each after all its descendants) of L = chol(A), up-looking
     (CSparse's `cs_chol`), straight into the supernodes' blocks (`Supernodes`; zeroed before):
     row k's entry in column j goes to the block position of row k, found from fill[j] (where
     column j's entries so far end) along the block's rows; the updates read the entries before
     it, zeros included. Returns the first row whose pivot is not positive (the matrix is not
-    positive definite there), else -1."""
+    positive definite there), else -1. Scratch (n,) each, the thread's own: work (zeros), flag
+    (-1), stack."""
     n = parent.shape[0]
-    work = np.zeros(n)
-    flag = np.full(n, -1, dtype=np.int64)
-    stack = np.empty(n, dtype=np.int64)
     for k in range(first, last):
         top = _row_pattern(k, row_ptr, row_cols, parent, flag, stack)
         diagonal = 0.0
@@ -261,15 +259,15 @@ def _factor_rows(first, last, row_ptr, row_cols, row_vals, parent, column_node, 
 
 
 @nb.njit(**JIT)
-def _relaxed_supernodes(col_ptr, parent, owner, slack, widest):  # pragma: no cover - compiled
-    """(S + 1,) the first column of each supernode, then n. A supernode is a run of columns
-    j, j + 1, ... each the parent of the one before (so their rows below the run are the last
-    column's), of one owner (a thread's half or the separator), at most `widest` wide, grown
-    while its block (triangle included) holds at most 1 + `slack` times the entries of its
-    columns (the rest are zeros): Ashcraft and Grimes's relaxed supernodes (1989), whose wider
-    blocks the solves go through with fewer passes over the rows below."""
+def _relaxed_supernodes(col_ptr, parent, owner, slack, widest, first):  # pragma: no cover - compiled
+    """The first column of each supernode, then n, into first (n + 1,); returns S + 1, how many.
+    A supernode is a run of columns j, j + 1, ... each the parent of the one before (so their
+    rows below the run are the last column's), of one owner (a thread's half or the separator),
+    at most `widest` wide, grown while its block (triangle included) holds at most 1 + `slack`
+    times the entries of its columns (the rest are zeros): Ashcraft and Grimes's relaxed
+    supernodes (1989), whose wider blocks the solves go through with fewer passes over the rows
+    below."""
     n = parent.shape[0]
-    first = np.empty(n + 1, dtype=np.int64)
     count = 0
     j = 0
     while j < n:
@@ -286,10 +284,10 @@ def _relaxed_supernodes(col_ptr, parent, owner, slack, widest):  # pragma: no co
         count += 1
         j += 1
     first[count] = n
-    return first[: count + 1].copy()
+    return count + 1
 
 
-@nb.njit(inline="always", **FAST)
+@nb.njit(**FAST)
 def _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, ys):  # pragma: no cover - compiled
     """L y = b in place on y (n + 2 T, 3) for the supernodes first .. last - 1: each one's
     triangle, then its part taken from the rows below it. ys (3, widest) holds the supernode's
@@ -371,7 +369,7 @@ def _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, ys):  # prag
                 y[i, 2] -= t2
 
 
-@nb.njit(inline="always", **FAST)
+@nb.njit(**FAST)
 def _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, xs, zs):  # pragma: no cover - compiled
     """L^T x = y in place on x (n + 2 T, 3) for the supernodes last - 1 down to first (each after
     every ancestor): each one's sums over the rows below it (read only) into zs (3, widest),
@@ -489,67 +487,34 @@ def _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, xs, zs):  #
 
 
 @nb.njit(**FAST)
-def _forward_share(first, last, start, rows_ptr, rows, vals_ptr, vals, y, widest):  # pragma: no cover - compiled
-    """`_forward` over one thread's share of supernodes."""
-    _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, np.empty((3, widest)))
-
-
-@nb.njit(**FAST)
-def _backward_share(first, last, start, rows_ptr, rows, vals_ptr, vals, x, widest):  # pragma: no cover - compiled
-    """`_backward` over one thread's share of supernodes."""
-    _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, np.empty((3, widest)), np.empty((3, widest)))
-
-
-@nb.njit(**FAST)
-def _separator_solves(top_rows, first, start, rows_ptr, rows, vals_ptr, vals, y, widest):  # pragma: no cover
-    """Between the threads' forward and backward passes, on y (n + 2 T, 3): each half's updates
-    of the T separator rows (rows n .. n + T - 1, then the next T: minus its sums, from zero)
-    added to those rows in the same order whatever the threads; the separator's supernodes
-    (first to the last) forward and backward; the solved separator rows copied to both halves'
-    rows for their backward pass."""
-    n = y.shape[0] - 2 * top_rows.shape[0]
-    count = top_rows.shape[0]
+def _separator_solves(first, start, rows_ptr, rows, vals_ptr, vals, y, scratch):  # pragma: no cover - compiled
+    """Between the threads' forward and backward passes, on y (n + 2 T, 3), the T separator rows
+    being rows n - T .. n - 1: each half's updates of them (rows n .. n + T - 1, then the next T:
+    minus its sums, from zero) added in the same order whatever the threads; the separator's
+    supernodes (first to the last) forward and backward; the solved separator rows copied to both
+    halves' rows for their backward pass. scratch (2, 3, widest)."""
+    count = (y.shape[0] - start[start.shape[0] - 1]) // 2
+    n = y.shape[0] - 2 * count
     for half in range(2):
         for k in range(count):
-            i = top_rows[k]
+            i = n - count + k
             y[i, 0] += y[n + half * count + k, 0]
             y[i, 1] += y[n + half * count + k, 1]
             y[i, 2] += y[n + half * count + k, 2]
     last = start.shape[0] - 1
-    scratch = np.empty((3, widest))
-    _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, scratch)
-    _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, scratch, np.empty((3, widest)))
+    _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, scratch[0])
+    _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, scratch[0], scratch[1])
     for half in range(2):
         for k in range(count):
-            i = top_rows[k]
+            i = n - count + k
             y[n + half * count + k, 0] = y[i, 0]
             y[n + half * count + k, 1] = y[i, 1]
             y[n + half * count + k, 2] = y[i, 2]
 
 
 @nb.njit(**FAST)
-def _solve_whole(b, order, start, rows_ptr, rows, vals_ptr, vals, widest, work, x):  # pragma: no cover - compiled
-    """The whole solve on one thread in one call (a small matrix: every supernode in one share,
-    no separator): b (n, 3) permuted into work, forward, backward, back into x."""
-    for k in range(order.shape[0]):
-        i = order[k]
-        work[k, 0] = b[i, 0]
-        work[k, 1] = b[i, 1]
-        work[k, 2] = b[i, 2]
-    last = start.shape[0] - 1
-    scratch = np.empty((3, widest))
-    _forward(0, last, start, rows_ptr, rows, vals_ptr, vals, work, scratch)
-    _backward(0, last, start, rows_ptr, rows, vals_ptr, vals, work, scratch, np.empty((3, widest)))
-    for k in range(order.shape[0]):
-        i = order[k]
-        x[i, 0] = work[k, 0]
-        x[i, 1] = work[k, 1]
-        x[i, 2] = work[k, 2]
-
-
-@nb.njit(**FAST)
 def _permute_in(b, order, out):  # pragma: no cover - compiled
-    """out[k] = b[order[k]] for (n, 3) arrays."""
+    """out[k] = b[order[k]] for (n, 3) arrays (4x NumPy's `take` here)."""
     for k in range(order.shape[0]):
         i = order[k]
         out[k, 0] = b[i, 0]
@@ -595,10 +560,13 @@ class SparseCholesky:
     keeps the ordering and the symbolic analysis.
 
     threads: 1 or 2 (`beside`), settable between calls; the results are the same bytes either way.
+    parallel_rows: the fewest rows split into two halves (`MIN_PARALLEL_ROWS`; `compile_kernels`
+    splits a small one).
     """
 
     def __init__(
-        self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray, threads: int = 2
+        self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray, threads: int = 2,
+        parallel_rows: int = MIN_PARALLEL_ROWS,
     ) -> None:
         n = indptr.shape[0] - 1
         self.size = n
@@ -612,10 +580,13 @@ class SparseCholesky:
         graph = coo_matrix(
             (np.ones(2 * a.shape[0], dtype=np.int8), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n)
         ).tocsr()
-        self.order, halves = _nested_dissection(
-            graph.indptr.astype(np.int64), graph.indices.astype(np.int64),
-            np.ascontiguousarray(points, dtype=np.float64), LEAF_ROWS,
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        lists = np.stack([np.argsort(points[:, axis], kind="stable") for axis in range(3)]).astype(np.int64)
+        halves = _nested_dissection(
+            graph.indptr.astype(np.int64), graph.indices.astype(np.int64), points, lists, LEAF_ROWS,
+            np.zeros(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty((n + 1, 2), dtype=np.int64),
         )
+        self.order = lists[0].copy()
         rank = np.empty(n, dtype=np.int64)
         rank[self.order] = np.arange(n, dtype=np.int64)
         # the permuted matrix's lower triangle by rows; `_value_source` maps each of its entries to `data`
@@ -626,24 +597,26 @@ class SparseCholesky:
         self._row_ptr = permuted.indptr.astype(np.int64)
         self._row_cols = permuted.indices.astype(np.int64)
         self._value_source = (permuted.data - 1.0).astype(np.int64)
-        self._parent = _elimination_tree(self._row_ptr, self._row_cols)
-        counts = _column_counts(self._row_ptr, self._row_cols, self._parent)
-        col_ptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(counts, out=col_ptr[1:])
+        self._parent = np.empty(n, dtype=np.int64)
+        col_ptr = np.empty(n + 1, dtype=np.int64)
+        flag, stack = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+        no_rows = np.empty(0, dtype=np.int32)
+        _symbolic(self._row_ptr, self._row_cols, self._parent, col_ptr, no_rows, flag, stack)
         #: entries of L (its lower triangle, diagonal included)
         self.entries = int(col_ptr[-1])
         # the threads' shares of rows: the top split's halves (whole subtrees each), then its separator
         first, second = (int(h) for h in halves)
-        if n < MIN_PARALLEL_ROWS or not (first and second):
+        if n < parallel_rows or not (first and second):
             first, second = n, 0
         self._row_shares = ((0, first), (first, first + second), (first + second, n))
-        self._separator_rows = np.arange(first + second, n, dtype=np.int64)
-        self._supernodes = self._supernode_structure(col_ptr, _column_rows(self._row_ptr, self._row_cols,
-                                                                         self._parent, col_ptr))
+        l_rows = np.empty(self.entries, dtype=np.int32)
+        _symbolic(self._row_ptr, self._row_cols, self._parent, col_ptr, l_rows, flag, stack)
+        self._supernodes = self._supernode_structure(col_ptr, l_rows)
         self._column_node = np.repeat(
             np.arange(self._supernodes.start.shape[0] - 1, dtype=np.int64), np.diff(self._supernodes.start)
         )
         self._work = np.empty((n + 2 * (n - first - second), 3))  # (n + 2 T, 3): `Supernodes`
+        self._scratch = np.empty((2, 2, 3, self._supernodes.widest))  # a thread's (3, widest) pairs
         self.refactor(data)
 
     def has_pattern(self, indptr: np.ndarray, indices: np.ndarray) -> bool:
@@ -661,7 +634,8 @@ class SparseCholesky:
             low, high = self._row_shares[share]
             return _factor_rows(
                 low, high, self._row_ptr, self._row_cols, row_vals, self._parent, self._column_node, nodes.start,
-                nodes.rows_ptr, nodes.pattern, nodes.vals_ptr, nodes.vals, fill,
+                nodes.rows_ptr, nodes.pattern, nodes.vals_ptr, nodes.vals, fill, np.zeros(self.size),
+                np.full(self.size, -1, dtype=np.int64), np.empty(self.size, dtype=np.int64),
             )
 
         failed = self._in_two(functools.partial(rows, 0), functools.partial(rows, 1))
@@ -677,7 +651,8 @@ class SparseCholesky:
         owner = np.full(n, 2, dtype=np.int64)
         for side in (0, 1):
             owner[slice(*self._row_shares[side])] = side
-        start = _relaxed_supernodes(col_ptr, self._parent, owner, BLOCK_SLACK, BLOCK_WIDEST)
+        start = np.empty(n + 1, dtype=np.int64)
+        start = start[: _relaxed_supernodes(col_ptr, self._parent, owner, BLOCK_SLACK, BLOCK_WIDEST, start)].copy()
         first_columns, last_columns = start[:-1], start[1:] - 1
         widths = start[1:] - first_columns
         below = np.diff(col_ptr)[last_columns] - 1  # the last column's rows under its diagonal
@@ -723,22 +698,20 @@ class SparseCholesky:
 
     def solve(self, b: np.ndarray, x: np.ndarray) -> None:
         """x (n, 3) = A^-1 b (n, 3); x and b may be the same array."""
-        nodes, work = self._supernodes, self._work
-        structure = (nodes.start, nodes.rows_ptr, nodes.rows, nodes.vals_ptr, nodes.vals)
-        (first, middle), (_, top), _ = nodes.shares
-        if middle == top == nodes.start.shape[0] - 1:  # one share: no separator
-            _solve_whole(b, self.order, *structure, nodes.widest, work, x)
-            return
+        nodes, work, scratch = self._supernodes, self._work, self._scratch
+        structure = (nodes.start, nodes.rows_ptr, nodes.rows, nodes.vals_ptr, nodes.vals, work)
+        (first, middle), (_, top), (_, last) = nodes.shares
         _permute_in(b, self.order, work)
         work[self.size :] = 0.0
         self._in_two(
-            functools.partial(_forward_share, first, middle, *structure, work, nodes.widest),
-            functools.partial(_forward_share, middle, top, *structure, work, nodes.widest),
+            functools.partial(_forward, first, middle, *structure, scratch[0, 0]),
+            functools.partial(_forward, middle, top, *structure, scratch[1, 0]),
         )
-        _separator_solves(self._separator_rows, top, *structure, work, nodes.widest)
+        if top < last:
+            _separator_solves(top, *structure, scratch[0])
         self._in_two(
-            functools.partial(_backward_share, first, middle, *structure, work, nodes.widest),
-            functools.partial(_backward_share, middle, top, *structure, work, nodes.widest),
+            functools.partial(_backward, first, middle, *structure, scratch[0, 0], scratch[0, 1]),
+            functools.partial(_backward, middle, top, *structure, scratch[1, 0], scratch[1, 1]),
         )
         _permute_out(work, self.order, x)
 
@@ -780,3 +753,32 @@ def factorise(
     if indptr.shape[0] - 1 < OWN_FACTOR_ROWS:
         return CholmodFactor(indptr, indices, data)
     return SparseCholesky(indptr, indices, data, points)
+
+
+def compile_kernels() -> None:
+    """Compiles (or loads from Numba's cache) every kernel `SparseCholesky` runs, on a 6 x 6 grid
+    split in two halves and a separator (`pipeline.compile_ahead`)."""
+    side = 6
+    index = np.arange(side * side).reshape(side, side)
+    right, down = index[:, :-1].ravel(), index[:-1, :].ravel()
+    a = np.concatenate([right, down])
+    b = np.concatenate([right + 1, down + side])
+    rows = np.concatenate([np.arange(side * side), np.maximum(a, b)])
+    cols = np.concatenate([np.arange(side * side), np.minimum(a, b)])
+    vals = np.concatenate([np.full(side * side, 5.0), np.full(a.shape[0], -1.0)])
+    lower = coo_matrix((vals, (rows, cols)), shape=(side * side, side * side)).tocsc()
+    lower.sort_indices()
+    u, v = np.meshgrid(np.arange(side, dtype=np.float64), np.arange(side, dtype=np.float64))
+    points = np.stack([u.ravel(), v.ravel(), np.zeros(side * side)], axis=1)
+    factor = SparseCholesky(lower.indptr, lower.indices, lower.data, points, parallel_rows=0)
+    factor.solve(np.ones((side * side, 3)), np.empty((side * side, 3)))
+
+
+#: every kernel `SparseCholesky` runs (`kernels_cached`)
+KERNELS = (_nested_dissection, _symbolic, _relaxed_supernodes, _factor_rows, _forward, _backward, _separator_solves,
+           _permute_in, _permute_out)
+
+
+def kernels_cached() -> bool:
+    """Whether every kernel `SparseCholesky` runs needs no compiling (`dispatch.available`)."""
+    return all(available(kernel) for kernel in KERNELS)

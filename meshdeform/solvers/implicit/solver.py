@@ -112,9 +112,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 
 from meshdeform.model import SpringModel, State
-from meshdeform.solvers.base import Control, Solver, velocity_retention
+from meshdeform.solvers.base import Control, LargeKernels, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, spring_constants
-from meshdeform.solvers.implicit import coarse, kernels
+from meshdeform.solvers.implicit import cholesky, coarse, kernels
 from meshdeform.solvers.implicit.anchors import ContactAnchors
 from meshdeform.solvers.implicit.cholesky import CholmodFactor, SparseCholesky, factorise
 from meshdeform.solvers.layout import vertex_slabs
@@ -136,6 +136,13 @@ class ImplicitSolver(ModelCache, Solver):
     default_iterations: ClassVar[int] = 3
     calm_steps: ClassVar[tuple[int, int] | None] = (2, 3)
     slow_steps: ClassVar[tuple[int, int] | None] = (4, 5)
+
+    @classmethod
+    def large_kernels(cls, vertices: int) -> LargeKernels | None:
+        """From `cholesky.OWN_FACTOR_ROWS` vertices, those of our own Cholesky factor."""
+        if vertices < cholesky.OWN_FACTOR_ROWS:
+            return None
+        return LargeKernels(compile=cholesky.compile_kernels, cached=cholesky.kernels_cached)
 
     @classmethod
     def calm_options(cls, options: ImplicitOptions) -> ImplicitOptions:
