@@ -209,18 +209,34 @@ def _spring_stencils(
     springs: np.ndarray, a: np.ndarray, b: np.ndarray, free: np.ndarray, vertex_nodes: np.ndarray,
     vertex_weights: np.ndarray, count: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(S', 16) nodes (ascending, -1 past the last) and coefficients of z_a - z_b per spring, each
-    node once (count: the lattice's nodes). NumPy, not Numba: it runs once a model, and a compiled
-    version cost every fresh process (a CI runner, a Dask worker) 0.9 s of compiling. Springs are
-    taken `STENCIL_CHUNK` at a time: each spring's nodes marked and its coefficients summed in a
-    row of `count` slots (so each node appears once, in ascending order: the a side's weight added
+    """(S', W) nodes (ascending, -1 past the last; W <= 16 the most of a spring) and coefficients
+    of z_a - z_b per spring, each node once (count: the lattice's nodes). NumPy, not Numba: it
+    runs once a model, and a compiled version cost every fresh process (a CI runner, a Dask
+    worker) 0.9 s of compiling. A spring whose two ends have the same nodes (both in one lattice
+    cell, most of them) takes them with the coefficients w_a - w_b at once; the others are taken
+    `STENCIL_CHUNK` at a time: each spring's nodes marked and its coefficients summed in a row of
+    `count` slots (so each node appears once, in ascending order: the a side's weight added
     before the b side's), then each row's marked nodes packed to the left."""
     total = springs.shape[0]
     width = 2 * CORNERS
     out_nodes = np.full((total, width), -1, dtype=np.int32)
     out_coefficients = np.zeros((total, width))
-    for start in range(0, total, STENCIL_CHUNK):
-        chunk = springs[start : start + STENCIL_CHUNK]
+    # both ends free with the same nodes, packed to the left (most springs: both ends in one
+    # lattice cell): those nodes, coefficients w_a - w_b (the bytes of the sum below)
+    # (a vertex's weight is 0 at its -1 nodes); only the corner columns some vertex uses
+    corners = int(np.flatnonzero((vertex_nodes >= 0).any(axis=0)).max(initial=-1)) + 1
+    row_a, row_b = free[a[springs]], free[b[springs]]
+    nodes_a = vertex_nodes[np.maximum(row_a, 0), :corners]
+    present = nodes_a >= 0
+    same = (row_a >= 0) & (row_b >= 0) & (nodes_a == vertex_nodes[np.maximum(row_b, 0), :corners]).all(axis=1)
+    same &= (present[:, 1:] <= present[:, :-1]).all(axis=1)
+    out_nodes[:, :corners] = nodes_a
+    out_coefficients[:, :corners] = vertex_weights[row_a, :corners] - vertex_weights[row_b, :corners]
+    rest = np.flatnonzero(~same)
+    out_nodes[rest] = -1
+    out_coefficients[rest] = 0.0
+    for start in range(0, rest.shape[0], STENCIL_CHUNK):
+        chunk = springs[rest[start : start + STENCIL_CHUNK]]
         rows = chunk.shape[0]
         nodes = np.full((rows, width), -1, dtype=np.int64)
         weights = np.zeros((rows, width))
@@ -236,9 +252,10 @@ def _spring_stencils(
         summed = np.bincount(slot, weights=weights[used], minlength=rows * count).reshape(rows, count)
         row, node = np.nonzero(present)  # row by row, nodes ascending
         place = np.arange(row.shape[0]) - np.searchsorted(row, row)  # the node's place in its row
-        out_nodes[start + row, place] = node
-        out_coefficients[start + row, place] = summed[row, node]
-    return out_nodes, out_coefficients
+        out_nodes[rest[start + row], place] = node
+        out_coefficients[rest[start + row], place] = summed[row, node]
+    used = int((out_nodes >= 0).sum(axis=1).max(initial=0))  # the most nodes of a spring: the width kept
+    return out_nodes[:, :used], out_coefficients[:, :used]
 
 
 #: springs whose stencils `_spring_stencils` forms at once (a block of rows x lattice nodes)
