@@ -745,14 +745,14 @@ class CholmodFactor:
 
 
 def factorise(
-    indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray
+    indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray, threads: int
 ) -> SparseCholesky | CholmodFactor:
     """The factor of the SPD matrix whose lower triangle is `indptr`, `indices`, `data` (CSC,
-    each column's diagonal first), its rows at `points` (n, 3): CHOLMOD's below
-    `OWN_FACTOR_ROWS` rows, ours from there on (the module docstring)."""
+    each column's diagonal first), its rows at `points` (n, 3), factorised on `threads` (1 or 2):
+    CHOLMOD's below `OWN_FACTOR_ROWS` rows, ours from there on (the module docstring)."""
     if indptr.shape[0] - 1 < OWN_FACTOR_ROWS:
         return CholmodFactor(indptr, indices, data)
-    return SparseCholesky(indptr, indices, data, points)
+    return SparseCholesky(indptr, indices, data, points, threads=threads)
 
 
 def compile_kernels() -> None:

@@ -302,7 +302,7 @@ class ImplicitSolver(ModelCache, Solver):
             self.factor.refactor(data)  # the ordering and symbolic analysis kept
         else:
             self.factor = None  # free the old factor before building the new one
-            self.factor = factorise(indptr, indices, data, self.free_rest)
+            self.factor = factorise(indptr, indices, data, self.free_rest, self._threads)
         self.factor.threads = self._threads
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
