@@ -32,9 +32,9 @@ cores and two Numba threads for this job (a batch of as many jobs as cores gives
 stops the helper when it ends.
 
 A large run's own kernels (`Solver.large_kernels`: implicit's Cholesky factor of its own from
-20 000 vertices, about 3 s to compile) are reached by the first step before anything else: the
-`start` thread compiles them first, and where they are not cached the helper process is started
-for the solver's step kernels meanwhile.
+`cholesky.OWN_FACTOR_ROWS` vertices, about 3 s to compile) are reached by the first step before
+anything else: the `start` thread compiles them first, and where they are not cached the helper
+process is started for the solver's step kernels meanwhile.
 """
 
 from __future__ import annotations

@@ -98,3 +98,16 @@ def test_the_dense_solve_matches_numpy_and_leaves_unseen_directions_alone() -> N
     assert solution[4] == 0.0
     keep = np.arange(12) != 4
     assert np.allclose(solution[keep], np.linalg.solve(singular[np.ix_(keep, keep)], rhs[keep]))
+
+
+def test_a_lattice_no_spring_reaches_builds_and_steps() -> None:
+    """Free vertices no spring touches (every spring between pinned vertices): the coarse space
+    has no stencil to group, and its Hessian of no spring adds nothing."""
+    rest = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.5]])
+    free = np.array([-1, -1, 0, 1])  # vertices 0, 1 pinned
+    a, b = np.array([0]), np.array([1])
+    space = coarse.coarse_space(rest[2:], free, a, b, np.array([True]), 4)
+    assert space is not None and space.springs.shape[0] == 0
+    matrix = np.eye(3 * space.count)
+    space.add_spring_hessian(rest, a, b, np.ones(1), np.ones(1), np.ones(1), 1.0, matrix)
+    assert np.array_equal(matrix, np.eye(3 * space.count))

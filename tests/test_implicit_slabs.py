@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from factories import TOP_CORNERS, grid_cloth
 
+from meshdeform.material import KindMaterial, Material
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers.implicit import cholesky
 from meshdeform.solvers.implicit import solver as implicit
@@ -121,3 +122,16 @@ def test_our_own_factor_runs_to_the_same_bytes_on_one_thread_and_two_and_as_chol
     assert all(np.array_equal(a, b) for a, b in zip(frames[1], frames[2], strict=True))
     assert max(np.abs(a - b).max() for a, b in zip(frames[2], with_cholmod, strict=True)) < 1e-9
     assert np.abs(frames[2][-1] - frames[2][0]).max() > 1e-4  # the cloth moved: 10^5 times the tolerance
+
+
+def test_a_cloth_on_our_own_factor_may_take_two_threads_with_few_springs(monkeypatch) -> None:
+    """A cloth of structural springs only, too few to split its energy (`SPLIT_SPRINGS`), but with
+    free rows enough for our own factor: the picker may still give the factor's halves two threads."""
+    monkeypatch.setattr(implicit, "split_threads", lambda: 2)
+    material = Material(shear=KindMaterial(enabled=False), bending=KindMaterial(enabled=False))
+    model = grid_cloth(150, pins=TOP_CORNERS, material=material).model
+    solver = _prepared(model, 2)
+    assert solver.a.shape[0] < SPLIT_SPRINGS <= 2 * solver.a.shape[0]
+    assert solver.free_vertices.shape[0] >= cholesky.OWN_FACTOR_ROWS
+    assert len(solver.energy_parts) == 1 and solver._picker.most == 2
+    assert isinstance(solver.factor, cholesky.SparseCholesky)

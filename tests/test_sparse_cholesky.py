@@ -90,13 +90,66 @@ def test_a_closed_surface_and_a_refactorisation() -> None:
     np.testing.assert_allclose(rhs, expected, rtol=1e-8, atol=1e-10 * np.abs(expected).max())
 
 
-@pytest.mark.parametrize("n", [1, 2, 7])
+@pytest.mark.parametrize("n", [0, 1, 2, 7])
 def test_small_and_diagonal_matrices(n: int) -> None:
+    """Split however small (`parallel_rows=0`): halves or a separator may be empty."""
     rng = np.random.default_rng(n)
-    diagonal = csc_matrix(np.diag(rng.uniform(1.0, 3.0, n)))
+    diagonal = csc_matrix(np.diag(rng.uniform(1.0, 3.0, n)), shape=(n, n))
     rhs = rng.standard_normal((n, 3))
-    got = solve_both(diagonal, rng.standard_normal((n, 3)), rhs, 2)
+    factor = SparseCholesky(*lower(diagonal), rng.standard_normal((n, 3)), parallel_rows=0)
+    got = np.empty_like(rhs)
+    factor.solve(rhs, got)
     np.testing.assert_allclose(got, rhs / diagonal.diagonal()[:, None], rtol=1e-14)
+
+
+def odd_graphs() -> dict[str, tuple[np.ndarray, int]]:
+    """Edges (E, 2) and vertex counts of graphs unlike a sheet."""
+    star = np.stack([np.zeros(30, dtype=np.int64), np.arange(1, 31)], axis=1)
+    complete = np.array([(i, j) for i in range(12) for j in range(i + 1, 12)])
+    path = np.stack([np.arange(40), np.arange(1, 41)], axis=1)
+    pieces = np.concatenate([path[:10], path[20:30]])  # two paths and isolated vertices
+    return {"star": (star, 31), "complete": (complete, 12), "path": (path, 41), "pieces": (pieces, 41)}
+
+
+@pytest.mark.parametrize("name", sorted(odd_graphs()))
+def test_odd_graphs_split_however_small_solve_alike_on_one_thread_and_two(name: str) -> None:
+    edges, n = odd_graphs()[name]
+    rng = np.random.default_rng(7)
+    matrix = spring_matrix(edges, n, rng)
+    points = rng.standard_normal((n, 3))
+    points[: n // 3] = points[0]  # a third of the rows at one point: ties in every axis
+    rhs = rng.standard_normal((n, 3))
+    solutions = []
+    for threads in (1, 2):
+        factor = SparseCholesky(*lower(matrix), points, threads=threads, parallel_rows=0)
+        solutions.append(np.empty_like(rhs))
+        factor.solve(rhs, solutions[-1])
+    assert solutions[0].tobytes() == solutions[1].tobytes()
+    np.testing.assert_allclose(matrix @ solutions[0], rhs, atol=1e-10 * np.abs(rhs).max())
+
+
+def test_malformed_input_is_refused_before_any_kernel_reads_it() -> None:
+    """The kernels index with these arrays unchecked (Numba): a wrong shape, an upper-triangle
+    or repeated entry, or a point count other than the rows' is refused."""
+    points, edges = grid(4)
+    indptr, indices, data = lower(spring_matrix(edges, points.shape[0], np.random.default_rng(8)))
+    SparseCholesky(indptr, indices, data, points)  # well formed
+    upper = indices.copy()
+    upper[indptr[1] - 1] = 0  # a row above its column's diagonal
+    repeated = indices.copy()
+    repeated[indptr[0] + 2] = repeated[indptr[0] + 1]
+    cases = [
+        (indptr, indices, data, points[:-1]),
+        (indptr, indices, data[:-1], points),
+        (indptr, upper, data, points),
+        (indptr, repeated, data, points),
+    ]
+    for case in cases:
+        with pytest.raises(ValueError):
+            SparseCholesky(*case)
+    factor = SparseCholesky(indptr, indices, data, points)
+    with pytest.raises(ValueError):
+        factor.refactor(np.where(np.arange(data.shape[0]) == 3, np.nan, data))
 
 
 def test_two_disconnected_pieces() -> None:

@@ -1,7 +1,7 @@
 """Sparse Cholesky factorisation A = L L^T of the implicit solver's matrix (`factorise`).
 
 Below `OWN_FACTOR_ROWS` rows, CHOLMOD's simplicial factor through cholespy (`CholmodFactor`):
-its solves run on one thread about 1.8x as fast as ours. From there on our own
+its solves run on one thread 1.3-1.8x as fast as ours. From there on our own
 (`SparseCholesky`), which runs on two threads: cholespy holds the GIL in its factorisation and
 its solves, copies every right-hand side into column-major doubles and back, and keeps no
 symbolic analysis between factorisations (CHOLMOD's supernodal factor through cvxopt solves
@@ -17,8 +17,9 @@ factor is the up-looking row-by-row algorithm of Davis's CSparse (`cs_chol`, "Di
 Sparse Linear Systems", 2006, ch. 4): row k of L is a sparse triangular solve against the rows
 of its descendants. The two halves are factorised beside each other (`threads.beside`), the
 top separator's rows after them. The solves run over supernodes (runs of columns with one
-pattern, held as dense blocks): forward by columns, the updates a half makes to the separator's
-rows summed apart and subtracted after; backward by columns, each reading only its ancestors.
+pattern, held as dense blocks): forward, each supernode's updates of the rows below it, those a
+half makes to the separator's rows gathered apart and added after; backward, each supernode
+reading only its ancestors' rows.
 Each row's arithmetic is the same whichever thread runs it, in the same order, so the factor
 and every solution are the same bytes on one thread or two.
 """
@@ -39,17 +40,18 @@ from meshdeform.solvers.jit import FAST, JIT
 from meshdeform.solvers.threads import beside
 
 #: matrices of at least this many rows get our own factor, smaller ones CHOLMOD's: a 96 x 96
-#: cloth (9 216 rows) ran 8 % faster with CHOLMOD's, a 128 x 128 one 5 % and a 180 x 180 one 9 %
-#: faster with ours; CHOLMOD's factor takes 10 % less memory
+#: cloth (9 216 rows) ran 9 % faster with CHOLMOD's, a 128 x 128 one 5 % and a 180 x 180 one 11 %
+#: faster with ours (docs/performance.md); CHOLMOD's factor takes 10 % less memory
 OWN_FACTOR_ROWS = 20_000
 #: matrices of fewer rows are factorised and solved on one thread: below it handing work to a
-#: second thread costs about what it saves
+#: second thread costs about what it saves (the solver's matrices reach our factor only from
+#: `OWN_FACTOR_ROWS`; the tests split smaller ones through `parallel_rows`)
 MIN_PARALLEL_ROWS = 5_000
 #: nested dissection stops at parts of this many rows (they keep their order along the last
 #: split's axis): 8 gave the least fill on a 256 x 256 cloth (2.77 M entries; 16: 2.81 M, 64: 3.10 M)
 LEAF_ROWS = 8
-#: relaxed supernodes (`_relaxed_supernodes`): the zeros a block may hold, as a fraction of its
-#: entries, and its most columns
+#: relaxed supernodes (`_relaxed_supernodes`): the zeros a block may hold, as a fraction of the
+#: entries of its columns (0.5: at most a third of the block), and its most columns
 BLOCK_SLACK = 0.5
 BLOCK_WIDEST = 32
 
@@ -212,7 +214,7 @@ def _symbolic(row_ptr, row_cols, parent, col_ptr, l_rows, flag, stack):  # pragm
         col_ptr[0] = 0
 
 
-@nb.njit(**FAST)
+@nb.njit(**JIT)
 def _factor_rows(first, last, row_ptr, row_cols, row_vals, parent, column_node, start, rows_ptr, pattern, vals_ptr,
                  vals, fill, work, flag, stack):  # pragma: no cover - compiled
     """Rows first .. last - 1 (each after all its descendants) of L = chol(A), up-looking
@@ -532,6 +534,28 @@ def _permute_out(work, order, x):  # pragma: no cover - compiled
         x[i, 2] = work[k, 2]
 
 
+def _check_lower(
+    indptr: np.ndarray, indices: np.ndarray, columns: np.ndarray, data: np.ndarray, points: np.ndarray
+) -> None:
+    """Raises ValueError unless (indptr, indices, data) is the lower triangle of an n x n matrix
+    in CSC, each column's rows ascending, unique and starting at its diagonal, and points is
+    (n, 3): the kernels index with these arrays unchecked."""
+    n = indptr.shape[0] - 1
+    starts = indptr[:-1]
+    well_formed = (
+        n >= 0 and indptr[0] == 0 and (np.diff(indptr) >= 1).all() and indptr[-1] == indices.shape[0]
+        and data.shape == indices.shape and points.shape == (n, 3)
+    )
+    if not well_formed:
+        raise ValueError("a sparse Cholesky factor needs an n x n lower triangle in CSC and n points")
+    ascending = np.ones(indices.shape[0], dtype=bool)
+    ascending[1:] = indices[1:] > indices[:-1]
+    ascending[starts] = True
+    if not ((indices[starts] == np.arange(n)).all() and ascending.all() and (indices < n).all()
+            and (indices >= columns).all()):
+        raise ValueError("a sparse Cholesky factor needs each column's rows ascending from its diagonal")
+
+
 class Supernodes(NamedTuple):
     """L's supernodes: S runs of columns (`start` (S + 1,): the first of each, then n) that share
     one pattern of rows, held as dense h x w blocks, row-major (`vals` from `vals_ptr` (S + 1,)),
@@ -575,6 +599,7 @@ class SparseCholesky:
         indices = np.asarray(indices, dtype=np.int64)
         self._indptr, self._indices = indptr, indices
         columns = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
+        _check_lower(indptr, indices, columns, np.asarray(data), np.asarray(points))
         off = indices != columns
         a, b = indices[off], columns[off]
         graph = coo_matrix(
@@ -625,7 +650,10 @@ class SparseCholesky:
 
     def refactor(self, data: np.ndarray) -> None:
         """Factorise the matrix of the same pattern with values `data` (as the constructor's)."""
-        row_vals = np.asarray(data, dtype=np.float64)[self._value_source]
+        data = np.asarray(data, dtype=np.float64)
+        if data.shape != self._indices.shape or not np.isfinite(data).all():
+            raise ValueError("the implicit solver's matrix has values of another count or non-finite ones")
+        row_vals = data[self._value_source]
         nodes = self._supernodes
         nodes.vals[:] = 0.0
         fill = np.arange(self.size, dtype=np.int64) - nodes.start[self._column_node]  # each diagonal's position
@@ -639,7 +667,8 @@ class SparseCholesky:
             )
 
         failed = self._in_two(functools.partial(rows, 0), functools.partial(rows, 1))
-        failed.append(rows(2))
+        if all(k is not None and k < 0 for k in failed):  # the separator's rows read both halves'
+            failed.append(rows(2))
         bad = [k for k in failed if k is not None and k >= 0]
         if bad:
             raise ValueError(f"the implicit solver's matrix is not positive definite (row {int(self.order[min(bad)])})")
@@ -718,8 +747,8 @@ class SparseCholesky:
 
 class CholmodFactor:
     """CHOLMOD's simplicial factor through cholespy, with `SparseCholesky`'s interface: the
-    lower triangle in CSC (`indptr` int32 (n + 1,), `indices` int32, `data`). `threads` is
-    accepted and unused (cholespy runs on one); `refactor` factorises anew."""
+    lower triangle in CSC (`indptr` int32 (n + 1,), `indices` int32, `data`). Its `threads`
+    attribute may be set and is unused (cholespy runs on one); `refactor` factorises anew."""
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> None:
         self.threads = 1

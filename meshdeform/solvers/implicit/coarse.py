@@ -254,7 +254,7 @@ def _spring_stencils(
         place = np.arange(row.shape[0]) - np.searchsorted(row, row)  # the node's place in its row
         out_nodes[rest[start + row], place] = node
         out_coefficients[rest[start + row], place] = summed[row, node]
-    used = int((out_nodes >= 0).sum(axis=1).max(initial=0))  # the most nodes of a spring: the width kept
+    used = max(int((out_nodes >= 0).sum(axis=1).max(initial=0)), 1)  # the most nodes of a spring: the width kept
     return out_nodes[:, :used], out_coefficients[:, :used]
 
 

@@ -208,12 +208,13 @@ class ImplicitSolver(ModelCache, Solver):
             self.energy_parts = tuple(
                 (rows[part], *(array[bounds[part] : bounds[part + 1]] for array in ordered)) for part in range(3)
             )
-        # two threads for the slabs where measured faster (a busy machine: one), steps timed in
-        # windows of a few (a step of such a cloth is tens of milliseconds), switching at a smaller
-        # gain than the picker's default: two threads make a step only 10-15 % faster
+        # two threads for the slabs and our own factor's halves where measured faster (a busy
+        # machine: one), steps timed in windows of a few (a step of such a cloth is tens of
+        # milliseconds), switching at a smaller gain than the picker's default: two threads make a
+        # step only 10-20 % faster
+        halves = slab is not None or self.free_vertices.shape[0] >= cholesky.OWN_FACTOR_ROWS
         self._picker = ThreadPicker(
-            split_threads() if slab is not None else 1, window=PICKER_WINDOW, interval=4 * PICKER_WINDOW,
-            margin=PICKER_MARGIN,
+            split_threads() if halves else 1, window=PICKER_WINDOW, interval=4 * PICKER_WINDOW, margin=PICKER_MARGIN
         )
         self._threads = 1
         self.free_mass = np.asarray(model.mass, dtype=np.float64)[self.free_vertices]
