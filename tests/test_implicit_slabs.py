@@ -98,30 +98,27 @@ def test_the_coarse_hessian_in_two_halves_is_the_one_sum(cloth) -> None:
     assert np.array_equal(halves[0], halves[0].T)
 
 
+def _frames_on(threads: int, model, monkeypatch) -> list[np.ndarray]:
+    """Three frames of `model` hanging, the split kernels given at most `threads` threads."""
+    monkeypatch.setattr(implicit, "split_threads", lambda: threads)
+    return [frame.welded_positions.copy() for frame in simulate(model, Scene(), Settings(solver="implicit", frames=3))]
+
+
 def test_a_split_cloth_runs_to_the_same_bytes_on_one_thread_and_two(cloth, monkeypatch) -> None:
-    frames = {}
-    for threads in (1, 2):
-        monkeypatch.setattr(implicit, "split_threads", lambda threads=threads: threads)
-        run = simulate(cloth.model, Scene(), Settings(solver="implicit", frames=3))
-        frames[threads] = [frame.welded_positions.copy() for frame in run]
-    assert all(np.array_equal(a, b) for a, b in zip(frames[1], frames[2], strict=True))
+    one, two = (_frames_on(threads, cloth.model, monkeypatch) for threads in (1, 2))
+    assert all(np.array_equal(a, b) for a, b in zip(one, two, strict=True))
 
 
 def test_our_own_factor_runs_to_the_same_bytes_on_one_thread_and_two_and_as_cholmods(cloth, monkeypatch) -> None:
     """The large-cloth factor (`cholesky.SparseCholesky`, its halves a thread each) taken for this
     10 000-vertex cloth: the same bytes on one thread and two, and within rounding of the run on
     CHOLMOD's factor (a different ordering and algorithm, the same matrix)."""
-    run = simulate(cloth.model, Scene(), Settings(solver="implicit", frames=3))
-    with_cholmod = [frame.welded_positions.copy() for frame in run]
+    with_cholmod = _frames_on(2, cloth.model, monkeypatch)
     monkeypatch.setattr(cholesky, "OWN_FACTOR_ROWS", 5_000)
-    frames = {}
-    for threads in (1, 2):
-        monkeypatch.setattr(implicit, "split_threads", lambda threads=threads: threads)
-        run = simulate(cloth.model, Scene(), Settings(solver="implicit", frames=3))
-        frames[threads] = [frame.welded_positions.copy() for frame in run]
-    assert all(np.array_equal(a, b) for a, b in zip(frames[1], frames[2], strict=True))
-    assert max(np.abs(a - b).max() for a, b in zip(frames[2], with_cholmod, strict=True)) < 1e-9
-    assert np.abs(frames[2][-1] - frames[2][0]).max() > 1e-4  # the cloth moved: 10^5 times the tolerance
+    one, two = (_frames_on(threads, cloth.model, monkeypatch) for threads in (1, 2))
+    assert all(np.array_equal(a, b) for a, b in zip(one, two, strict=True))
+    assert max(np.abs(a - b).max() for a, b in zip(two, with_cholmod, strict=True)) < 1e-9
+    assert np.abs(two[-1] - two[0]).max() > 1e-4  # the cloth moved: 10^5 times the tolerance
 
 
 def test_a_cloth_on_our_own_factor_may_take_two_threads_with_few_springs(monkeypatch) -> None:

@@ -36,6 +36,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 
 from meshdeform.solvers.dispatch import available
+from meshdeform.solvers.implicit.kernels import gather_rows, scatter_free
 from meshdeform.solvers.jit import FAST, JIT
 from meshdeform.solvers.threads import beside
 
@@ -293,9 +294,7 @@ def _relaxed_supernodes(col_ptr, parent, owner, slack, widest, first):  # pragma
 def _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, ys):  # pragma: no cover - compiled
     """L y = b in place on y (n + 2 T, 3) for the supernodes first .. last - 1: each one's
     triangle, then its part taken from the rows below it. ys (3, widest) holds the supernode's
-    solved columns transposed (each row's sums then run over contiguous memory); supernodes of
-    1 to 3 columns, most of them, go through loops of their own with those columns in
-    registers, as CHOLMOD's simplicial solves do."""
+    solved columns transposed (each row's sums then run over contiguous memory)."""
     y0 = ys[0]
     y1 = ys[1]
     y2 = ys[2]
@@ -322,61 +321,27 @@ def _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, ys):  # prag
             y[j0 + c, 0] = y0[c]
             y[j0 + c, 1] = y1[c]
             y[j0 + c, 2] = y2[c]
-        if w == 1:
-            a0, a1, a2 = y0[0], y1[0], y2[0]
-            for pos in range(1, h):
-                i = rows[at + pos]
-                v = vals[base + pos]
-                y[i, 0] -= v * a0
-                y[i, 1] -= v * a1
-                y[i, 2] -= v * a2
-        elif w == 2:
-            a0, a1, a2 = y0[0], y1[0], y2[0]
-            b0, b1, b2 = y0[1], y1[1], y2[1]
-            for pos in range(2, h):
-                i = rows[at + pos]
-                row_at = base + 2 * pos
-                v = vals[row_at]
-                u = vals[row_at + 1]
-                y[i, 0] -= v * a0 + u * b0
-                y[i, 1] -= v * a1 + u * b1
-                y[i, 2] -= v * a2 + u * b2
-        elif w == 3:
-            a0, a1, a2 = y0[0], y1[0], y2[0]
-            b0, b1, b2 = y0[1], y1[1], y2[1]
-            c0, c1, c2 = y0[2], y1[2], y2[2]
-            for pos in range(3, h):
-                i = rows[at + pos]
-                row_at = base + 3 * pos
-                v = vals[row_at]
-                u = vals[row_at + 1]
-                t = vals[row_at + 2]
-                y[i, 0] -= v * a0 + u * b0 + t * c0
-                y[i, 1] -= v * a1 + u * b1 + t * c1
-                y[i, 2] -= v * a2 + u * b2 + t * c2
-        else:
-            for pos in range(w, h):
-                row_at = base + pos * w
-                t0 = 0.0
-                t1 = 0.0
-                t2 = 0.0
-                for c in range(w):
-                    v = vals[row_at + c]
-                    t0 += v * y0[c]
-                    t1 += v * y1[c]
-                    t2 += v * y2[c]
-                i = rows[at + pos]
-                y[i, 0] -= t0
-                y[i, 1] -= t1
-                y[i, 2] -= t2
+        for pos in range(w, h):
+            row_at = base + pos * w
+            t0 = 0.0
+            t1 = 0.0
+            t2 = 0.0
+            for c in range(w):
+                v = vals[row_at + c]
+                t0 += v * y0[c]
+                t1 += v * y1[c]
+                t2 += v * y2[c]
+            i = rows[at + pos]
+            y[i, 0] -= t0
+            y[i, 1] -= t1
+            y[i, 2] -= t2
 
 
 @nb.njit(**FAST)
 def _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, xs, zs):  # pragma: no cover - compiled
     """L^T x = y in place on x (n + 2 T, 3) for the supernodes last - 1 down to first (each after
     every ancestor): each one's sums over the rows below it (read only) into zs (3, widest),
-    then its triangle, its solved columns kept transposed in xs (3, widest); 1 to 3 columns
-    in registers, as in `_forward`."""
+    then its triangle, its solved columns kept transposed in xs (3, widest)."""
     x0 = xs[0]
     x1 = xs[1]
     x2 = xs[2]
@@ -389,87 +354,21 @@ def _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, xs, zs):  #
         at = rows_ptr[s]
         h = rows_ptr[s + 1] - at
         base = vals_ptr[s]
-        if w == 1:
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            for pos in range(1, h):
-                i = rows[at + pos]
-                v = vals[base + pos]
-                a0 += v * x[i, 0]
-                a1 += v * x[i, 1]
-                a2 += v * x[i, 2]
-            z0[0], z1[0], z2[0] = a0, a1, a2
-        elif w == 2:
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            b0 = 0.0
-            b1 = 0.0
-            b2 = 0.0
-            for pos in range(2, h):
-                i = rows[at + pos]
-                row_at = base + 2 * pos
-                v = vals[row_at]
-                u = vals[row_at + 1]
-                e0 = x[i, 0]
-                e1 = x[i, 1]
-                e2 = x[i, 2]
-                a0 += v * e0
-                a1 += v * e1
-                a2 += v * e2
-                b0 += u * e0
-                b1 += u * e1
-                b2 += u * e2
-            z0[0], z1[0], z2[0] = a0, a1, a2
-            z0[1], z1[1], z2[1] = b0, b1, b2
-        elif w == 3:
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            b0 = 0.0
-            b1 = 0.0
-            b2 = 0.0
-            c0 = 0.0
-            c1 = 0.0
-            c2 = 0.0
-            for pos in range(3, h):
-                i = rows[at + pos]
-                row_at = base + 3 * pos
-                v = vals[row_at]
-                u = vals[row_at + 1]
-                t = vals[row_at + 2]
-                e0 = x[i, 0]
-                e1 = x[i, 1]
-                e2 = x[i, 2]
-                a0 += v * e0
-                a1 += v * e1
-                a2 += v * e2
-                b0 += u * e0
-                b1 += u * e1
-                b2 += u * e2
-                c0 += t * e0
-                c1 += t * e1
-                c2 += t * e2
-            z0[0], z1[0], z2[0] = a0, a1, a2
-            z0[1], z1[1], z2[1] = b0, b1, b2
-            z0[2], z1[2], z2[2] = c0, c1, c2
-        else:
+        for c in range(w):
+            z0[c] = 0.0
+            z1[c] = 0.0
+            z2[c] = 0.0
+        for pos in range(w, h):
+            i = rows[at + pos]
+            e0 = x[i, 0]
+            e1 = x[i, 1]
+            e2 = x[i, 2]
+            row_at = base + pos * w
             for c in range(w):
-                z0[c] = 0.0
-                z1[c] = 0.0
-                z2[c] = 0.0
-            for pos in range(w, h):
-                i = rows[at + pos]
-                e0 = x[i, 0]
-                e1 = x[i, 1]
-                e2 = x[i, 2]
-                row_at = base + pos * w
-                for c in range(w):
-                    v = vals[row_at + c]
-                    z0[c] += v * e0
-                    z1[c] += v * e1
-                    z2[c] += v * e2
+                v = vals[row_at + c]
+                z0[c] += v * e0
+                z1[c] += v * e1
+                z2[c] += v * e2
         for c in range(w - 1, -1, -1):
             s0 = x[j0 + c, 0] - z0[c]
             s1 = x[j0 + c, 1] - z1[c]
@@ -512,26 +411,6 @@ def _separator_solves(first, start, rows_ptr, rows, vals_ptr, vals, y, scratch):
             y[n + half * count + k, 0] = y[i, 0]
             y[n + half * count + k, 1] = y[i, 1]
             y[n + half * count + k, 2] = y[i, 2]
-
-
-@nb.njit(**FAST)
-def _permute_in(b, order, out):  # pragma: no cover - compiled
-    """out[k] = b[order[k]] for (n, 3) arrays (4x NumPy's `take` here)."""
-    for k in range(order.shape[0]):
-        i = order[k]
-        out[k, 0] = b[i, 0]
-        out[k, 1] = b[i, 1]
-        out[k, 2] = b[i, 2]
-
-
-@nb.njit(**FAST)
-def _permute_out(work, order, x):  # pragma: no cover - compiled
-    """x[order[k]] = work[k] for (n, 3) arrays."""
-    for k in range(order.shape[0]):
-        i = order[k]
-        x[i, 0] = work[k, 0]
-        x[i, 1] = work[k, 1]
-        x[i, 2] = work[k, 2]
 
 
 def _check_lower(
@@ -730,7 +609,7 @@ class SparseCholesky:
         nodes, work, scratch = self._supernodes, self._work, self._scratch
         structure = (nodes.start, nodes.rows_ptr, nodes.rows, nodes.vals_ptr, nodes.vals, work)
         (first, middle), (_, top), (_, last) = nodes.shares
-        _permute_in(b, self.order, work)
+        gather_rows(b, self.order, work)  # b permuted
         work[self.size :] = 0.0
         self._in_two(
             functools.partial(_forward, first, middle, *structure, scratch[0, 0]),
@@ -742,7 +621,7 @@ class SparseCholesky:
             functools.partial(_backward, first, middle, *structure, scratch[0, 0], scratch[0, 1]),
             functools.partial(_backward, middle, top, *structure, scratch[1, 0], scratch[1, 1]),
         )
-        _permute_out(work, self.order, x)
+        scatter_free(x, self.order, work)  # back in the original order
 
 
 class CholmodFactor:
@@ -805,7 +684,7 @@ def compile_kernels() -> None:
 
 #: every kernel `SparseCholesky` runs (`kernels_cached`)
 KERNELS = (_nested_dissection, _symbolic, _relaxed_supernodes, _factor_rows, _forward, _backward, _separator_solves,
-           _permute_in, _permute_out)
+           gather_rows, scatter_free)
 
 
 def kernels_cached() -> bool:

@@ -116,7 +116,6 @@ from meshdeform.solvers.base import Control, LargeKernels, Solver, velocity_rete
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import cholesky, coarse, kernels
 from meshdeform.solvers.implicit.anchors import ContactAnchors
-from meshdeform.solvers.implicit.cholesky import CholmodFactor, SparseCholesky, factorise
 from meshdeform.solvers.layout import vertex_slabs
 from meshdeform.solvers.options import CALM_COARSE, ImplicitOptions
 from meshdeform.solvers.threads import ThreadPicker, beside, split_threads
@@ -229,7 +228,7 @@ class ImplicitSolver(ModelCache, Solver):
             self.direction, self.base, self.residual = np.zeros(shape), np.zeros(shape), np.zeros(shape)
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
             self.rho = np.zeros(HISTORY)
-        self.factor: SparseCholesky | CholmodFactor | None = None
+        self.factor: cholesky.SparseCholesky | cholesky.CholmodFactor | None = None
         #: the matrix's lower triangle as CSC (indptr, indices, values), each column's diagonal first
         self._matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: the held contacts tied down in the matrix (L-BFGS only: local/global's matrix is exact)
@@ -303,8 +302,7 @@ class ImplicitSolver(ModelCache, Solver):
             self.factor.refactor(data)  # the ordering and symbolic analysis kept
         else:
             self.factor = None  # free the old factor before building the new one
-            self.factor = factorise(indptr, indices, data, self.free_rest, self._threads)
-        self.factor.threads = self._threads
+            self.factor = cholesky.factorise(indptr, indices, data, self.free_rest, self._threads)
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         if not self._prepared(model):
