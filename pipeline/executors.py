@@ -456,6 +456,10 @@ class ProcessPoolJobExecutor:
             snapshot = dict(processes)
             self._shutdown_pool()
             exit_codes = {pid: process.exitcode for pid, process in snapshot.items()}
+            # a worker killed while sending an event (the one that died, or one the pool stopped)
+            # leaves the queue's write lock held for good: the next pool's workers would wait on it
+            # forever, so they get a queue of their own
+            self._events = None
         return broken, started, exit_codes
 
     def run(self, tasks: Sequence[AssetTask], reporter: Reporter) -> None:

@@ -59,6 +59,17 @@ def fake_job(mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = Non
     return FakeResult(report)
 
 
+def locking_job(mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = None) -> FakeResult:
+    """Like fake_job, but "locked" assets die as a worker does that is killed while it sends a
+    progress event: holding the event queue's write lock."""
+    if "locked" in mesh_path.name:
+        import pipeline.executors
+
+        pipeline.executors._WORKER_EVENTS._wlock.acquire()
+        os.kill(os.getpid(), signal.SIGKILL)
+    return fake_job(mesh_path, recipe, out_dir, on_frame=on_frame)
+
+
 def slow_job(mesh_path: Path, recipe: Any, out_dir: Path, *, on_frame: Any = None) -> FakeResult:
     """Like fake_job, after a short sleep (so that two crashes overlap two running assets)."""
     time.sleep(0.3)
@@ -208,6 +219,16 @@ def test_process_pool_survives_a_worker_that_dies(tmp_path: Path) -> None:
         if name != "crash.obj":
             assert recorder.outcomes[name].status == "ok", recorder.outcomes[name]
             assert (tmp_path / "out" / Path(name).stem / "frame_0003.txt").is_file()
+
+
+def test_process_pool_survives_a_worker_killed_while_sending_progress(tmp_path: Path) -> None:
+    """A worker killed in the middle of sending an event (the pool stops its survivors so) holds the
+    event queue's lock for good; the next pool's workers must not wait on it (they hung there)."""
+    names = ["locked.obj", "b.obj", "c.obj"]
+    recorder = run_closing(ProcessPoolJobExecutor(jobs=1, preload=()), make_tasks(tmp_path, names, job=locking_job))
+    assert recorder.outcomes["locked.obj"].status == "failed"
+    assert recorder.outcomes["b.obj"].status == recorder.outcomes["c.obj"].status == "ok"
+    assert recorder.frames["c.obj"][-1] == 3  # the new pool's progress events arrive
 
 
 def test_process_pool_blames_the_right_assets_when_two_die_together(tmp_path: Path) -> None:
