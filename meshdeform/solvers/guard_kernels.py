@@ -48,19 +48,23 @@ def guard_figures(x, v, center):  # pragma: no cover - compiled
 
 
 @nb.njit(**JIT)
-def force_residual(x, a, b, rest, kt, kc, mass, inv_mass, accel, cell, f, load, mag):  # pragma: no cover - compiled
-    """The free vertices' force imbalance at positions x (W, 3), relative to their load, in cells.
+def force_residual(  # pragma: no cover - compiled
+    x, a, b, rest, kt, kc, mass, inv_mass, accel, cell, f, load, mag, magnitudes
+):
+    """The free vertices' force imbalance at positions x (W, 3), in cells: (|R|^2, |L|^2, |M|^2).
 
     Per free vertex (inv_mass > 0) r_i = the sum of its springs' Hooke forces (k = kt under
     tension, kc under compression, N/m; a, b, rest: (S,) ends and rest lengths) plus m_i accel_i
     (N). The r_i and the loads m_i accel_i are summed over the vertices of each cell (cell: (W,)
     int64 in 0..cells-1), so that forces between vertices of one cell cancel: what is left is the
     imbalance on the scale of the cells (the cloth's shape), not the jitter of single springs
-    (which the stiff springs of a fine mesh make large against a vertex's small weight). Returns
-    |R| / |L| (Euclidean norms over every cell's three components); without any load, |R| over
-    the norm of the cells' sums of spring force magnitudes; 0 when there is neither. f, load
-    (C, 3) and mag (C,): the caller's zeroed arrays, one row per cell (C cells) (an array made
-    in a kernel costs a process with an empty compile cache the compiling of its allocator).
+    (which the stiff springs of a fine mesh make large against a vertex's small weight); a caller
+    may therefore leave out the springs whose forces cancel so (`simulate._Balance`). Returns
+    the squared Euclidean norms over every cell's three components of R (the cells' sums) and of
+    L (their loads), and where `magnitudes` that of M, the cells' sums of spring force magnitudes
+    (else 0). f, load (C, 3) and mag (C,): the caller's zeroed arrays, one row per cell (C
+    cells) (an array made in a kernel costs a process with an empty compile cache the compiling
+    of its allocator).
     """
     cells = mag.shape[0]
     for s in range(a.shape[0]):
@@ -74,7 +78,7 @@ def force_residual(x, a, b, rest, kt, kc, mass, inv_mass, accel, cell, f, load, 
             continue
         c = length - rest[s]
         t = (kt[s] if c > 0.0 else kc[s]) * c / length
-        m = abs(t) * length
+        m = abs(t) * length if magnitudes else 0.0
         if inv_mass[ia] != 0.0:
             ca = cell[ia]
             f[ca, 0] += t * dx
@@ -101,8 +105,4 @@ def force_residual(x, a, b, rest, kt, kc, mass, inv_mass, accel, cell, f, load, 
             r2 += r * r
             load2 += load[c, k] * load[c, k]
         mag2 += mag[c] * mag[c]
-    if load2 > 0.0:
-        return np.sqrt(r2 / load2)
-    if mag2 > 0.0:
-        return np.sqrt(r2 / mag2)
-    return 0.0
+    return r2, load2, mag2
