@@ -55,6 +55,10 @@ LEAF_ROWS = 8
 #: entries of its columns (0.5: at most a third of the block), and its most columns
 BLOCK_SLACK = 0.5
 BLOCK_WIDEST = 32
+#: a top separator of up to this many rows is factorised in two parts, each half's columns of it
+#: on a thread each (`_separator_part`), then its own (`_separator_rest`), through (2, T, T) sums
+#: (the 256 rows of a 256 x 256 cloth: 1 MB; this many: 135 MB); a larger one on one thread
+SPLIT_SEPARATOR_ROWS = 2_900
 
 
 @nb.njit(**JIT)
@@ -216,13 +220,46 @@ def _symbolic(row_ptr, row_cols, parent, col_ptr, l_rows, flag, stack):  # pragm
 
 
 @nb.njit(**JIT)
+def _take_column(j, k, work, column_node, start, rows_ptr, pattern, vals_ptr, vals, fill):  # pragma: no cover
+    """Row k's entry L_kj = work[j] / L_jj into its block position (found from fill[j], where
+    column j's entries so far end, along the block's rows), and its updates of the later entries
+    of row k, work[i] -= L_ij L_kj for column j's rows i between j and k (zeros included):
+    one step of the up-looking row solve. Returns L_kj."""
+    s = column_node[j]
+    c = j - start[s]
+    at = rows_ptr[s]
+    column = vals_ptr[s] + c * (rows_ptr[s + 1] - at)  # column c of the block
+    value = work[j] * vals[column + c]  # the diagonal holds 1 / L_jj
+    work[j] = 0.0
+    position = fill[j]
+    while pattern[at + position] != k:
+        position += 1
+    for q in range(c + 1, position):
+        work[pattern[at + q]] -= vals[column + q] * value
+    vals[column + position] = value
+    fill[j] = position + 1
+    return value
+
+
+@nb.njit(**JIT)
+def _set_pivot(k, diagonal, column_node, start, rows_ptr, vals_ptr, vals, fill):  # pragma: no cover - compiled
+    """Row k's diagonal: 1 / sqrt(diagonal) into its block. False where diagonal is not positive
+    (the matrix is not positive definite there)."""
+    if not diagonal > 0.0:
+        return False
+    s = column_node[k]
+    c = k - start[s]
+    vals[vals_ptr[s] + c * (rows_ptr[s + 1] - rows_ptr[s]) + c] = 1.0 / np.sqrt(diagonal)
+    fill[k] = c + 1
+    return True
+
+
+@nb.njit(**JIT)
 def _factor_rows(first, last, row_ptr, row_cols, row_vals, parent, column_node, start, rows_ptr, pattern, vals_ptr,
                  vals, fill, work, flag, stack):  # pragma: no cover - compiled
     """Rows first .. last - 1 (each after all its descendants) of L = chol(A), up-looking
-    (CSparse's `cs_chol`), straight into the supernodes' blocks (`Supernodes`; zeroed before):
-    row k's entry in column j goes to the block position of row k, found from fill[j] (where
-    column j's entries so far end) along the block's rows; the updates read the entries before
-    it, zeros included. Returns the first row whose pivot is not positive (the matrix is not
+    (CSparse's `cs_chol`), straight into the supernodes' blocks (`Supernodes`; zeroed before;
+    `_take_column`). Returns the first row whose pivot is not positive (the matrix is not
     positive definite there), else -1. Scratch (n,) each, the thread's own: work (zeros), flag
     (-1), stack."""
     n = parent.shape[0]
@@ -236,28 +273,67 @@ def _factor_rows(first, last, row_ptr, row_cols, row_vals, parent, column_node, 
             else:
                 work[j] = row_vals[p]
         for p in range(top, n):
-            j = stack[p]
-            s = column_node[j]
-            c = j - start[s]
-            w = start[s + 1] - start[s]
-            at = rows_ptr[s]
-            base = vals_ptr[s]
-            value = work[j] * vals[base + c * w + c]  # the diagonal holds 1 / L_jj
-            work[j] = 0.0
-            position = fill[j]
-            while pattern[at + position] != k:
-                position += 1
-            for q in range(c + 1, position):
-                work[pattern[at + q]] -= vals[base + q * w + c] * value
+            value = _take_column(stack[p], k, work, column_node, start, rows_ptr, pattern, vals_ptr, vals, fill)
             diagonal -= value * value
-            vals[base + position * w + c] = value
-            fill[j] = position + 1
-        if not diagonal > 0.0:
+        if not _set_pivot(k, diagonal, column_node, start, rows_ptr, vals_ptr, vals, fill):
             return k
-        s = column_node[k]
-        c = k - start[s]
-        vals[vals_ptr[s] + c * (start[s + 1] - start[s]) + c] = 1.0 / np.sqrt(diagonal)
-        fill[k] = c + 1
+    return -1
+
+
+@nb.njit(**JIT)
+def _separator_part(first, last, low, high, row_ptr, row_cols, row_vals, parent, column_node, start, rows_ptr, pattern,
+                    vals_ptr, vals, fill, work, flag, stack, sums):  # pragma: no cover - compiled
+    """The separator's rows first .. last (= n) - 1 in the columns low .. high - 1 of one half
+    (which reach no other half's), into the blocks as `_factor_rows` does, and what those entries
+    take from the rest of each row: sums (T, T) gets, for row k and separator column i < k, the
+    sum over the half's columns j of -L_ij L_kj at [k - first, i - first], and the sum of L_kj^2
+    at [k - first, k - first] (the two halves' sums are added in `_separator_rest`). Scratch as
+    `_factor_rows`'s."""
+    n = parent.shape[0]
+    for k in range(first, last):
+        top = _row_pattern(k, row_ptr, row_cols, parent, flag, stack)
+        for p in range(row_ptr[k], row_ptr[k + 1]):
+            j = row_cols[p]
+            if low <= j < high:
+                work[j] = row_vals[p]
+        squares = 0.0
+        for p in range(top, n):
+            j = stack[p]
+            if low <= j < high:
+                value = _take_column(j, k, work, column_node, start, rows_ptr, pattern, vals_ptr, vals, fill)
+                squares += value * value
+        for i in range(first, k):
+            sums[k - first, i - first] = work[i]
+            work[i] = 0.0
+        sums[k - first, k - first] = squares
+
+
+@nb.njit(**JIT)
+def _separator_rest(first, row_ptr, row_cols, row_vals, parent, column_node, start, rows_ptr, pattern, vals_ptr, vals,
+                    fill, work, flag, stack, sums):  # pragma: no cover - compiled
+    """The separator's rows first .. n - 1 in its own columns, after `_separator_part` of both
+    halves (sums (2, T, T), added in that order whatever the threads). Returns the first row
+    whose pivot is not positive, else -1."""
+    n = parent.shape[0]
+    for k in range(first, n):
+        top = _row_pattern(k, row_ptr, row_cols, parent, flag, stack)
+        row = k - first
+        diagonal = -sums[0, row, row] - sums[1, row, row]
+        for i in range(first, k):
+            work[i] = sums[0, row, i - first] + sums[1, row, i - first]
+        for p in range(row_ptr[k], row_ptr[k + 1]):
+            j = row_cols[p]
+            if j == k:
+                diagonal += row_vals[p]
+            elif j >= first:
+                work[j] += row_vals[p]
+        for p in range(top, n):
+            j = stack[p]
+            if j >= first:
+                value = _take_column(j, k, work, column_node, start, rows_ptr, pattern, vals_ptr, vals, fill)
+                diagonal -= value * value
+        if not _set_pivot(k, diagonal, column_node, start, rows_ptr, vals_ptr, vals, fill):
+            return k
     return -1
 
 
@@ -291,13 +367,17 @@ def _relaxed_supernodes(col_ptr, parent, owner, slack, widest, first):  # pragma
 
 
 @nb.njit(**FAST)
-def _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, ys):  # pragma: no cover - compiled
+def _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, solved, below):  # pragma: no cover - compiled
     """L y = b in place on y (n + 2 T, 3) for the supernodes first .. last - 1: each one's
-    triangle, then its part taken from the rows below it. ys (3, widest) holds the supernode's
-    solved columns transposed (each row's sums then run over contiguous memory)."""
-    y0 = ys[0]
-    y1 = ys[1]
-    y2 = ys[2]
+    triangle, then its part taken from the rows below it, summed column by column into below
+    (3, tallest) (contiguous runs of each column, which vectorise) and subtracted row by row.
+    solved (3, widest) holds the supernode's solved columns transposed."""
+    y0 = solved[0]
+    y1 = solved[1]
+    y2 = solved[2]
+    t0 = below[0]
+    t1 = below[1]
+    t2 = below[2]
     for s in range(first, last):
         j0 = start[s]
         w = start[s + 1] - j0
@@ -305,80 +385,86 @@ def _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, ys):  # prag
         h = rows_ptr[s + 1] - at
         base = vals_ptr[s]
         for c in range(w):
-            row_at = base + c * w
             s0 = y[j0 + c, 0]
             s1 = y[j0 + c, 1]
             s2 = y[j0 + c, 2]
             for cc in range(c):
-                v = vals[row_at + cc]
+                v = vals[base + cc * h + c]
                 s0 -= v * y0[cc]
                 s1 -= v * y1[cc]
                 s2 -= v * y2[cc]
-            inverse = vals[row_at + c]
+            inverse = vals[base + c * h + c]
             y0[c] = s0 * inverse
             y1[c] = s1 * inverse
             y2[c] = s2 * inverse
             y[j0 + c, 0] = y0[c]
             y[j0 + c, 1] = y1[c]
             y[j0 + c, 2] = y2[c]
-        for pos in range(w, h):
-            row_at = base + pos * w
-            t0 = 0.0
-            t1 = 0.0
-            t2 = 0.0
-            for c in range(w):
-                v = vals[row_at + c]
-                t0 += v * y0[c]
-                t1 += v * y1[c]
-                t2 += v * y2[c]
-            i = rows[at + pos]
-            y[i, 0] -= t0
-            y[i, 1] -= t1
-            y[i, 2] -= t2
+        count = h - w
+        for r in range(count):
+            t0[r] = 0.0
+            t1[r] = 0.0
+            t2[r] = 0.0
+        for c in range(w):
+            column = base + c * h + w
+            a0 = y0[c]
+            a1 = y1[c]
+            a2 = y2[c]
+            for r in range(count):
+                v = vals[column + r]
+                t0[r] += v * a0
+                t1[r] += v * a1
+                t2[r] += v * a2
+        for r in range(count):
+            i = rows[at + w + r]
+            y[i, 0] -= t0[r]
+            y[i, 1] -= t1[r]
+            y[i, 2] -= t2[r]
 
 
 @nb.njit(**FAST)
-def _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, xs, zs):  # pragma: no cover - compiled
+def _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, solved, below):  # pragma: no cover - compiled
     """L^T x = y in place on x (n + 2 T, 3) for the supernodes last - 1 down to first (each after
-    every ancestor): each one's sums over the rows below it (read only) into zs (3, widest),
-    then its triangle, its solved columns kept transposed in xs (3, widest)."""
-    x0 = xs[0]
-    x1 = xs[1]
-    x2 = xs[2]
-    z0 = zs[0]
-    z1 = zs[1]
-    z2 = zs[2]
+    every ancestor): each one's rows below it gathered into below (3, tallest), each column's
+    sum over them (a contiguous run), then its triangle, its solved columns kept transposed in
+    solved (3, widest)."""
+    x0 = solved[0]
+    x1 = solved[1]
+    x2 = solved[2]
+    e0 = below[0]
+    e1 = below[1]
+    e2 = below[2]
     for s in range(last - 1, first - 1, -1):
         j0 = start[s]
         w = start[s + 1] - j0
         at = rows_ptr[s]
         h = rows_ptr[s + 1] - at
         base = vals_ptr[s]
-        for c in range(w):
-            z0[c] = 0.0
-            z1[c] = 0.0
-            z2[c] = 0.0
-        for pos in range(w, h):
-            i = rows[at + pos]
-            e0 = x[i, 0]
-            e1 = x[i, 1]
-            e2 = x[i, 2]
-            row_at = base + pos * w
-            for c in range(w):
-                v = vals[row_at + c]
-                z0[c] += v * e0
-                z1[c] += v * e1
-                z2[c] += v * e2
+        count = h - w
+        for r in range(count):
+            i = rows[at + w + r]
+            e0[r] = x[i, 0]
+            e1[r] = x[i, 1]
+            e2[r] = x[i, 2]
         for c in range(w - 1, -1, -1):
-            s0 = x[j0 + c, 0] - z0[c]
-            s1 = x[j0 + c, 1] - z1[c]
-            s2 = x[j0 + c, 2] - z2[c]
+            column = base + c * h
+            z0 = 0.0
+            z1 = 0.0
+            z2 = 0.0
+            for r in range(count):
+                v = vals[column + w + r]
+                z0 += v * e0[r]
+                z1 += v * e1[r]
+                z2 += v * e2[r]
+            s0 = x[j0 + c, 0] - z0
+            s1 = x[j0 + c, 1] - z1
+            s2 = x[j0 + c, 2] - z2
             for cc in range(c + 1, w):
-                v = vals[base + cc * w + c]
+                v = vals[column + cc]
                 s0 -= v * x0[cc]
                 s1 -= v * x1[cc]
                 s2 -= v * x2[cc]
-            inverse = vals[base + c * w + c]
+            inverse = vals[column + c]
             x0[c] = s0 * inverse
             x1[c] = s1 * inverse
             x2[c] = s2 * inverse
@@ -388,12 +474,12 @@ def _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, x, xs, zs):  #
 
 
 @nb.njit(**FAST)
-def _separator_solves(first, start, rows_ptr, rows, vals_ptr, vals, y, scratch):  # pragma: no cover - compiled
+def _separator_solves(first, start, rows_ptr, rows, vals_ptr, vals, y, solved, below):  # pragma: no cover - compiled
     """Between the threads' forward and backward passes, on y (n + 2 T, 3), the T separator rows
     being rows n - T .. n - 1: each half's updates of them (rows n .. n + T - 1, then the next T:
     minus its sums, from zero) added in the same order whatever the threads; the separator's
     supernodes (first to the last) forward and backward; the solved separator rows copied to both
-    halves' rows for their backward pass. scratch (2, 3, widest)."""
+    halves' rows for their backward pass. solved (3, widest), below (3, tallest): scratch."""
     count = (y.shape[0] - start[start.shape[0] - 1]) // 2
     n = y.shape[0] - 2 * count
     for half in range(2):
@@ -403,8 +489,8 @@ def _separator_solves(first, start, rows_ptr, rows, vals_ptr, vals, y, scratch):
             y[i, 1] += y[n + half * count + k, 1]
             y[i, 2] += y[n + half * count + k, 2]
     last = start.shape[0] - 1
-    _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, scratch[0])
-    _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, scratch[0], scratch[1])
+    _forward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, solved, below)
+    _backward(first, last, start, rows_ptr, rows, vals_ptr, vals, y, solved, below)
     for half in range(2):
         for k in range(count):
             i = n - count + k
@@ -437,13 +523,14 @@ def _check_lower(
 
 class Supernodes(NamedTuple):
     """L's supernodes: S runs of columns (`start` (S + 1,): the first of each, then n) that share
-    one pattern of rows, held as dense h x w blocks, row-major (`vals` from `vals_ptr` (S + 1,)),
-    zeros where a column has no entry, 1 / L_jj on the diagonal. `rows` (R,) int32, from
+    one pattern of rows, held as dense h x w blocks, column-major (`vals` from `vals_ptr` (S +
+    1,): the solves run down each column's contiguous rows), zeros where a column has no entry,
+    1 / L_jj on the diagonal. `rows` (R,) int32, from
     `rows_ptr` (S + 1,): each block's rows in the solves' work array (n + 2 T rows: a half's rows
     in the T separator rows are its own copies, n + T k + slot); `pattern`: the same rows in L.
     `shares`: the supernodes (first, last + 1) of each thread's half and of the separator, in
-    that order; `widest`: the widest supernode's columns. (float32 blocks solved 3 % faster but
-    broke free fall's exactness.)"""
+    that order; `widest`, `tallest`: the most columns of a supernode and rows below them. (float32
+    blocks solved 3 % faster but broke free fall's exactness.)"""
 
     start: np.ndarray
     rows_ptr: np.ndarray
@@ -453,6 +540,7 @@ class Supernodes(NamedTuple):
     vals: np.ndarray
     shares: tuple[tuple[int, int], tuple[int, int], tuple[int, int]]
     widest: int
+    tallest: int
 
 
 class SparseCholesky:
@@ -520,7 +608,9 @@ class SparseCholesky:
             np.arange(self._supernodes.start.shape[0] - 1, dtype=np.int64), np.diff(self._supernodes.start)
         )
         self._work = np.empty((n + 2 * (n - first - second), 3))  # (n + 2 T, 3): `Supernodes`
-        self._scratch = np.empty((2, 2, 3, self._supernodes.widest))  # a thread's (3, widest) pairs
+        # each thread's scratch of the solves: a supernode's solved columns and its rows below them
+        self._solved = np.empty((2, 3, self._supernodes.widest))
+        self._below = np.empty((2, 3, max(self._supernodes.tallest, 1)))
         self.refactor(data)
 
     def has_pattern(self, indptr: np.ndarray, indices: np.ndarray) -> bool:
@@ -537,17 +627,27 @@ class SparseCholesky:
         nodes.vals[:] = 0.0
         fill = np.arange(self.size, dtype=np.int64) - nodes.start[self._column_node]  # each diagonal's position
 
+        matrix = (self._row_ptr, self._row_cols, row_vals, self._parent, self._column_node, nodes.start)
+        blocks = (nodes.rows_ptr, nodes.pattern, nodes.vals_ptr, nodes.vals, fill)
+
+        def scratch() -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # a thread's work, flag and stack
+            return np.zeros(self.size), np.full(self.size, -1, dtype=np.int64), np.empty(self.size, dtype=np.int64)
+
         def rows(share: int) -> int:
-            low, high = self._row_shares[share]
-            return _factor_rows(
-                low, high, self._row_ptr, self._row_cols, row_vals, self._parent, self._column_node, nodes.start,
-                nodes.rows_ptr, nodes.pattern, nodes.vals_ptr, nodes.vals, fill, np.zeros(self.size),
-                np.full(self.size, -1, dtype=np.int64), np.empty(self.size, dtype=np.int64),
-            )
+            return _factor_rows(*self._row_shares[share], *matrix, *blocks, *scratch())
 
         failed = self._in_two(functools.partial(rows, 0), functools.partial(rows, 1))
-        if all(k is not None and k < 0 for k in failed):  # the separator's rows read both halves'
-            failed.append(rows(2))
+        first, last = self._row_shares[2]
+        if all(k is not None and k < 0 for k in failed) and first < last:  # the separator's rows read both halves'
+            if last - first > SPLIT_SEPARATOR_ROWS:
+                failed.append(rows(2))
+            else:  # each half's columns of them beside the other's, then their own columns
+                sums = np.empty((2, last - first, last - first))
+                self._in_two(
+                    *(functools.partial(_separator_part, first, last, *self._row_shares[half], *matrix, *blocks,
+                                        *scratch(), sums[half]) for half in (0, 1))
+                )
+                failed.append(_separator_rest(first, *matrix, *blocks, *scratch(), sums))
         bad = [k for k in failed if k is not None and k >= 0]
         if bad:
             raise ValueError(f"the implicit solver's matrix is not positive definite (row {int(self.order[min(bad)])})")
@@ -595,6 +695,7 @@ class SparseCholesky:
             shares=tuple((int(np.searchsorted(node_owner, side)), int(np.searchsorted(node_owner, side, "right")))
                          for side in (0, 1, 2)),
             widest=int(widths.max()) if widths.shape[0] else 1,
+            tallest=int((heights - widths).max()) if widths.shape[0] else 1,
         )
 
     def _in_two(self, first: Callable[[], int | None], second: Callable[[], int | None]) -> list[int | None]:
@@ -606,20 +707,20 @@ class SparseCholesky:
 
     def solve(self, b: np.ndarray, x: np.ndarray) -> None:
         """x (n, 3) = A^-1 b (n, 3); x and b may be the same array."""
-        nodes, work, scratch = self._supernodes, self._work, self._scratch
+        nodes, work, solved, below = self._supernodes, self._work, self._solved, self._below
         structure = (nodes.start, nodes.rows_ptr, nodes.rows, nodes.vals_ptr, nodes.vals, work)
         (first, middle), (_, top), (_, last) = nodes.shares
         gather_rows(b, self.order, work)  # b permuted
         work[self.size :] = 0.0
         self._in_two(
-            functools.partial(_forward, first, middle, *structure, scratch[0, 0]),
-            functools.partial(_forward, middle, top, *structure, scratch[1, 0]),
+            functools.partial(_forward, first, middle, *structure, solved[0], below[0]),
+            functools.partial(_forward, middle, top, *structure, solved[1], below[1]),
         )
         if top < last:
-            _separator_solves(top, *structure, scratch[0])
+            _separator_solves(top, *structure, solved[0], below[0])
         self._in_two(
-            functools.partial(_backward, first, middle, *structure, scratch[0, 0], scratch[0, 1]),
-            functools.partial(_backward, middle, top, *structure, scratch[1, 0], scratch[1, 1]),
+            functools.partial(_backward, first, middle, *structure, solved[0], below[0]),
+            functools.partial(_backward, middle, top, *structure, solved[1], below[1]),
         )
         scatter_free(x, self.order, work)  # back in the original order
 
@@ -683,8 +784,8 @@ def compile_kernels() -> None:
 
 
 #: every kernel `SparseCholesky` runs (`kernels_cached`)
-KERNELS = (_nested_dissection, _symbolic, _relaxed_supernodes, _factor_rows, _forward, _backward, _separator_solves,
-           gather_rows, scatter_free)
+KERNELS = (_nested_dissection, _symbolic, _relaxed_supernodes, _factor_rows, _separator_part, _separator_rest, _forward,
+           _backward, _separator_solves, gather_rows, scatter_free)
 
 
 def kernels_cached() -> bool:
