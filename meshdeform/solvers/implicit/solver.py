@@ -41,6 +41,7 @@ vertices along the rest shape's longest axis and then the few springs between th
 coarse Hessian over two halves of its groups; the two slabs, and the two halves, run on a thread
 each while `threads.ThreadPicker` measures two faster than one, and so do the large factor's two
 halves. The splits are decided by the model alone, so the bytes do not depend on the threads.
+Such a cloth's coarse space is set up on the pool thread while the first step factorises.
 
 Air damping: c = -ln(1 - damping) (1/s), so that velocity decays as (1 - damping) ** t as with
 every solver (`meshdeform.solvers.options`); a free vertex falls at exactly the terminal
@@ -105,6 +106,7 @@ neighbours into the obstacle, and a stiff cloth lying on it then stalls stretche
 from __future__ import annotations
 
 import functools
+from concurrent.futures import Future
 from dataclasses import replace
 from typing import ClassVar
 
@@ -118,7 +120,7 @@ from meshdeform.solvers.implicit import cholesky, coarse, kernels
 from meshdeform.solvers.implicit.anchors import ContactAnchors
 from meshdeform.solvers.layout import vertex_slabs
 from meshdeform.solvers.options import CALM_COARSE, ImplicitOptions
-from meshdeform.solvers.threads import ThreadPicker, beside, split_threads
+from meshdeform.solvers.threads import ThreadPicker, beside, helper_pool, split_threads
 from meshdeform.topology import SpringKind
 
 
@@ -234,11 +236,16 @@ class ImplicitSolver(ModelCache, Solver):
         #: the held contacts tied down in the matrix (L-BFGS only: local/global's matrix is exact)
         self.anchors = ContactAnchors(self.free_vertices.shape[0]) if self.options.method == "lbfgs" else None
         self.coarse_space: coarse.CoarseSpace | None = None
+        self._coarse_building: Future[coarse.CoarseSpace | None] | None = None
         if self.options.method == "lbfgs":
-            self.coarse_space = coarse.coarse_space(
-                self.free_rest, self.free, self.a, self.b,
+            build = functools.partial(
+                coarse.coarse_space, self.free_rest, self.free, self.a, self.b,
                 kinds != SpringKind.BENDING, int(self.options.coarse or 0), halves=slab is not None,
             )
+            if halves and split_threads() >= 2:  # built on the pool thread while the first step factorises
+                self._coarse_building = helper_pool().submit(build)
+            else:
+                self.coarse_space = build()
         edges = rest[kinds == SpringKind.STRUCTURAL]
         edges = edges if edges.size else rest
         #: the longest move an L-BFGS iteration may give a vertex (m): a fraction of the median edge
@@ -288,6 +295,8 @@ class ImplicitSolver(ModelCache, Solver):
             self._factor()
         self.beta2 = beta2
         self._dt = dt
+        if self._coarse_building is not None:
+            self.coarse_space, self._coarse_building = self._coarse_building.result(), None
         if self.coarse_space is not None:
             self.coarse_inertia = self.coarse_space.inertia_matrix(self.inertia)
 
