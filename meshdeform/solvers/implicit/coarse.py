@@ -35,7 +35,7 @@ import numba as nb
 import numpy as np
 from scipy.sparse import csr_matrix, diags
 
-from meshdeform.solvers.implicit.kernels import dot, spring_constant
+from meshdeform.solvers.implicit.kernels import spring_constant
 from meshdeform.solvers.jit import FAST, JIT
 from meshdeform.solvers.threads import beside
 
@@ -446,16 +446,17 @@ def solve_factored(lower, skip, rhs, y, x):  # pragma: no cover - compiled
 
 
 @nb.njit(**JIT)
-def newton_direction(  # pragma: no cover - compiled
-    grad, vertex_nodes, vertex_weights, lower, skip, gradient, forward, move, direction
-):
-    """A coarse Newton step as fine displacements: gradient (3C,) = Z^T grad for grad (F, 3), the
-    coarse move (3C,) solving (Z^T H Z) c = -gradient with the factor `lower`, `skip` of
-    `factor_spd` (forward (3C,): the solve's scratch), and direction (F, 3) = Z c; gradient is
-    left negated. Returns the slope grad . direction (negative downhill)."""
+def newton_move(grad, vertex_nodes, vertex_weights, lower, skip, gradient, forward, move):  # pragma: no cover
+    """A coarse Newton step: gradient (3C,) = Z^T grad for grad (F, 3), the coarse move (3C,)
+    solving (Z^T H Z) c = -gradient with the factor `lower`, `skip` of `factor_spd` (forward
+    (3C,): the solve's scratch); gradient is left negated. Returns the slope of the fine step Z c,
+    grad . Z c = (Z^T grad) . c (negative downhill), without forming it (`prolong` does, for a
+    step that is taken)."""
     restrict(grad, vertex_nodes, vertex_weights, gradient)
     for i in range(gradient.shape[0]):  # in place (an array expression compiles far more code)
         gradient[i] = -gradient[i]
     solve_factored(lower, skip, gradient, forward, move)
-    prolong(move, vertex_nodes, vertex_weights, direction)
-    return dot(grad, direction)
+    slope = 0.0
+    for i in range(move.shape[0]):
+        slope -= gradient[i] * move[i]
+    return slope

@@ -471,14 +471,14 @@ class ImplicitSolver(ModelCache, Solver):
         energy = self._energy(x, y, self.grad)
         first_slope = 0.0
         for _ in range(COARSE_STEPS):
-            slope = coarse.newton_direction(
-                self.grad, space.vertex_nodes, space.vertex_weights, matrix, skip, gradient, space.forward, space.move,
-                self.direction,
+            slope = coarse.newton_move(
+                self.grad, space.vertex_nodes, space.vertex_weights, matrix, skip, gradient, space.forward, space.move
             )
             # a later step whose Newton decrease (-slope / 2) is a sliver of the first's is not worth an energy
             if not slope < COARSE_SLOPE_FRACTION * first_slope:
                 break
             first_slope = first_slope or slope
+            coarse.prolong(space.move, space.vertex_nodes, space.vertex_weights, self.direction)
             kernels.gather_rows(x, fv, self.base)
             step = 1.0
             for _ in range(COARSE_HALVINGS):
