@@ -90,12 +90,15 @@ def test_the_thread_picker_drops_the_second_thread_where_it_is_slower() -> None:
 
 
 def test_the_thread_picker_keeps_two_threads_where_they_are_faster_and_tries_less_often() -> None:
+    """Each trial of the slower count stops once it cannot win: 3 pieces of 1.0 s reach 0.95 of the
+    first window's 5 x 0.6 s."""
     clock = _FakeClock()
     picker = threads.ThreadPicker(2, window=5, interval=40, clock=clock)
-    used = _searches(picker, clock, {1: 1.0, 2: 0.6}, 40 + 15 + 80 + 15)
+    used = _searches(picker, clock, {1: 1.0, 2: 0.6}, 40 + 8 + 80 + 8 + 10)
     assert picker.threads == 2 and picker.switches == 0
-    assert used.count(1) == 10  # two trials
-    assert used[140:145] == [1] * 5  # the second trial starts 80 pieces after the first ended
+    assert used[40:45] == [2] * 5 and used[45:48] == [1] * 3 and used[48:133] == [2] * 85  # decided early
+    assert used[133:136] == [1] * 3  # the second trial starts 80 pieces after the first ended
+    assert used.count(1) == 6
 
 
 def test_the_thread_picker_keeps_one_thread_when_one_is_all_it_may_use() -> None:

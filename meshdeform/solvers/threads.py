@@ -47,8 +47,10 @@ class ThreadPicker:
     every `interval` pieces a trial runs `window` of them at the count in use, `window` at the
     other and `window` at the first again, and the other count is kept when its window's seconds beat
     both windows around it by `margin` (noise does not flip it back and forth; sums, not medians: the
-    dear pieces, the whole searches, are a few of each window's). Without a switch the
-    interval doubles, up to `max_interval`. Neither count changes a result (module docstring):
+    dear pieces, the whole searches, are a few of each window's). A trial ends early, keeping
+    the count in use, once the other count's pieces so far took longer than that margin allows
+    (its window can no longer win: a slow count is not run to the window's end). Without a switch
+    the interval doubles, up to `max_interval`. Neither count changes a result (module docstring):
     only the speed.
 
     most: the threads allowed (`split_threads`); clock: seconds (tests pass a fake)."""
@@ -93,8 +95,13 @@ class ThreadPicker:
         result = search(threads)
         self._times.append(self.clock() - start)
         self._count += 1
-        if len(self._times) == 3 * self.window:
+        w = len(self._times)
+        if w == 3 * self.window:
             self._decide()
+        elif self.window < w < 2 * self.window and sum(self._times[self.window :]) >= (1.0 - self.margin) * sum(
+            self._times[: self.window]
+        ):  # the other count's window already took too long to win: the trial is decided
+            self._keep()
         return result
 
     def _decide(self) -> None:
@@ -104,8 +111,14 @@ class ThreadPicker:
             self.threads = 3 - self.threads
             self.switches += 1
             self._gap = self.interval
+            self._times = []
+            self._trial_at = self._count + self._gap
         else:
-            self._gap = min(2 * self._gap, self.max_interval)
+            self._keep()
+
+    def _keep(self) -> None:
+        """A trial that keeps the count in use: the next one twice as far off."""
+        self._gap = min(2 * self._gap, self.max_interval)
         self._times = []
         self._trial_at = self._count + self._gap
 
