@@ -10,6 +10,7 @@ import trimesh
 from scipy.sparse import coo_matrix, csc_matrix, tril
 from scipy.sparse.linalg import spsolve
 
+from meshdeform.solvers.implicit import cholesky
 from meshdeform.solvers.implicit.cholesky import MIN_PARALLEL_ROWS, SparseCholesky
 
 
@@ -70,6 +71,23 @@ def test_one_thread_and_two_give_the_same_bytes() -> None:
     rhs = rng.standard_normal((points.shape[0], 3))
     one, two = solve_both(matrix, points, rhs, 1), solve_both(matrix, points, rhs, 2)
     assert one.tobytes() == two.tobytes()
+
+
+def test_a_separator_too_large_to_split_is_factorised_on_one_thread(monkeypatch) -> None:
+    """Past `SPLIT_SEPARATOR_ROWS` the top separator's rows are factorised whole after both
+    halves (no (2, T, T) sums): the same solution as SuperLU's, the same bytes on one thread or two,
+    and within rounding of the split separator's."""
+    points, edges = grid(80)
+    rng = np.random.default_rng(3)
+    matrix = spring_matrix(edges, points.shape[0], rng)
+    rhs = rng.standard_normal((points.shape[0], 3))
+    split = solve_both(matrix, points, rhs, 2)
+    monkeypatch.setattr(cholesky, "SPLIT_SEPARATOR_ROWS", 0)
+    one, two = solve_both(matrix, points, rhs, 1), solve_both(matrix, points, rhs, 2)
+    assert one.tobytes() == two.tobytes()
+    expected = np.stack([spsolve(matrix, rhs[:, k]) for k in range(3)], axis=1)
+    np.testing.assert_allclose(two, expected, rtol=1e-8, atol=1e-10 * np.abs(expected).max())
+    np.testing.assert_allclose(two, split, rtol=1e-10, atol=1e-12 * np.abs(split).max())
 
 
 def test_a_closed_surface_and_a_refactorisation() -> None:
