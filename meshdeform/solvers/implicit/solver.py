@@ -258,8 +258,12 @@ class ImplicitSolver(ModelCache, Solver):
         self._normal, self._depth = np.zeros((model.vertex_count, 3)), np.zeros(model.vertex_count)
         self._moved = np.zeros(model.vertex_count, dtype=np.bool_)
         self._pushed = np.zeros(model.vertex_count, dtype=np.bool_)
-        # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out
-        self.x_hat, self.y, self.x_out = (np.zeros((model.vertex_count, 3)) for _ in range(3))
+        # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out and v_out
+        self.x_hat, self.y, self.x_out, self.v_out = (np.zeros((model.vertex_count, 3)) for _ in range(4))
+        # two pairs of (V, 3) arrays for the step's start (x_n, v_n), which becomes the next step's
+        # history (x_prev, v_prev): each step writes the pair that history is not (no array made
+        # in a step: a fresh array is a page fault for each of its pages where large arrays are mmapped)
+        self._starts = tuple((np.zeros((model.vertex_count, 3)), np.zeros((model.vertex_count, 3))) for _ in range(2))
         self._dt = -1.0
         self._state_key = None
 
@@ -364,8 +368,8 @@ class ImplicitSolver(ModelCache, Solver):
                 self.contact_impacts &= ~self.contact_self
         if self.anchors is not None and self.anchors.update(self.contact_rows) and self.factor is not None:
             self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
-        # the step's start (x_n, v_n) becomes the next step's history: fresh arrays each step
-        x_n, v_n = np.empty_like(x), np.empty_like(v)
+        # the step's start (x_n, v_n) becomes the next step's history: the pair of arrays it is not
+        x_n, v_n = next(pair for pair in self._starts if pair[0] is not self.x_prev and pair[1] is not self.v_prev)
         x_hat, y = self.x_hat, self.y
         kernels.bdf2_start(
             x, v, self.x_prev, self.v_prev, accel, dt, self.beta2, self.drag_factor, self.free_vertices,
@@ -383,7 +387,7 @@ class ImplicitSolver(ModelCache, Solver):
         kernels.bdf2_finish(x, v, x_hat, x_n, state.previous, self.free, dt, self.x_out)
         self.x_prev = x_n
         self.v_prev = v_n
-        self.v_out = v.copy()
+        np.copyto(self.v_out, v)
         self._state_key = (id(state), state.time + dt)
 
     def _sink_pressed(self, x: np.ndarray, y: np.ndarray, gradient: np.ndarray) -> None:
