@@ -2,17 +2,22 @@
 
 glibc's malloc serves requests above a threshold (128 KiB at start) with their own mmap, which
 `free` returns at once; but each time such a block is freed it raises the threshold (up to
-32 MiB), so afterwards arrays of a few MiB come from the heap, whose freed space the process
-keeps. A run builds and drops many such arrays (spring topology, solver set-up, a sparse
-factorisation), and the kept space shows up as peak memory: a 256 x 256 cloth with the
-implicit solver peaked at 306 MB with the dynamic threshold and 291 MB with it fixed at
-128 KiB (`benchmarks/cloth.py`). The cost is a page fault per fresh page of a large array,
-well under a millisecond per frame there.
+32 MiB), so afterwards arrays of up to that size come from the heap, whose freed space the
+process keeps. A run builds and drops many such arrays (spring topology, solver set-up, a
+sparse factorisation), and the kept space shows up as peak memory.
 
 The tool owns its processes, so it fixes the threshold: `tune_malloc` in the CLI process and
 in every job (so process-pool and Dask workers too), `MALLOC_ENVIRONMENT` for processes it
 starts. Elsewhere (musl, macOS, Windows) both do nothing. The engine (`meshdeform`) leaves
 the allocator alone: a library should not change its host process's malloc.
+
+The threshold is 4 MiB, not glibc's initial 128 KiB: every fresh mmapped array costs a page
+fault per 4 KiB page when it is first written, and a run's set-up and frames make many arrays
+of a few hundred KiB to a few MiB ((V, 3) positions are 1.5 MiB at 65 536 vertices). The 256 x
+256 hanging cloth through `meshdeform simulate` (implicit, 24 frames): 8.6-9.0 frames/s and
+4.7-4.9 s in all at 128 KiB, 9.6-9.7 frames/s and 4.2 s at 4 MiB, the same peak (441-463 MB
+either way; docs/performance.md). Session 11 had measured 306 MB with the dynamic threshold
+against 291 MB at 128 KiB (`benchmarks/cloth.py`).
 """
 
 from __future__ import annotations
@@ -21,8 +26,8 @@ import ctypes
 import ctypes.util
 import sys
 
-#: bytes from which glibc serves an allocation by mmap (its initial default, kept fixed)
-MMAP_THRESHOLD = 128 * 1024
+#: bytes from which glibc serves an allocation by mmap, kept fixed (module docstring)
+MMAP_THRESHOLD = 4 * 1024 * 1024
 #: glibc's mallopt parameter number for the mmap threshold
 _M_MMAP_THRESHOLD = -3
 #: the same setting for a child process, read by glibc at its start

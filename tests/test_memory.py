@@ -1,5 +1,5 @@
 """pipeline.memory: with the mmap threshold fixed, a freed large array no longer makes later
-arrays of a few MiB come from the heap (where their memory stays with the process)."""
+arrays of several MiB come from the heap (where their memory stays with the process)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pipeline.memory import MALLOC_ENVIRONMENT, MMAP_THRESHOLD
 glibc = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc only")
 
 # Frees a 16 MiB array (glibc then raises its threshold to 16 MiB unless it is fixed), allocates
-# a 1 MiB one and reports by how much that grew the bytes in mmapped blocks (mallinfo2: hblkhd).
+# an 8 MiB one and reports by how much that grew the bytes in mmapped blocks (mallinfo2: hblkhd).
 PROBE = """
 import ctypes, json, sys
 import numpy as np
@@ -30,7 +30,7 @@ libc.mallinfo2.restype = Info
 big = np.ones(2 ** 21)
 del big
 before = libc.mallinfo2().hblkhd
-small = np.ones(2 ** 17)
+small = np.ones(2 ** 20)
 print(json.dumps({"mmapped": libc.mallinfo2().hblkhd - before, "small": small.nbytes}))
 """
 
@@ -47,7 +47,7 @@ def probe(mode: str, env: dict[str, str] | None = None) -> dict:
 
 
 @glibc
-def test_tuned_process_serves_a_mib_array_by_mmap_after_a_large_one_was_freed() -> None:
+def test_tuned_process_serves_an_8_mib_array_by_mmap_after_a_large_one_was_freed() -> None:
     untuned = probe("plain")
     tuned = probe("tuned")
     assert untuned["mmapped"] < untuned["small"]  # the dynamic threshold moved it to the heap
