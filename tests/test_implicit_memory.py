@@ -6,8 +6,10 @@ of a fresh interpreter over `solver.step` on a cloth built beforehand, after a f
 on the same cloth (its kernels compiled or loaded, the factor's library in memory). Not with
 tracemalloc: CHOLMOD allocates its factor in C, outside the allocator tracemalloc follows, so
 tracemalloc would be blind to the one part that could go dense. glibc's mmap
-threshold is fixed as the tool fixes it (`pipeline.memory`), so large arrays are mapped and
-unmapped with their own pages and the peak is that of the step, not of what the heap kept.
+threshold is fixed at 128 KiB, so large arrays are mapped and unmapped with their own pages and
+the peak is that of the step, not of what the heap kept (the tool's own threshold,
+`pipeline.memory`, is 4 MiB: arrays below it would reuse what the first solver's step left in
+the heap, and the growth would tell the allocator's state rather than the step's needs).
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ import pytest
 from meshdeform.solvers.implicit.cholesky import OWN_FACTOR_ROWS
 
 TESTS = Path(__file__).resolve().parent
+#: glibc's mmap threshold in the probe (bytes; the module docstring)
+MMAP_THRESHOLD = 128 * 1024
 
 #: bytes of peak memory per vertex that set-up and the first step may take. Measured here: 1.4-1.5
 #: kB a vertex with CHOLMOD's factor at 9k to 65k vertices, 1.5-1.6 kB with ours at 16k to 65k (a
@@ -37,8 +41,6 @@ BYTES_PER_VERTEX = 3000
 # of the implicit solver on an nx x ny cloth (square cells) hanging from its top corners.
 PROBE = """
 import gc, json, sys
-from pipeline.memory import tune_malloc
-tune_malloc()
 import numpy as np
 from factories import TOP_CORNERS, grid_cloth
 from meshdeform.model import State
@@ -78,6 +80,7 @@ def first_step_peak(nx: int, ny: int) -> tuple[int, int]:
     takes, measured in a fresh interpreter."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
     env["PYTHONPATH"] = os.pathsep.join([str(TESTS.parent), str(TESTS), env.get("PYTHONPATH", "")])
+    env["MALLOC_MMAP_THRESHOLD_"] = str(MMAP_THRESHOLD)  # read by glibc as the interpreter starts
     probe = subprocess.run([sys.executable, "-c", PROBE, str(nx), str(ny)], capture_output=True, text=True, env=env)
     assert probe.returncode == 0, probe.stderr
     result = json.loads(probe.stdout.splitlines()[-1])
