@@ -93,7 +93,7 @@ def scatter_free(x, free_vertices, solution):  # pragma: no cover - compiled
 
 @nb.njit(**FAST)
 def step_energy(  # pragma: no cover - compiled
-    x, a, b, rest, stiff_t, stiff_c, modulus, free, free_vertices, rows, inertia, y, grad, gradient
+    x, a, b, rest, stiff_t, stiff_c, modulus, free, free_vertices, rows, inertia, y, grad
 ):
     """The energy (J) the implicit step minimises at positions x (V, 3), and its gradient, over
     the free rows `rows` and the springs a, b.
@@ -106,9 +106,7 @@ def step_energy(  # pragma: no cover - compiled
     pinned vertices enter at their current positions. One call over every row and spring is the
     whole energy; calls over slabs that share no vertex, then one over the springs between them
     (with no rows), give their parts (`ImplicitSolver._energy`). Serial and in a fixed order:
-    the same bytes on any thread count (the line search compares energies). Without `gradient`
-    grad is left as it is and only the energy is summed (the same value: its sum is the same),
-    at a third of the cost (the gradient's scatter is the rest).
+    the same bytes on any thread count (the line search compares energies).
     """
     energy = 0.0
     for r in range(rows.shape[0]):
@@ -119,10 +117,9 @@ def step_energy(  # pragma: no cover - compiled
         dy = x[i, 1] - y[i, 1]
         dz = x[i, 2] - y[i, 2]
         energy += 0.5 * m * (dx * dx + dy * dy + dz * dz)
-        if gradient:
-            grad[j, 0] = m * dx
-            grad[j, 1] = m * dy
-            grad[j, 2] = m * dz
+        grad[j, 0] = m * dx
+        grad[j, 1] = m * dy
+        grad[j, 2] = m * dz
     for s in range(a.shape[0]):
         ia = a[s]
         ib = b[s]
@@ -137,7 +134,7 @@ def step_energy(  # pragma: no cover - compiled
         c = length - rest[s]
         k = spring_constant(c, stiff_t[s], stiff_c[s], modulus)
         energy += 0.5 * k * c * c
-        if length < 1e-12 or not gradient:
+        if length < 1e-12:
             continue
         f = k * c / length
         if fa >= 0:

@@ -380,7 +380,7 @@ class ImplicitSolver(ModelCache, Solver):
         elif self.factor is not None:
             if self.options.method == "lbfgs":
                 gradient = self._quasi_newton(x, y, iterations)
-                if gradient is not None and self.contact_rows.shape[0]:
+                if self.contact_rows.shape[0]:
                     self._sink_pressed(x, y, gradient)
             else:
                 self._local_global(x, y, iterations)
@@ -436,16 +436,16 @@ class ImplicitSolver(ModelCache, Solver):
             self.factor.solve(self.rhs, self.solution)
             kernels.scatter_free(x, self.free_vertices, self.solution)
 
-    def _energy(self, x: np.ndarray, y: np.ndarray, grad: np.ndarray, gradient: bool = True) -> float:
-        """The step's energy at x (V, 3) and, where `gradient`, its gradient into grad (F, 3)
-        (`kernels.step_energy` over `energy_parts`): one call, or the two slabs (beside each other on
-        two threads) and then the springs between them, summed in that order whatever the threads."""
+    def _energy(self, x: np.ndarray, y: np.ndarray, grad: np.ndarray) -> float:
+        """The step's energy at x (V, 3) and its gradient into grad (F, 3) (`kernels.step_energy`
+        over `energy_parts`): one call, or the two slabs (beside each other on two threads) and then
+        the springs between them, summed in that order whatever the threads."""
 
         def part(rows: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, stiff_t: np.ndarray,
                  stiff_c: np.ndarray) -> float:
             return kernels.step_energy(
                 x, a, b, rest, stiff_t, stiff_c, self.modulus, self.free, self.free_vertices, rows, self.inertia, y,
-                grad, gradient,
+                grad,
             )
 
         if len(self.energy_parts) == 1:
@@ -498,10 +498,9 @@ class ImplicitSolver(ModelCache, Solver):
             self.grad, self.trial_grad = self.trial_grad, self.grad
         return energy
 
-    def _quasi_newton(self, x: np.ndarray, y: np.ndarray, iterations: int) -> np.ndarray | None:
+    def _quasi_newton(self, x: np.ndarray, y: np.ndarray, iterations: int) -> np.ndarray:
         """`iterations` of L-BFGS on the step's energy from x (= y on the free vertices), in place; returns the
-        energy's gradient (F, 3) at the x it leaves (one of the solver's buffers), or None where no
-        contact is held (the last iteration's line search then sums the energy alone).
+        energy's gradient (F, 3) at the x it leaves (one of the solver's buffers).
 
         The initial inverse Hessian is the prefactored matrix's inverse: one L-BFGS iteration
         without history is exactly one local/global iteration (the matrix times x minus the
@@ -554,20 +553,17 @@ class ImplicitSolver(ModelCache, Solver):
             kernels.gather_rows(x, fv, base)
             longest = kernels.longest_row(direction) if trust < np.inf else 0.0
             step = 1.0 if longest <= trust else trust / longest
-            last = iteration + 1 == iterations
-            # the last iteration's gradient is wanted only where held contacts are sunk after it
-            wanted = not last or bool(self.contact_rows.shape[0])
             for _ in range(LINE_SEARCH_HALVINGS):
                 kernels.place(x, fv, base, direction, -step)
-                trial = self._energy(x, y, trial_grad, wanted)
+                trial = self._energy(x, y, trial_grad)
                 if trial <= energy + ARMIJO * step * slope:
                     break
                 step *= 0.5
             else:  # no decrease even at the smallest step: x is as good as this direction gets
                 kernels.place(x, fv, base, direction, 0.0)
                 return grad
-            if last:
-                return trial_grad if wanted else None
+            if iteration + 1 == iterations:
+                return trial_grad
             slot = next(k for k in range(HISTORY) if k not in slots) if len(slots) < HISTORY else slots.pop()
             curvature = kernels.lbfgs_remember(
                 direction, step, trial_grad, grad, rows, normals, self.step_history[slot], self.gradient_history[slot]
