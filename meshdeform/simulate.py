@@ -596,9 +596,9 @@ class _Balance:
     compression (S,) N/m (`common.spring_constants`); mass, inv_mass (W,); cell (W,) int64: the
     vertex's cell of a grid of `RESIDUAL_CELLS` cells a side over the rest shape's bounding box
     (one along an axis it does not extend in), so its cells are the same on any mesh of a shape;
-    cells: how many. crossing (K,) int64: the springs whose forces do not cancel within a cell
-    (ends in two cells, or a pinned end), the only ones the residual of a loaded cloth sums (a
-    tenth of them on a 256 x 256 sheet).
+    cells: how many. crossing: (a, b, rest, kt, kc) of the K springs whose forces do not cancel
+    within a cell (ends in two cells, or a pinned end), the only ones the residual of a loaded
+    cloth sums (2 % of them on a 256 x 256 sheet).
     """
 
     a: np.ndarray
@@ -610,7 +610,7 @@ class _Balance:
     inv_mass: np.ndarray
     cell: np.ndarray
     cells: int
-    crossing: np.ndarray
+    crossing: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
     @classmethod
     def of(cls, model: SpringModel) -> _Balance:
@@ -629,11 +629,13 @@ class _Balance:
                     cells *= RESIDUAL_CELLS
         a = np.ascontiguousarray(model.springs[:, 0], dtype=np.int64)
         b = np.ascontiguousarray(model.springs[:, 1], dtype=np.int64)
+        rest_lengths = np.ascontiguousarray(model.rest_lengths, dtype=np.float64)
+        kt, kc = np.ascontiguousarray(kt), np.ascontiguousarray(kc)
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
-        crossing = np.flatnonzero((cell[a] != cell[b]) | (inv_mass[a] == 0.0) | (inv_mass[b] == 0.0))
+        part = np.flatnonzero((cell[a] != cell[b]) | (inv_mass[a] == 0.0) | (inv_mass[b] == 0.0))
+        crossing = (a[part], b[part], rest_lengths[part], kt[part], kc[part])
         return cls(
-            a, b, np.ascontiguousarray(model.rest_lengths, dtype=np.float64), np.ascontiguousarray(kt),
-            np.ascontiguousarray(kc), np.ascontiguousarray(model.mass, dtype=np.float64), inv_mass, cell, cells,
+            a, b, rest_lengths, kt, kc, np.ascontiguousarray(model.mass, dtype=np.float64), inv_mass, cell, cells,
             crossing,
         )
 
@@ -641,11 +643,7 @@ class _Balance:
         """The force residual of welded positions (W, 3) under accelerations (W, 3) m/s^2: |R| / |L|
         (`guard_kernels.force_residual`) from the crossing springs; without any load |R| / |M| from
         every spring; 0 when there is neither."""
-        part = self.crossing
-        r2, load2, _ = self._sums(
-            positions, accelerations, (self.a[part], self.b[part], self.rest[part], self.kt[part], self.kc[part]),
-            False,
-        )
+        r2, load2, _ = self._sums(positions, accelerations, self.crossing, False)
         if load2 > 0.0:
             return float(np.sqrt(r2 / load2))
         r2, _, magnitude2 = self._sums(positions, accelerations, (self.a, self.b, self.rest, self.kt, self.kc), True)

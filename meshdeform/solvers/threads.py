@@ -95,13 +95,13 @@ class ThreadPicker:
         result = search(threads)
         self._times.append(self.clock() - start)
         self._count += 1
-        w = len(self._times)
-        if w == 3 * self.window:
+        timed = len(self._times)
+        if timed == 3 * self.window:
             self._decide()
-        elif self.window < w < 2 * self.window and sum(self._times[self.window :]) >= (1.0 - self.margin) * sum(
+        elif self.window < timed < 2 * self.window and sum(self._times[self.window :]) >= (1.0 - self.margin) * sum(
             self._times[: self.window]
         ):  # the other count's window already took too long to win: the trial is decided
-            self._keep()
+            self._next_trial(min(2 * self._gap, self.max_interval))
         return result
 
     def _decide(self) -> None:
@@ -110,17 +110,15 @@ class ThreadPicker:
         if other < (1.0 - self.margin) * min(first, last):
             self.threads = 3 - self.threads
             self.switches += 1
-            self._gap = self.interval
-            self._times = []
-            self._trial_at = self._count + self._gap
-        else:
-            self._keep()
+            self._next_trial(self.interval)
+        else:  # the count in use kept: the next trial twice as far off
+            self._next_trial(min(2 * self._gap, self.max_interval))
 
-    def _keep(self) -> None:
-        """A trial that keeps the count in use: the next one twice as far off."""
-        self._gap = min(2 * self._gap, self.max_interval)
+    def _next_trial(self, gap: int) -> None:
+        """The trial ended: the next one starts `gap` pieces from now."""
+        self._gap = gap
         self._times = []
-        self._trial_at = self._count + self._gap
+        self._trial_at = self._count + gap
 
 
 def split_threads() -> int:
