@@ -272,6 +272,9 @@ class ImplicitSolver(ModelCache, Solver):
         beta2 = beta * beta
         # air damping as an implicit drag force of rate c = -ln(1 - damping) (1/s)
         self.drag_factor = 1.0 - beta * np.log(velocity_retention(self.options.damping, 1.0))
+        # a restarted history's velocity a step back, v / (the air damping's factor over a step): with v
+        # alone a vertex restarted every step (one a collider holds) kept two thirds of the air damping
+        self.undamped = 1.0 / velocity_retention(self.options.damping, dt)
         nf = self.free_vertices.shape[0]
         self.inertia = self.drag_factor * self.free_mass / beta2
         fa = self.free[self.a]
@@ -335,9 +338,9 @@ class ImplicitSolver(ModelCache, Solver):
         accel = control.accelerations
         key = self._state_key
         if key is None or key[0] != id(state) or abs(key[1] - state.time) > 1e-6 * dt:
-            # BDF2 history consistent with constant external acceleration (exact free fall)
+            # BDF2 history consistent with constant external acceleration and the air damping (exact free fall)
             self.x_prev = x - dt * v + 0.5 * dt * dt * accel
-            self.v_prev = v - dt * accel
+            self.v_prev = self.undamped * v - dt * accel
             self._forget_contacts()
         else:
             # vertices a constraint moved since this solver's last step (a collider, self-
@@ -354,7 +357,7 @@ class ImplicitSolver(ModelCache, Solver):
                 moved[:] = True
             if moved.any():
                 self.x_prev[moved] = x[moved] - dt * v[moved] + 0.5 * dt * dt * accel[moved]
-                self.v_prev[moved] = v[moved] - dt * accel[moved]
+                self.v_prev[moved] = self.undamped * v[moved] - dt * accel[moved]
             pushed_vertices = np.flatnonzero(pushed)
             self.contact_rows = self.free[pushed_vertices].astype(np.int64)
             self.contact_normals = np.ascontiguousarray(self._normal[pushed_vertices])
