@@ -12,9 +12,11 @@ the cloth stays stretched: a 10 000 N/m sheet folded over a bar onto the ground 
 rest lengths (docs/performance.md, "Contact anchors in the implicit solver's matrix").
 
 What: the matrix's diagonal is raised by `ANCHOR` times itself on the rows of the vertices held
-recently, so the preconditioner moves them little and their neighbours as if tied to them (an
-elastic tie, in every direction: the filter and the L-BFGS history still let a held vertex
-slide); the energy, its gradient and the filters are unchanged, so the step minimises the same
+recently that their springs pressed into the obstacle (the solver passes those:
+`solver.ANCHOR_SPRING_SHARE`; a contact that only its weight presses is left untied, as the tie
+also holds it against sliding), so the preconditioner moves them little and their neighbours as
+if tied to them (an elastic tie, in every direction: the filter and the L-BFGS history still let
+a held vertex slide); the energy, its gradient and the filters are unchanged, so the step minimises the same
 energy, only better preconditioned. Refactorising costs a numeric factorisation (CHOLMOD's through
 cholespy a whole one), so the anchored set follows the contacts loosely: a row stays anchored for
 `ANCHOR_WINDOW` steps after it was last held, and the matrix is refactorised only when more than

@@ -98,9 +98,11 @@ alone (`_sink_pressed`, at most `SINK_FRACTION` of an edge), so the collider's p
 step carries the contact's normal impulse and friction; and each iteration
 moves no vertex further than a quarter of an edge while there is contact (`TRUST_FRACTION`), so
 a cloth stopped by a thin bar within a long step is not pulled through it or slung across it
-(it hooked around the bar at 4 to 7x stretch). The vertices held in recent steps are tied down in
-the prefactored matrix (`anchors`): a matrix that knows nothing of the contact sends their free
-neighbours into the obstacle, and a stiff cloth lying on it then stalls stretched.
+(it hooked around the bar at 4 to 7x stretch). The vertices held in recent steps whose springs
+pressed them into the obstacle are tied down in the prefactored matrix (`anchors`): a matrix that
+knows nothing of the contact sends their free neighbours into the obstacle, and a stiff cloth
+lying on it then stalls stretched; one that its weight alone presses is not, as the tie would hold
+it against sliding too (`ANCHOR_SPRING_SHARE`).
 """
 
 from __future__ import annotations
@@ -257,6 +259,9 @@ class ImplicitSolver(ModelCache, Solver):
         # which vertices moved and which were pushed (V,) bool each
         self._normal, self._depth = np.zeros((model.vertex_count, 3)), np.zeros(model.vertex_count)
         self._moved = np.zeros(model.vertex_count, dtype=np.bool_)
+        # the vertices whose contact the springs pressed into its obstacle at the end of the last step
+        # (V,) bool (`_sink_pressed`), the ones `anchors` ties down
+        self._spring_pressed = np.zeros(model.vertex_count, dtype=np.bool_)
         self._pushed = np.zeros(model.vertex_count, dtype=np.bool_)
         # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out and v_out
         self.x_hat, self.y, self.x_out, self.v_out = (np.zeros((model.vertex_count, 3)) for _ in range(4))
@@ -369,7 +374,9 @@ class ImplicitSolver(ModelCache, Solver):
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
-        if self.anchors is not None and self.anchors.update(self.contact_rows) and self.factor is not None:
+        # the contacts the springs press into the obstacle (and self-collision's) are tied down in the matrix
+        spring_held = self._spring_pressed[self.free_vertices[self.contact_rows]] | self.contact_self
+        if self.anchors is not None and self.anchors.update(self.contact_rows[spring_held]) and self.factor is not None:
             self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
         # the step's start (x_n, v_n) becomes the next step's history: the pair of arrays it is not
         x_n, v_n = next(pair for pair in self._starts if pair[0] is not self.x_prev and pair[1] is not self.v_prev)
@@ -403,10 +410,15 @@ class ImplicitSolver(ModelCache, Solver):
         in the last iteration)."""
         fv = self.free_vertices
         held = self._pressed(gradient, x, y) & ~self.contact_self
+        self._spring_pressed[:] = False
         if not held.any():
             return
         rows, normals = self.contact_rows[held], self.contact_normals[held]
         force = np.maximum(np.einsum("ij,ij->i", gradient[rows], normals), 0.0)
+        # the springs' share of the press: the gradient less its inertia term, inertia (x - y)
+        spring_force = gradient[rows] - self.inertia[rows, None] * (x[fv[rows]] - y[fv[rows]])
+        springs = np.einsum("ij,ij->i", spring_force, normals)
+        self._spring_pressed[fv[rows]] = springs > ANCHOR_SPRING_SHARE * force
         depth = np.minimum(force / self.inertia[rows], self.sink_cap)
         x[fv[rows]] -= normals * depth[:, None]
 
@@ -588,6 +600,12 @@ TRUST_FRACTION = 0.25
 #: structural rest length: pressed by stiff springs, a vertex would otherwise be sunk deep and
 #: pushed back out as a strong, sticking friction that stretches the cloth (docs/performance.md)
 SINK_FRACTION = 1.0 / 16.0
+#: the share of a held contact's press that its springs must give for the matrix to tie it down
+#: (`anchors`): a cloth the springs pull into an obstacle needs its contacts tied (a sheet folded
+#: over a bar stalled stretched without), but tying one that only its weight presses (a sheet lying on
+#: a slope) stiffens the matrix against its sliding a thousandfold: on a frictionless 20 degree slope
+#: it slid at 0.50 m/s after 2 s where the air damping allows 1.44, and held at friction 0.2
+ANCHOR_SPRING_SHARE = 0.5
 #: a collider's push deeper than this many times the sink of a resting vertex in one step (1/2 |a|
 #: dt^2) is an impact, whose vertex is held only while its own momentum presses it in, not while
 #: springs do: a stiff body's compression would be held and given back as a bounce (the values
