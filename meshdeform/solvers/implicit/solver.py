@@ -262,6 +262,7 @@ class ImplicitSolver(ModelCache, Solver):
         # the vertices whose contact the springs pressed into its obstacle at the end of the last step
         # (V,) bool (`_sink_pressed`), the ones `anchors` ties down
         self._spring_pressed = np.zeros(model.vertex_count, dtype=np.bool_)
+        self._spring_pressed_any = False
         self._pushed = np.zeros(model.vertex_count, dtype=np.bool_)
         # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out and v_out
         self.x_hat, self.y, self.x_out, self.v_out = (np.zeros((model.vertex_count, 3)) for _ in range(4))
@@ -392,6 +393,9 @@ class ImplicitSolver(ModelCache, Solver):
                 gradient = self._quasi_newton(x, y, iterations)
                 if self.contact_rows.shape[0]:
                     self._sink_pressed(x, y, gradient)
+                elif self._spring_pressed_any:  # no contact this step: none pressed at its end
+                    self._spring_pressed[:] = False
+                    self._spring_pressed_any = False
             else:
                 self._local_global(x, y, iterations)
         kernels.bdf2_finish(x, v, x_hat, x_n, state.previous, self.free, dt, self.x_out)
@@ -407,7 +411,8 @@ class ImplicitSolver(ModelCache, Solver):
         (F_n / inertia, m), at most `self.sink_cap`. The constraint's push after the step takes it
         back out: that push is the contact's normal impulse, which scales its friction, and keeps
         the vertex in the contact set. Self-collision's contacts are left as they are (released
-        in the last iteration)."""
+        in the last iteration). Records which of the pressed vertices their springs press
+        (`_spring_pressed`: the ones the next step's `anchors` tie down)."""
         fv = self.free_vertices
         held = self._pressed(gradient, x, y) & ~self.contact_self
         self._spring_pressed[:] = False
@@ -419,6 +424,7 @@ class ImplicitSolver(ModelCache, Solver):
         spring_force = gradient[rows] - self.inertia[rows, None] * (x[fv[rows]] - y[fv[rows]])
         springs = np.einsum("ij,ij->i", spring_force, normals)
         self._spring_pressed[fv[rows]] = springs > ANCHOR_SPRING_SHARE * force
+        self._spring_pressed_any = True
         depth = np.minimum(force / self.inertia[rows], self.sink_cap)
         x[fv[rows]] -= normals * depth[:, None]
 
