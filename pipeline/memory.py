@@ -13,11 +13,9 @@ the allocator alone: a library should not change its host process's malloc.
 
 The threshold is 4 MiB, not glibc's initial 128 KiB: every fresh mmapped array costs a page
 fault per 4 KiB page when it is first written, and a run's set-up and frames make many arrays
-of a few hundred KiB to a few MiB ((V, 3) positions are 1.5 MiB at 65 536 vertices). The 256 x
-256 hanging cloth through `meshdeform simulate` (implicit, 24 frames): 8.6-9.0 frames/s and
-4.7-4.9 s in all at 128 KiB, 9.6-9.7 frames/s and 4.2 s at 4 MiB, the same peak (441-463 MB
-either way; docs/performance.md). Session 11 had measured 306 MB with the dynamic threshold
-against 291 MB at 128 KiB (`benchmarks/cloth.py`).
+of a few hundred KiB to a few MiB ((V, 3) positions are 1.5 MiB at 65 536 vertices); at 4 MiB
+they come from the heap at the same peak memory (the figures: docs/performance.md, "The mmap
+threshold").
 """
 
 from __future__ import annotations

@@ -262,7 +262,6 @@ class ImplicitSolver(ModelCache, Solver):
         # the vertices whose contact the springs pressed into its obstacle at the end of the last step
         # (V,) bool (`_sink_pressed`), the ones `anchors` ties down
         self._spring_pressed = np.zeros(model.vertex_count, dtype=np.bool_)
-        self._spring_pressed_any = False
         self._pushed = np.zeros(model.vertex_count, dtype=np.bool_)
         # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out and v_out
         self.x_hat, self.y, self.x_out, self.v_out = (np.zeros((model.vertex_count, 3)) for _ in range(4))
@@ -278,8 +277,8 @@ class ImplicitSolver(ModelCache, Solver):
         beta2 = beta * beta
         # air damping as an implicit drag force of rate c = -ln(1 - damping) (1/s)
         self.drag_factor = 1.0 - beta * np.log(velocity_retention(self.options.damping, 1.0))
-        # a restarted history's velocity a step back, v / (the air damping's factor over a step): with v
-        # alone a vertex restarted every step (one a collider holds) kept two thirds of the air damping
+        # a restarted history's velocity a step back is v / (the air damping's factor over a step): the
+        # velocity a damped path had then (with v alone, a vertex restarted every step lost a third of the drag)
         self.undamped = 1.0 / velocity_retention(self.options.damping, dt)
         nf = self.free_vertices.shape[0]
         self.inertia = self.drag_factor * self.free_mass / beta2
@@ -379,6 +378,7 @@ class ImplicitSolver(ModelCache, Solver):
         spring_held = self._spring_pressed[self.free_vertices[self.contact_rows]] | self.contact_self
         if self.anchors is not None and self.anchors.update(self.contact_rows[spring_held]) and self.factor is not None:
             self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
+        self._spring_pressed[:] = False  # read: this step's end sets them afresh
         # the step's start (x_n, v_n) becomes the next step's history: the pair of arrays it is not
         x_n, v_n = next(pair for pair in self._starts if pair[0] is not self.x_prev and pair[1] is not self.v_prev)
         x_hat, y = self.x_hat, self.y
@@ -393,9 +393,6 @@ class ImplicitSolver(ModelCache, Solver):
                 gradient = self._quasi_newton(x, y, iterations)
                 if self.contact_rows.shape[0]:
                     self._sink_pressed(x, y, gradient)
-                elif self._spring_pressed_any:  # no contact this step: none pressed at its end
-                    self._spring_pressed[:] = False
-                    self._spring_pressed_any = False
             else:
                 self._local_global(x, y, iterations)
         kernels.bdf2_finish(x, v, x_hat, x_n, state.previous, self.free, dt, self.x_out)
@@ -415,7 +412,6 @@ class ImplicitSolver(ModelCache, Solver):
         (`_spring_pressed`: the ones the next step's `anchors` tie down)."""
         fv = self.free_vertices
         held = self._pressed(gradient, x, y) & ~self.contact_self
-        self._spring_pressed[:] = False
         if not held.any():
             return
         rows, normals = self.contact_rows[held], self.contact_normals[held]
@@ -424,7 +420,6 @@ class ImplicitSolver(ModelCache, Solver):
         spring_force = gradient[rows] - self.inertia[rows, None] * (x[fv[rows]] - y[fv[rows]])
         springs = np.einsum("ij,ij->i", spring_force, normals)
         self._spring_pressed[fv[rows]] = springs > ANCHOR_SPRING_SHARE * force
-        self._spring_pressed_any = True
         depth = np.minimum(force / self.inertia[rows], self.sink_cap)
         x[fv[rows]] -= normals * depth[:, None]
 
@@ -607,10 +602,9 @@ TRUST_FRACTION = 0.25
 #: pushed back out as a strong, sticking friction that stretches the cloth (docs/performance.md)
 SINK_FRACTION = 1.0 / 16.0
 #: the share of a held contact's press that its springs must give for the matrix to tie it down
-#: (`anchors`): a cloth the springs pull into an obstacle needs its contacts tied (a sheet folded
-#: over a bar stalled stretched without), but tying one that only its weight presses (a sheet lying on
-#: a slope) stiffens the matrix against its sliding a thousandfold: on a frictionless 20 degree slope
-#: it slid at 0.50 m/s after 2 s where the air damping allows 1.44, and held at friction 0.2
+#: (`anchors`): a cloth the springs pull into an obstacle needs its contacts tied, but tying one
+#: that only its weight presses stiffens the matrix against its sliding by the springs' stiffness
+#: over its inertia (docs/performance.md, "Sliding, and the air damping of restarted vertices")
 ANCHOR_SPRING_SHARE = 0.5
 #: a collider's push deeper than this many times the sink of a resting vertex in one step (1/2 |a|
 #: dt^2) is an impact, whose vertex is held only while its own momentum presses it in, not while
@@ -627,11 +621,9 @@ PICKER_MARGIN = 0.05
 #: Newton steps on the coarse space before each step's L-BFGS iterations (`_coarse_correction`)
 COARSE_STEPS = 2
 #: a coarse Newton step after the first is taken only while its slope is at least this fraction of
-#: the first's (its predicted decrease, -slope / 2, likewise): each costs an energy evaluation. On
-#: the 256 x 256 hanging cloth the second step's slope was 1e-4 to 2e-4 of the first's in 9 steps
-#: of 10 (241 energy evaluations in 24 frames instead of 294); on the 16 x 16 and 64 x 64 falling
-#: sheets 2e-4 to 2e-2 (median 6e-4), where leaving out those below 1e-3 took the woven sheet of
-#: `tests/test_physics.py` 0.202 m from `springs`' path instead of 0.182, and below 3e-4 changed nothing
+#: the first's (its predicted decrease, -slope / 2, likewise): each costs an energy evaluation, and
+#: on a large hanging cloth the second one mostly promises a sliver (the slopes measured and the
+#: fractions tried: docs/performance.md, "A second coarse Newton step only where it promises something")
 COARSE_SLOPE_FRACTION = 3e-4
 #: L-BFGS history length (Liu, Bouaziz, Kavan 2017 use 5)
 HISTORY = 5
