@@ -12,9 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from factories import TOP_CORNERS, grid_pins, write_grid
 
-from meshdeform.io import load
+from meshdeform.io import load, write_obj
+from meshdeform.mesh import Mesh
 from meshdeform.simulate import Frame, simulate
 from meshdeform.solvers import SOLVERS
 from pipeline.build import BuiltSimulation, build_simulation
@@ -173,3 +175,47 @@ def test_damped_scene_comes_to_rest_and_the_report_says_from_which_frame(
     # frame k is positions[k]: the steps from the rest frame to the next, and on to the last
     step = np.linalg.norm(np.diff(positions[rest_frame:], axis=0), axis=2).max()
     assert step * fps < 1e-4
+
+
+#: the dropped box: a cube of 0.3 m side (8 vertices, 12 triangles: trimesh's box), its bottom 0.5 m
+#: above the ground, 6 s at 24 fps. A light, stiff, coarse solid: the hardest case for contact that
+#: must stop it rather than store its fall in its springs and give it back as a bounce
+BOX_SIDE, BOX_DROP, BOX_FRAMES = 0.3, 0.5, 24 * 6
+#: the solvers whose report sees the box at rest: `springs` holds it still in every written frame,
+#: but its collider contact acts once a substep, after several explicit steps, so the box's upper
+#: vertices end each substep at g dt of speed and its rest frame stays None (docs/performance.md,
+#: "A light, stiff, coarse solid comes to rest under implicit")
+LANDING_SOLVERS = ("anchor", "implicit", "verlet", "xpbd")
+
+
+@pytest.mark.parametrize("solver", LANDING_SOLVERS)
+def test_a_small_stiff_box_dropped_on_the_ground_lands_and_comes_to_rest(solver: str, tmp_path: Path) -> None:
+    """Through a recipe at the solver's defaults, a ground collider at its default thickness: once
+    the box's lowest vertex has come within 2 cm of the ground it never rises more than 5 cm again
+    (a tenth of the fall: it lands, it is not thrown back up), the report's rest frame is at least
+    2 s before the end, the written positions barely move from it on, and the box at rest keeps its
+    shape (every distance between two of its vertices within 2 % of the rest mesh's)."""
+    box = trimesh.creation.box(extents=(BOX_SIDE,) * 3)
+    positions = np.array(box.vertices, dtype=np.float64)
+    positions[:, 1] += BOX_DROP - positions[:, 1].min()
+    faces = np.asarray(box.faces, dtype=np.int64)
+    mesh = tmp_path / "box.obj"
+    write_obj(mesh, Mesh(positions=positions, face_indices=faces.ravel(), face_offsets=np.arange(0, faces.size + 1, 3)))
+    text = (
+        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {BOX_FRAMES}\n\n'
+        '[[colliders]]\nground = { height = 0.0 }\n\n[output]\nformats = ["obj"]\n'
+    )
+    report = run_job(mesh, parse_recipe(text), tmp_path / "out").report
+    frames = read_obj_frames(tmp_path / "out")
+    lowest = frames[:, :, 1].min(axis=1)
+    touched = int(np.argmax(lowest < 0.02))
+    assert lowest[touched] < 0.02
+    assert lowest[touched:].max() < 0.05
+    rest_frame = report["rest_frame"]
+    assert rest_frame is not None and rest_frame <= BOX_FRAMES - AT_REST_FOR
+    step = np.linalg.norm(np.diff(frames[rest_frame:], axis=0), axis=2).max()
+    assert step * 24 < 1e-4
+    pairs = np.triu_indices(positions.shape[0], 1)
+    rest = np.linalg.norm(positions[pairs[0]] - positions[pairs[1]], axis=1)
+    final = np.linalg.norm(frames[-1][pairs[0]] - frames[-1][pairs[1]], axis=1)
+    assert np.abs(final / rest - 1.0).max() < 0.02

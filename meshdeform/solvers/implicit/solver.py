@@ -99,10 +99,12 @@ step carries the contact's normal impulse and friction; and each iteration
 moves no vertex further than a quarter of an edge while there is contact (`TRUST_FRACTION`), so
 a cloth stopped by a thin bar within a long step is not pulled through it or slung across it
 (it hooked around the bar at 4 to 7x stretch). The vertices held in recent steps whose springs
-pressed them into the obstacle are tied down in the prefactored matrix (`anchors`): a matrix that
-knows nothing of the contact sends their free neighbours into the obstacle, and a stiff cloth
-lying on it then stalls stretched; one that its weight alone presses is not, as the tie would hold
-it against sliding too (`ANCHOR_SPRING_SHARE`).
+pressed them into the obstacle, and those of an impact, are tied down in the prefactored matrix
+(`anchors`): a matrix that knows nothing of the contact sends their free neighbours into the
+obstacle, so a stiff cloth lying on it stalls stretched and a small stiff body landing is driven in
+whole and stopped at its contacts alone, compressed (it bounced back as high as it fell); one that
+its weight alone presses is not, as the tie would hold it against sliding too
+(`ANCHOR_SPRING_SHARE`).
 """
 
 from __future__ import annotations
@@ -374,9 +376,9 @@ class ImplicitSolver(ModelCache, Solver):
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
-        # the contacts the springs press into the obstacle (and self-collision's) are tied down in the matrix
-        spring_held = self._spring_pressed[self.free_vertices[self.contact_rows]] | self.contact_self
-        if self.anchors is not None and self.anchors.update(self.contact_rows[spring_held]) and self.factor is not None:
+        # the contacts the springs press into the obstacle, an impact's and self-collision's are tied down in the matrix
+        tied = self._spring_pressed[self.free_vertices[self.contact_rows]] | self.contact_impacts | self.contact_self
+        if self.anchors is not None and self.anchors.update(self.contact_rows[tied]) and self.factor is not None:
             self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
         self._spring_pressed[:] = False  # read: this step's end sets them afresh
         # the step's start (x_n, v_n) becomes the next step's history: the pair of arrays it is not
