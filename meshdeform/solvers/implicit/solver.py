@@ -102,7 +102,7 @@ a cloth stopped by a thin bar within a long step is not pulled through it or slu
 pressed them into the obstacle, and those of an impact, are tied down in the prefactored matrix
 (`anchors`): a matrix that knows nothing of the contact sends their free neighbours into the
 obstacle, so a stiff cloth lying on it stalls stretched and a small stiff body landing is driven in
-whole and stopped at its contacts alone, compressed (it bounced back as high as it fell); one that
+whole and stopped at its contacts alone, compressed, then thrown back up; one that
 its weight alone presses is not, as the tie would hold it against sliding too
 (`ANCHOR_SPRING_SHARE`).
 """
