@@ -61,3 +61,12 @@ def test_a_large_cloth_keeps_its_anchors_longer() -> None:
         return sum(anchors.update(np.arange(100 + 20 * step)) for step in range(100))
 
     assert renewals(LARGE_ROWS) < renewals(LARGE_ROWS - 1)
+
+
+def test_a_closed_surface_anchors_its_few_contacts() -> None:
+    """On a closed surface (a solid) the floor is a small share of its rows: the 4 held rows of an
+    8-vertex box landing renew the set at once, where a sheet's 4 of 8 would not."""
+    solid, sheet = ContactAnchors(8, solid=True), ContactAnchors(8)
+    held = np.arange(4)
+    assert solid.update(held) and np.array_equal(np.flatnonzero(solid.anchored), held)
+    assert not sheet.update(held) and not sheet.anchored.any()

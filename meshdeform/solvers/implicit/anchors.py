@@ -12,7 +12,7 @@ the cloth stays stretched: a 10 000 N/m sheet folded over a bar onto the ground 
 rest lengths (docs/performance.md, "Contact anchors in the implicit solver's matrix").
 
 What: the matrix's diagonal is raised by `ANCHOR` times itself on the rows of the vertices held
-recently that their springs pressed into the obstacle, or that an impact pressed in (the solver
+recently that their springs pressed into the obstacle, or on a closed surface an impact (the solver
 passes those: `solver.ANCHOR_SPRING_SHARE`, `solver.IMPACT_SINKS`; a contact that only its weight
 presses is left untied, as the tie also holds it against sliding), so the preconditioner moves them
 little and their neighbours as if tied to them (an elastic tie, in every direction: the filter and
@@ -21,7 +21,7 @@ unchanged, so the step minimises the same energy, only better preconditioned. Re
 numeric factorisation (CHOLMOD's through cholespy a whole one), so the anchored set follows the
 contacts loosely: a row stays anchored for `ANCHOR_WINDOW` steps after it was last held, and the
 matrix is refactorised only when more than `ANCHOR_SLACK` of the held rows (and more than
-`ANCHOR_FLOOR` rows, or `ANCHOR_FLOOR_FRACTION` of a small mesh's rows) are not anchored, or more
+`ANCHOR_FLOOR` rows, or `SOLID_FLOOR_FRACTION` of a closed surface's rows) are not anchored, or more
 than `ANCHOR_SLACK` of the anchored rows were not held within the window (the scenes of
 benchmarks/contact.py refactorise 5 to 30 times in their 480 steps, a 128 x 128 sheet draping over a
 sphere 13 times in 576; from `LARGE_ROWS` rows, where a factorisation costs several steps, the
@@ -43,11 +43,12 @@ ANCHOR_SLACK = 0.25
 #: held rows that may stay unanchored whatever their fraction: a contact of a few vertices does not
 #: refactorise (docs/performance.md has the floors tried)
 ANCHOR_FLOOR = 32
-#: ... but on a small mesh at most this fraction of its rows: the 4 to 16 held rows of a small box
-#: landing are all its contact, and unanchored they let the matrix drive it into the ground as a
-#: rigid body that the filter then stops at its bottom alone, compressing it (docs/performance.md,
-#: "A light, stiff, coarse solid comes to rest under implicit")
-ANCHOR_FLOOR_FRACTION = 0.02
+#: ... but on a closed surface (a solid) at most this fraction of its rows: the 4 to 16 held rows
+#: of a small box landing are all its contact, and unanchored they let the matrix drive it into the
+#: ground as one rigid body that the filter then stops at its bottom alone, compressing it
+#: (docs/performance.md, "A light, stiff, coarse solid comes to rest under implicit"). A sheet
+#: keeps `ANCHOR_FLOOR`: tying a few of its rows holds a small sheet on a ball it would slide off
+SOLID_FLOOR_FRACTION = 0.02
 #: from this many rows a factorisation costs several steps (0.37 s at 256 x 256 against 60 ms a
 #: step), so the set is kept twice as long and renewed at twice the slack: a 256 x 256 woven sheet
 #: draped on a sphere renewed it 37 times in 24 frames (14 of its 24 s), now 16 (16 s), at the same
@@ -61,14 +62,15 @@ class ContactAnchors:
     `anchored` (F,) bool: the rows whose diagonal the current factor raises by `ANCHOR`.
     """
 
-    def __init__(self, rows: int) -> None:
+    def __init__(self, rows: int, solid: bool = False) -> None:
+        """rows: the free rows; solid: whether they make a closed surface (`SOLID_FLOOR_FRACTION`)."""
         self.anchored = np.zeros(rows, dtype=np.bool_)
         large = rows >= LARGE_ROWS
         #: steps a row stays anchored after it was last held, and the slack of a renewal
         self.window = 2 * ANCHOR_WINDOW if large else ANCHOR_WINDOW
         self.slack = 2 * ANCHOR_SLACK if large else ANCHOR_SLACK
         #: held rows that may stay unanchored whatever their fraction
-        self.floor = min(ANCHOR_FLOOR, int(ANCHOR_FLOOR_FRACTION * rows))
+        self.floor = min(ANCHOR_FLOOR, int(SOLID_FLOOR_FRACTION * rows)) if solid else ANCHOR_FLOOR
         self._last_held = np.full(rows, -self.window - 1, dtype=np.int64)
         self._step = 0
 

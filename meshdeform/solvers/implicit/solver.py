@@ -99,11 +99,11 @@ step carries the contact's normal impulse and friction; and each iteration
 moves no vertex further than a quarter of an edge while there is contact (`TRUST_FRACTION`), so
 a cloth stopped by a thin bar within a long step is not pulled through it or slung across it
 (it hooked around the bar at 4 to 7x stretch). The vertices held in recent steps whose springs
-pressed them into the obstacle, and those of an impact, are tied down in the prefactored matrix
-(`anchors`): a matrix that knows nothing of the contact sends their free neighbours into the
-obstacle, so a stiff cloth lying on it stalls stretched and a small stiff body landing is driven in
-whole and stopped at its contacts alone, compressed, then thrown back up; one that
-its weight alone presses is not, as the tie would hold it against sliding too
+pressed them into the obstacle, and on a closed surface those of an impact, are tied down in the
+prefactored matrix (`anchors`): a matrix that knows nothing of the contact sends their free
+neighbours into the obstacle, so a stiff cloth lying on it stalls stretched and a small stiff solid
+landing is driven in whole and stopped at its contacts alone, compressed, then thrown back up; a
+contact that its weight alone presses is not, as the tie would hold it against sliding too
 (`ANCHOR_SPRING_SHARE`).
 """
 
@@ -125,7 +125,7 @@ from meshdeform.solvers.implicit.anchors import ContactAnchors
 from meshdeform.solvers.layout import vertex_slabs
 from meshdeform.solvers.options import CALM_COARSE, ImplicitOptions
 from meshdeform.solvers.threads import ThreadPicker, beside, helper_pool, split_threads
-from meshdeform.topology import SpringKind
+from meshdeform.topology import SpringKind, is_closed
 
 
 class ImplicitSolver(ModelCache, Solver):
@@ -238,7 +238,11 @@ class ImplicitSolver(ModelCache, Solver):
         #: the matrix's lower triangle as CSC (indptr, indices, values), each column's diagonal first
         self._matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: the held contacts tied down in the matrix (L-BFGS only: local/global's matrix is exact)
-        self.anchors = ContactAnchors(self.free_vertices.shape[0]) if self.options.method == "lbfgs" else None
+        #: whether the model is a closed surface (a solid): its impacts are tied down too (`anchors`)
+        self.solid = is_closed(np.asarray(model.triangles))
+        self.anchors = (
+            ContactAnchors(self.free_vertices.shape[0], self.solid) if self.options.method == "lbfgs" else None
+        )
         self.coarse_space: coarse.CoarseSpace | None = None
         self._coarse_building: Future[coarse.CoarseSpace | None] | None = None
         if self.options.method == "lbfgs":
@@ -376,8 +380,10 @@ class ImplicitSolver(ModelCache, Solver):
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
-        # the contacts the springs press into the obstacle, an impact's and self-collision's are tied down in the matrix
-        tied = self._spring_pressed[self.free_vertices[self.contact_rows]] | self.contact_impacts | self.contact_self
+        # the contacts the springs press into the obstacle, a solid's impacts and self-collision's are tied down
+        tied = self._spring_pressed[self.free_vertices[self.contact_rows]] | self.contact_self
+        if self.solid:
+            tied |= self.contact_impacts
         if self.anchors is not None and self.anchors.update(self.contact_rows[tied]) and self.factor is not None:
             self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
         self._spring_pressed[:] = False  # read: this step's end sets them afresh
