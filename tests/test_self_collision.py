@@ -45,7 +45,7 @@ def _run(model: SpringModel, self_collision: bool, frames: int, state: State | N
 @pytest.fixture(scope="module")
 def collapse() -> tuple[SpringModel, list[np.ndarray], list[np.ndarray]]:
     model = SpringModel.from_mesh(_collapsing_sheet(24), KNIT)
-    return model, _run(model, False, 30), _run(model, True, 30)
+    return model, _run(model, False, 40), _run(model, True, 40)
 
 
 def test_the_collapsing_sheet_interpenetrates_without_self_collision(collapse) -> None:

@@ -269,6 +269,8 @@ class ImplicitSolver(ModelCache, Solver):
         # (V,) bool (`_sink_pressed`), the ones `anchors` ties down
         self._spring_pressed = np.zeros(model.vertex_count, dtype=np.bool_)
         self._pushed = np.zeros(model.vertex_count, dtype=np.bool_)
+        #: (V,) m: how deep `_sink_pressed` sank each vertex into its obstacle at the last step's end
+        self._sunk = np.zeros(model.vertex_count)
         # (V, 3) each: a step's BDF2 prediction x_hat and inertial target y; what it left, x_out and v_out
         self.x_hat, self.y, self.x_out, self.v_out = (np.zeros((model.vertex_count, 3)) for _ in range(4))
         # two pairs of (V, 3) arrays for the step's start (x_n, v_n), which becomes the next step's
@@ -373,9 +375,15 @@ class ImplicitSolver(ModelCache, Solver):
             self.contact_rows = self.free[pushed_vertices].astype(np.int64)
             self.contact_normals = np.ascontiguousarray(self._normal[pushed_vertices])
             # an impact on an obstacle: a push deeper than IMPACT_SINKS times what the external
-            # acceleration alone sinks a resting vertex in a step, not by self-collision
+            # acceleration alone sinks a resting vertex in a step, not by self-collision; on a sheet
+            # the push back out of this solver's own sink (`_sunk`) is no impact (it was, and the
+            # vertex, no longer held while its springs pressed it, was sunk again every step: a
+            # sheet lying on the ground flickered at the sink's speed). A solid keeps counting it:
+            # held while its springs press, a stiff body is sunk by forces far above its weight
+            # and springs back (docs/performance.md, "A sheet's own sink is no impact")
             sink = 0.5 * dt * dt * np.linalg.norm(accel[pushed_vertices], axis=1)
-            self.contact_impacts = self._depth[pushed_vertices] > IMPACT_SINKS * sink
+            own = self._depth[pushed_vertices] - (0.0 if self.solid else self._sunk[pushed_vertices])
+            self.contact_impacts = own > IMPACT_SINKS * sink
             self.contact_self = np.zeros(pushed_vertices.shape[0], dtype=np.bool_)
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
@@ -387,6 +395,7 @@ class ImplicitSolver(ModelCache, Solver):
         if self.anchors is not None and self.anchors.update(self.contact_rows[tied]) and self.factor is not None:
             self._factor()  # the held set changed enough: its rows tied down in the matrix (`anchors`)
         self._spring_pressed[:] = False  # read: this step's end sets them afresh
+        self._sunk[:] = 0.0
         # the step's start (x_n, v_n) becomes the next step's history: the pair of arrays it is not
         x_n, v_n = next(pair for pair in self._starts if pair[0] is not self.x_prev and pair[1] is not self.v_prev)
         x_hat, y = self.x_hat, self.y
@@ -430,6 +439,7 @@ class ImplicitSolver(ModelCache, Solver):
         self._spring_pressed[fv[rows]] = springs > ANCHOR_SPRING_SHARE * force
         depth = np.minimum(force / self.inertia[rows], self.sink_cap)
         x[fv[rows]] -= normals * depth[:, None]
+        self._sunk[fv[rows]] = depth
 
     def _pressed(self, gradient: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(K,) bool: which contact rows are pressed into their obstacle at x, given the step
