@@ -376,11 +376,11 @@ class ImplicitSolver(ModelCache, Solver):
             self.contact_normals = np.ascontiguousarray(self._normal[pushed_vertices])
             # an impact on an obstacle: a push deeper than IMPACT_SINKS times what the external
             # acceleration alone sinks a resting vertex in a step, not by self-collision; on a sheet
-            # the push back out of this solver's own sink (`_sunk`) is no impact (it was, and the
-            # vertex, no longer held while its springs pressed it, was sunk again every step: a
-            # sheet lying on the ground flickered at the sink's speed). A solid keeps counting it:
-            # held while its springs press, a stiff body is sunk by forces far above its weight
-            # and springs back (docs/performance.md, "A sheet's own sink is no impact")
+            # the push back out of this solver's own sink (`_sunk`) is no impact: judged one, the
+            # vertex would be held only while its momentum pressed it, and its springs would drive
+            # it in again every step. A solid counts it: held while its springs press, a stiff
+            # body is sunk by forces far above its weight and springs back (docs/performance.md,
+            # "A sheet's own sink is no impact")
             sink = 0.5 * dt * dt * np.linalg.norm(accel[pushed_vertices], axis=1)
             own = self._depth[pushed_vertices] - (0.0 if self.solid else self._sunk[pushed_vertices])
             self.contact_impacts = own > IMPACT_SINKS * sink
