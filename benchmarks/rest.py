@@ -1,23 +1,34 @@
 """When damped scenes come to rest, for every registered solver, and where the stress ball ends.
 
-    PYTHONPATH=<tree> python benchmarks/rest.py [--seconds 15]
+    PYTHONPATH=<tree> python benchmarks/rest.py [--seconds 15] [--solvers implicit xpbd ...] [--scenes ...]
 
 Scenes (recipes at their defaults, air damping 0.9, built as `meshdeform simulate` builds them:
-`pipeline.build.build_simulation`, then `meshdeform.simulate`):
-- cloth: a 12 x 12 sheet of 1 m lying flat (XZ), two corners of one edge pinned, 24 fps;
+`pipeline.build.build_simulation`, then `meshdeform.simulate`), 24 fps:
+- cloth: a 12 x 12 sheet of 1 m lying flat (XZ), two corners of one edge pinned;
 - ball: samples/meshes/icosphere.ply (radius 0.5 m), no gravity, struck at the front by the sample
-  stress ball's first impact (2 m/s along the normal), 24 fps; for `anchor` in both anchor frames.
+  stress ball's first impact (2 m/s along the normal); for `anchor` in both anchor frames;
+- box: a 0.3 m cube of 8 vertices and 12 triangles (trimesh's box), its bottom 0.5 m above the
+  ground (a light, stiff, closed solid);
+- sheet on ball / sheet on big ball: a 20 x 20 / 32 x 32 sheet of 1 m, flat, 0.1 m above a ball of
+  radius 0.25 / 0.45 m lying on the ground (friction 0.3);
+- slope: a 12 x 12 sheet of 1 m lying on a plane tilted 20 degrees, friction 0.5 (more than
+  tan 20 = 0.36: static friction should hold it).
 
 Prints per solver and scene the reported rest frame (`Frame.rest_frame` of the last frame, the
 report's `rest_frame`) and its time, the largest distance a vertex covers between two frames from
-it on times the fps (m/s, to hold against the rest speed 1e-4 m/s), and for the ball the largest
-distance of a vertex from its rest position at the end, over the radius, and that of its centre of
-mass. Figures go to docs/recipes.md ("Coming to rest").
+it on times the fps (m/s, to hold against the rest speed 1e-4 m/s); the last frame's largest speed;
+for the ball the largest distance of a vertex from its rest position at the end, over the radius,
+and that of its centre of mass; for the box the highest the lowest vertex rose after it first came
+within 2 cm of the ground (m); for the sheets on balls the highest vertex at the end (m: on the ball,
+or slid off onto the ground); for the slope how far the sheet's centre moved along the slope (m).
+Figures go to docs/recipes.md ("Coming to rest") and docs/performance.md.
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +37,7 @@ from meshdeform.io import load
 from meshdeform.mesh import Mesh, grid_mesh
 from meshdeform.simulate import simulate
 from meshdeform.solvers import SOLVERS
-from pipeline.build import build_simulation
+from pipeline.build import BuiltSimulation, build_simulation
 from pipeline.recipe import parse_recipe
 
 FPS = 24
@@ -38,48 +49,132 @@ STRIKE = (
 )
 
 
-def run(mesh: Mesh, text: str, ball: bool) -> str:
+#: the figure printed after the rest columns: (positions (F + 1, V, 3) from the rest pose on, the
+#: built simulation) -> its text
+Figure = Callable[[np.ndarray, BuiltSimulation], str]
+
+
+def run(mesh: Mesh, text: str, figure: Figure | None = None) -> str:
     """One scene's figures, as a line of the table."""
     built = build_simulation(parse_recipe(text), mesh)
     frames = list(simulate(built.model, built.scene, built.settings))
-    positions = np.stack([f.welded_positions for f in frames])
+    positions = np.stack([built.model.rest_positions, *(f.welded_positions for f in frames)])
     rest_frame = frames[-1].rest_frame
     if rest_frame is None:
         line = f"{'never':>6} {'':>7} {'':>9}"
     else:
-        step = (
-            np.linalg.norm(np.diff(positions[rest_frame - 1 :], axis=0), axis=2).max()
-            if rest_frame < len(frames)
-            else 0.0
-        )
+        after = positions[rest_frame:]  # frame k is positions[k]
+        step = np.linalg.norm(np.diff(after, axis=0), axis=2).max() if after.shape[0] > 1 else 0.0
         line = f"{rest_frame:6d} {rest_frame / FPS:6.2f}s {step * FPS:9.2e}"
-    if ball:
-        rest, mass = built.model.rest_positions, built.model.mass
-        deviation = np.linalg.norm(positions[-1] - rest, axis=1).max() / RADIUS
-        drift = np.linalg.norm(mass @ (positions[-1] - rest) / mass.sum()) / RADIUS
-        line += f" {deviation:11.2e} {drift:9.2e}"
-    return line
+    line += f" {frames[-1].max_speed:9.2e}"
+    return line + (f"  {figure(positions, built)}" if figure is not None else "")
+
+
+def ball_figure(positions: np.ndarray, built: BuiltSimulation) -> str:
+    """The struck ball's largest vertex distance from rest, and its centre of mass's, over the radius."""
+    rest, mass = built.model.rest_positions, built.model.mass
+    deviation = np.linalg.norm(positions[-1] - rest, axis=1).max() / RADIUS
+    drift = np.linalg.norm(mass @ (positions[-1] - rest) / mass.sum()) / RADIUS
+    return f"deviation/R {deviation:.2e}, centre/R {drift:.2e}"
+
+
+def rebound_figure(positions: np.ndarray, built: BuiltSimulation) -> str:
+    """How high the lowest vertex rose after it first came within 2 cm of the ground (Y up)."""
+    lowest = positions[:, :, 1].min(axis=1)
+    touched = int(np.argmax(lowest < 0.02))
+    return f"rebound {lowest[touched:].max():.3f} m" if lowest[touched] < 0.02 else "never landed"
+
+
+def top_figure(positions: np.ndarray, built: BuiltSimulation) -> str:
+    """The highest vertex at the end (Y up)."""
+    return f"top {positions[-1, :, 1].max():.3f} m"
+
+
+def slide_figure(positions: np.ndarray, built: BuiltSimulation) -> str:
+    """How far the sheet's centre moved from its start."""
+    return f"slid {np.linalg.norm(positions[-1].mean(axis=0) - positions[0].mean(axis=0)):.4f} m"
+
+
+def box() -> Mesh:
+    """`trimesh.creation.box` of 0.3 m, its bottom 0.5 m up (Y)."""
+    import trimesh  # a test and benchmark dependency only
+
+    cube = trimesh.creation.box(extents=(0.3, 0.3, 0.3))
+    points = np.array(cube.vertices, dtype=np.float64)
+    points[:, 1] += 0.5 - points[:, 1].min()
+    faces = np.asarray(cube.faces, dtype=np.int64)
+    return Mesh(positions=points, face_indices=faces.ravel(), face_offsets=np.arange(0, faces.size + 1, 3))
+
+
+def sheet(n: int, height: float) -> Mesh:
+    """An n x n grid of 1 m, flat (XZ), centred on the Y axis at `height` (m)."""
+    grid = grid_mesh(n, n, plane="xz")
+    points = grid.positions.copy()
+    points += np.array([-0.5, height, -0.5])
+    return replace(grid, positions=points)
+
+
+def tilted_sheet(n: int, degrees: float, gap: float) -> Mesh:
+    """An n x n grid of 1 m lying `gap` (m) above the plane through the origin tilted `degrees` about Z."""
+    grid = sheet(n, 0.0)
+    angle = np.radians(degrees)
+    turn = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+    normal = np.array([-np.sin(angle), np.cos(angle), 0.0])
+    return replace(grid, positions=grid.positions @ turn.T + gap * normal)
+
+
+def ball_on_ground(radius: float) -> str:
+    """The colliders of a ball of `radius` (m) lying on the ground, friction 0.3."""
+    return (
+        f"\n[[colliders]]\nsphere = {{ center = [0, {radius}, 0], radius = {radius} }}\nfriction = 0.3\n"
+        "\n[[colliders]]\nground = { height = 0.0 }\nfriction = 0.3\n"
+    )
+
+
+def scenes() -> dict[str, Callable[[str], list[tuple[str, Mesh, str, Figure | None]]]]:
+    """Each scene's rows for a solver's recipe head: (label, mesh, recipe text, figure)."""
+    slope = np.radians(20.0)
+    tilt = f"[{-float(np.sin(slope))!r}, {float(np.cos(slope))!r}, 0.0]"
+
+    def struck(head: str, name: str) -> list[tuple[str, Mesh, str, Figure | None]]:
+        frames = ["world", "centroid"] if name == "anchor" else [None]
+        rows = []
+        for frame in frames:
+            table = f'\n[simulation.anchor]\nanchor_frame = "{frame}"\n' if frame else ""
+            rows.append((f"ball ({frame})" if frame else "ball", load(BALL), head + "gravity = [0, 0, 0]\n" + table +
+                         "\n" + STRIKE, ball_figure))
+        return rows
+
+    pins = [11 * 12, 11 * 12 + 11]  # the two corners of the cloth's row at z = 1 m
+    return {
+        "cloth": lambda head: [("cloth", grid_mesh(12, 12, plane="xz"),
+                                head + f"\n[[pins]]\nselect = {{ indices = {pins} }}\n", None)],
+        "ball": lambda head: struck(head, head.split('"')[1]),
+        "box": lambda head: [("box", box(), head + "\n[[colliders]]\nground = { height = 0.0 }\n", rebound_figure)],
+        "sheet on ball": lambda head: [("sheet on ball", sheet(20, 0.6), head + ball_on_ground(0.25), top_figure)],
+        "sheet on big ball": lambda head: [
+            ("sheet on big ball", sheet(32, 1.0), head + ball_on_ground(0.45), top_figure)
+        ],
+        "slope": lambda head: [("slope", tilted_sheet(12, 20.0, 0.0101), head +
+                                f"\n[[colliders]]\nplane = {{ point = [0, 0, 0], normal = {tilt} }}\nfriction = 0.5\n",
+                                slide_figure)],
+    }  # fmt: skip
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=15.0, help="simulated seconds per scene")
+    parser.add_argument("--solvers", nargs="+", default=sorted(SOLVERS), choices=sorted(SOLVERS))
+    parser.add_argument("--scenes", nargs="+", default=list(scenes()), choices=list(scenes()))
     args = parser.parse_args()
     frames = round(args.seconds * FPS)
-    cloth = grid_mesh(12, 12, plane="xz")
-    pins = [11 * 12, 11 * 12 + 11]  # the two corners of the row at z = 1 m
-    ball = load(BALL)
-    print(f"{'solver':8} {'scene':15} {'rest':>6} {'at':>7} {'step*fps':>9} {'deviation/R':>11} {'centre/R':>9}")
-    for name in sorted(SOLVERS):
+    table = scenes()
+    print(f"{'solver':8} {'scene':17} {'rest':>6} {'at':>7} {'step*fps':>9} {'speed':>9}  figure")
+    for name in args.solvers:
         head = f'[simulation]\nsolver = "{name}"\nfps = {FPS}\nframes = {frames}\n'
-        text = head + f"\n[[pins]]\nselect = {{ indices = {pins} }}\n"
-        print(f"{name:8} {'cloth':15} {run(cloth, text, False)}")
-        anchors = ["world", "centroid"] if name == "anchor" else [None]
-        for frame in anchors:
-            table = f'\n[simulation.anchor]\nanchor_frame = "{frame}"\n' if frame else ""
-            text = head + "gravity = [0, 0, 0]\n" + table + "\n" + STRIKE
-            scene = f"ball ({frame})" if frame else "ball"
-            print(f"{name:8} {scene:15} {run(ball, text, True)}")
+        for scene in args.scenes:
+            for label, mesh, text, figure in table[scene](head):
+                print(f"{name:8} {label:17} {run(mesh, text, figure)}", flush=True)
 
 
 if __name__ == "__main__":

@@ -44,9 +44,11 @@ settles, still, out of balance and softer than its material (`CONVERGED_RESIDUAL
 soft pins, tethers and other constraints hold the cloth with forces it does not count: where
 they act, a cloth at rest is out of balance by their share too.
 
-Each frame reports its largest vertex speed and whether the model is at rest
-(`max_speed < Settings.rest_speed`, default 1e-4 m/s); `rest_frame` is the first frame of the
-current run of frames at rest (None while moving), and `rest_frame(frames)` finds it in a list.
+Each frame reports its largest vertex speed and whether the model is at rest (`max_speed` below
+`Settings.rest_speed`, default 1e-4 m/s, and no vertex farther from where it was at the frame
+before than that speed over a frame: a sheet creeping down a slope ends every substep with the
+velocity its friction removed, yet moves); `rest_frame` is the first frame of the current run of
+frames at rest (None while moving), and `rest_frame(frames)` finds it in a list.
 
 Tearing (`Scene.tearing`, a `meshdeform.tearing.Tearer`): after each substep the tearer tests
 the springs, applies due cuts and, when the mesh opens, returns a new model and an index map
@@ -97,7 +99,8 @@ class Settings:
     options: the solver's own options (its `Solver.options_class`); None (the default) takes
         that class's defaults, resolved on construction like substeps. Options of another
         solver's class raise MeshdeformError.
-    rest_speed: m/s; a frame whose largest vertex speed is below it is at rest.
+    rest_speed: m/s; a frame whose largest vertex speed is below it, and whose vertices moved less
+        than it times the frame's time since the frame before, is at rest.
     subframes: states per frame kept for motion blur: each frame also carries the `subframes - 1`
         states between it and the frame before, at the substeps nearest to j / subframes of the
         frame (`Frame.subframes`); 1 keeps none. At most `substeps`.
@@ -153,7 +156,8 @@ class Frame:
     step), time, positions in the input layout and figures.
 
     max_stretch: largest structural spring length / rest length. max_speed: m/s.
-    at_rest: max_speed below `Settings.rest_speed`. rest_frame: the first frame of the
+    at_rest: max_speed below `Settings.rest_speed`, and no vertex moved farther than that speed
+    times the frame's time since the frame before. rest_frame: the first frame of the
     current run of frames at rest, None when this frame is not at rest.
     With tearing (`Scene.tearing`): positions are in the output layout (the input's vertices,
     then the copies tearing added); mesh: the output mesh when its topology changed during
@@ -427,6 +431,7 @@ def simulate(
     slow_keep_after = replace(settings, substeps=slow[0]).subframe_substeps if slow is not None else ()
     edge = float(np.median(structural.rest)) if structural.rest.size else 0.0
     speed = float(guard_kernels.guard_figures(state.positions, state.velocities, center)[2])
+    last_positions = state.positions.copy()  # the frame before's, to tell a creeping cloth from a still one
     for frame in range(1, settings.frames + 1):
         kept: list[tuple[float, np.ndarray]] = []
         frame_substeps, control.iterations, frame_keep_after = substeps, None, keep_after
@@ -519,12 +524,14 @@ def simulate(
                     solver=name,
                 )
         residual = balance.residual(positions, accelerations)
-        at_rest = bool(speed < settings.rest_speed)
+        still = _still(positions, last_positions, settings.rest_speed / settings.fps)
+        at_rest = bool(speed < settings.rest_speed) and still
         if not at_rest:
             resting_since = None
         elif resting_since is None:
             resting_since = frame
         welded = positions.copy()
+        last_positions = welded
         torn: dict = {}
         if tearing is not None:
             broken, split, changed = tearing.frame_stats()
@@ -550,6 +557,15 @@ def simulate(
             substeps=frame_substeps,
             **torn,
         )
+
+
+def _still(positions: np.ndarray, before: np.ndarray, distance: float) -> bool:
+    """Whether no vertex of positions (W, 3) is `distance` (m) or farther from where it was in
+    before (W, 3); False where a tear changed the vertex count."""
+    if before.shape != positions.shape:
+        return False
+    moved = positions - before
+    return bool(np.einsum("ij,ij->i", moved, moved).max(initial=0.0) < distance * distance)
 
 
 @dataclass(frozen=True)
