@@ -80,14 +80,19 @@ def sheet_on_the_ground(strength: float) -> tuple[SpringModel, Scene, Settings]:
     return model, Scene(forces=[push], constraints=[ground]), Settings(solver="springs", frames=24)
 
 
-def test_a_flung_cloth_that_the_ground_keeps_near_stops_at_the_impact_frame_as_too_fast() -> None:
+def test_a_flung_cloth_that_the_ground_keeps_near_stops_at_the_impact_frame() -> None:
+    """The push flings the cloth off at thousands of m/s where it hits it slantwise, while the
+    ground's static friction holds the middle, which it presses straight down, where it lay: the
+    run stops at the impact frame, as too fast or as torn apart, and the hint names the impacts."""
     model, scene, settings = sheet_on_the_ground(2e5)
     yielded, error = run_until_diverged(model, scene, settings)
     assert error.frame == 3 and len(yielded) == 2
     message = str(error)
-    assert message.startswith("simulation diverged at frame 3 with solver 'springs': vertices moved at ")
-    speed = float(re.search(r"moved at ([0-9.e+]+) m/s \(limit ([0-9.e+]+) m/s\)", message).group(1))
-    assert speed > 2000
+    assert message.startswith("simulation diverged at frame 3 with solver 'springs': ")
+    speed = re.search(r"vertices moved at ([0-9.e+]+) m/s \(limit ([0-9.e+]+) m/s\)", message)
+    stretch = re.search(r"springs stretched to ([0-9.e+]+)x their rest length \(limit 10x\)", message)
+    too_fast = speed is not None and float(speed.group(1)) > 2000
+    assert too_fast or (stretch is not None and float(stretch.group(1)) > 10)
     assert "impacts" in message.split("try:")[1]
 
 

@@ -1011,6 +1011,44 @@ def contact_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable
 
 
 @numba.njit(**_JIT)
+def hold_still(
+    x0: np.ndarray,
+    x1: np.ndarray,
+    prims: np.ndarray,
+    ids: np.ndarray,
+    rows: np.ndarray,
+    push: np.ndarray,
+    friction: float,
+    inv_mass: np.ndarray,
+    moved: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Static friction in positions, in the shape's rest frame (the surface still): each vertex
+    contact among `ids` (a primitive whose three corners are one vertex) whose way along the
+    surface over the substep, from x0 to x1 (V, 3), is within `friction` times its push out of the
+    shape (push (C,), m) is put back where it started along the surface (x1 in place; moved (V,)
+    marks it). The velocity friction (`respond`) removes a sticking contact's velocity but not
+    the way it slid within the substep, so a cloth lying still on a slope crept down by
+    1/2 g sin(slope) dt^2 a substep; beyond the cone the contact slides, and `respond` slows it.
+    Edge and face contacts keep the velocity friction alone. rows (C, 9): the unit normal in 6:9."""
+    for k in range(ids.shape[0]):
+        p = ids[k]
+        i = prims[p, 0]
+        if prims[p, 1] != i or prims[p, 2] != i or not inv_mass[i] > 0.0:
+            continue
+        nx, ny, nz = rows[k, 6], rows[k, 7], rows[k, 8]
+        dx = x1[i, 0] - x0[i, 0]
+        dy = x1[i, 1] - x0[i, 1]
+        dz = x1[i, 2] - x0[i, 2]
+        along = dx * nx + dy * ny + dz * nz
+        tx, ty, tz = dx - along * nx, dy - along * ny, dz - along * nz
+        if tx * tx + ty * ty + tz * tz <= (friction * max(push[k], 0.0)) ** 2:
+            x1[i, 0] -= tx
+            x1[i, 1] -= ty
+            x1[i, 2] -= tz
+            moved[i] = True
+
+
+@numba.njit(**_JIT)
 def respond(
     v: np.ndarray,
     inv_mass: np.ndarray,

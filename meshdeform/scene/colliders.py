@@ -392,6 +392,15 @@ def share_company(constraints: Sequence[Constraint]) -> None:
             constraint.company = kinds
 
 
+def hold_by_friction(constraints: Sequence[Constraint], positions: bool) -> None:
+    """Tells each collider among `constraints` whether its static friction also holds positions
+    (`Collider.static_positions`): off for a solver that holds contacts in its own step and finds
+    the obstacle from how the collider moved them (`Solver.holds_contacts`)."""
+    for constraint in constraints:
+        if isinstance(constraint, Collider):
+            constraint.static_positions = positions
+
+
 class Collider(Constraint, Remappable):
     """A shape as a Constraint: keeps the cloth's surface `thickness` outside it, with Coulomb friction.
 
@@ -412,6 +421,9 @@ class Collider(Constraint, Remappable):
         self._totals = np.zeros(6, dtype=np.int64)  # `ContactStats`' fields in order, summed
         self._model: SpringModel | None = None
         self._prims: _ClothPrimitives | None = None
+        #: whether a vertex contact that static friction holds is also put back where it was along
+        #: the surface (`hold_by_friction`; `collider_kernels.hold_still`)
+        self.static_positions = True
         #: the shape kinds of the scene's colliders (`share_company`): which compiled contact
         #: pipeline runs this one (`collider_kernels.contact_kernel`)
         self.company: frozenset[int] = frozenset()
@@ -525,6 +537,8 @@ class Collider(Constraint, Remappable):
         touch = h * (1.0 + TOUCH_FRACTION) + 1e-12
         acting = ck.acting_contacts(ids, plane, end, d_end, push, touch, self._totals, counts)
         ids, rows, push = ids[:acting], plane[:acting], push[:acting]
+        if self.static_positions and self.friction > 0.0:
+            ck.hold_still(x0, x1, prims, ids, rows, push, self.friction, inv_mass, moved)
         if self.keys is None:
             ck.copy_rows(state.positions, x1, moved)
         else:

@@ -80,6 +80,9 @@ class Solver(ABC):
     parallel_kernels: whether its steps launch Numba's parallel builds (xpbd, verlet): those
         must not be launched from two threads at once under Numba's workqueue threading layer,
         so nothing steps such a solver beside a run (`pipeline.compile_ahead`).
+    holds_contacts: whether its step holds the vertices the constraints pushed against their
+        obstacle (implicit): the colliders then leave its positions along the surface alone
+        (`scene.colliders.hold_by_friction`), which the solver reads to find the obstacle.
 
     `state.time` is the caller's: `simulate` sets it after every `step` and after `advance`.
     """
@@ -93,6 +96,7 @@ class Solver(ABC):
     slow_steps: ClassVar[tuple[int, int] | None] = None
     options_class: ClassVar[type[SolverOptions]]
     parallel_kernels: ClassVar[bool] = False
+    holds_contacts: ClassVar[bool] = False
 
     def __init__(self, options: SolverOptions) -> None:
         self.options = options

@@ -141,6 +141,7 @@ class ImplicitSolver(ModelCache, Solver):
     default_iterations: ClassVar[int] = 3
     calm_steps: ClassVar[tuple[int, int] | None] = (2, 3)
     slow_steps: ClassVar[tuple[int, int] | None] = (4, 5)
+    holds_contacts: ClassVar[bool] = True
 
     @classmethod
     def large_kernels(cls, vertices: int) -> LargeKernels | None:
