@@ -57,6 +57,9 @@ EXTRA_ROUNDS = 2
 FAIL_FRACTION = 0.1
 #: a contact counts as touching at the end (its velocity treated) within this fraction above h
 TOUCH_FRACTION = 1e-3
+#: Gauss-Seidel sweeps of the contact velocities' sequential impulses (`collider_kernels.respond`)
+#: where the collider settles its contacts (`Collider.settles`)
+RESPONSE_SWEEPS = 4
 
 
 def _unit(v: Sequence[float]) -> np.ndarray:
@@ -392,13 +395,13 @@ def share_company(constraints: Sequence[Constraint]) -> None:
             constraint.company = kinds
 
 
-def hold_by_friction(constraints: Sequence[Constraint], positions: bool) -> None:
-    """Tells each collider among `constraints` whether its static friction also holds positions
-    (`Collider.static_positions`): off for a solver that holds contacts in its own step and finds
-    the obstacle from how the collider moved them (`Solver.holds_contacts`)."""
+def settle_contacts(constraints: Sequence[Constraint], settle: bool) -> None:
+    """Tells each collider among `constraints` whether it settles its contacts itself
+    (`Collider.settles`): off for a solver that holds contacts in its own step and finds the
+    obstacle from how the collider moved and slowed them (`Solver.holds_contacts`)."""
     for constraint in constraints:
         if isinstance(constraint, Collider):
-            constraint.static_positions = positions
+            constraint.settles = settle
 
 
 class Collider(Constraint, Remappable):
@@ -421,9 +424,13 @@ class Collider(Constraint, Remappable):
         self._totals = np.zeros(6, dtype=np.int64)  # `ContactStats`' fields in order, summed
         self._model: SpringModel | None = None
         self._prims: _ClothPrimitives | None = None
-        #: whether a vertex contact that static friction holds is also put back where it was along
-        #: the surface (`hold_by_friction`; `collider_kernels.hold_still`)
-        self.static_positions = True
+        #: whether this collider settles its contacts itself (`settle_contacts`): a vertex contact
+        #: that static friction holds is put back where it was along the surface
+        #: (`collider_kernels.hold_still`) and the contact velocities are solved to the end
+        #: (`collider_kernels.respond`: sweeps of sequential impulses, then each vertex settled);
+        #: otherwise one pass of point impulses, the response the implicit solver's contact
+        #: handling reads
+        self.settles = True
         #: the shape kinds of the scene's colliders (`share_company`): which compiled contact
         #: pipeline runs this one (`collider_kernels.contact_kernel`)
         self.company: frozenset[int] = frozenset()
@@ -537,7 +544,7 @@ class Collider(Constraint, Remappable):
         touch = h * (1.0 + TOUCH_FRACTION) + 1e-12
         acting = ck.acting_contacts(ids, plane, end, d_end, push, touch, self._totals, counts)
         ids, rows, push = ids[:acting], plane[:acting], push[:acting]
-        if self.static_positions and self.friction > 0.0:
+        if self.settles and self.friction > 0.0:
             ck.hold_still(x0, x1, prims, ids, rows, push, self.friction, inv_mass, moved)
         if self.keys is None:
             ck.copy_rows(state.positions, x1, moved)
@@ -547,7 +554,11 @@ class Collider(Constraint, Remappable):
             rows[:, 6:9] = rows[:, 6:9] @ self.keys.rotation(time).T
         surface_v = self._surface_velocity(np.ascontiguousarray(rows[:, 3:6]), time, dt)
         touched = moved.copy()
-        ck.respond(state.velocities, inv_mass, prims, ids, rows, surface_v, push * scale, self.friction, dt, touched)
+        sweeps, settle = (RESPONSE_SWEEPS, True) if self.settles else (1, False)
+        ck.respond(
+            state.velocities, inv_mass, prims, ids, rows, surface_v, push * scale, self.friction, dt, touched,
+            sweeps, settle,
+        )  # fmt: skip
         if reverted.any():  # they move with the collider
             state.velocities[reverted] = self._surface_velocity(np.ascontiguousarray(x0[reverted]), time, dt)
         ck.restart_paths(state.previous, state.positions, state.velocities, touched, dt)

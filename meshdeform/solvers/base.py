@@ -81,8 +81,9 @@ class Solver(ABC):
         must not be launched from two threads at once under Numba's workqueue threading layer,
         so nothing steps such a solver beside a run (`pipeline.compile_ahead`).
     holds_contacts: whether its step holds the vertices the constraints pushed against their
-        obstacle (implicit): the colliders then leave its positions along the surface alone
-        (`scene.colliders.hold_by_friction`), which the solver reads to find the obstacle.
+        obstacle (implicit): the colliders then leave its positions along the surface alone and
+        give its velocities one pass of point impulses (`scene.colliders.settle_contacts`), which
+        the solver reads to find the obstacle.
 
     `state.time` is the caller's: `simulate` sets it after every `step` and after `advance`.
     """
