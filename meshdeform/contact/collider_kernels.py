@@ -1145,20 +1145,26 @@ def _settle_vertices(
     either way kept a cloth lying on a ball from ever coming to rest."""
     for k in range(ids.shape[0]):
         p = ids[k]
-        n = rows[k, 6:9]
+        nx, ny, nz = rows[k, 6], rows[k, 7], rows[k, 8]
+        sx, sy, sz = surface_v[k, 0], surface_v[k, 1], surface_v[k, 2]
         for j in range(3):
             i = prims[p, j]
             if not (rows[k, j] > 0.0 and inv_mass[i] > 0.0):
                 continue
-            now = v[i] - surface_v[k]
-            was = v_before[i] - surface_v[k]
-            vn, vn_was = np.dot(now, n), np.dot(was, n)
-            slide, slide_was = now - vn * n, was - vn_was * n
-            along = np.dot(slide_was, slide_was)
-            share = min(max(np.dot(slide, slide_was) / along, 0.0), 1.0) if along > 1e-300 else 0.0
-            settled = min(max(vn, 0.0), max(vn_was, 0.0)) * n + share * slide_was
-            if not np.array_equal(settled, now):
-                v[i] = settled + surface_v[k]
+            ax, ay, az = v[i, 0] - sx, v[i, 1] - sy, v[i, 2] - sz  # relative velocity now
+            bx, by, bz = v_before[i, 0] - sx, v_before[i, 1] - sy, v_before[i, 2] - sz  # and before
+            vn = ax * nx + ay * ny + az * nz
+            vn_was = bx * nx + by * ny + bz * nz
+            ax, ay, az = ax - vn * nx, ay - vn * ny, az - vn * nz  # the slides
+            bx, by, bz = bx - vn_was * nx, by - vn_was * ny, bz - vn_was * nz
+            along = bx * bx + by * by + bz * bz
+            share = min(max((ax * bx + ay * by + az * bz) / along, 0.0), 1.0) if along > 1e-300 else 0.0
+            normal = min(max(vn, 0.0), max(vn_was, 0.0))
+            ux = normal * nx + share * bx + sx
+            uy = normal * ny + share * by + sy
+            uz = normal * nz + share * bz + sz
+            if ux != v[i, 0] or uy != v[i, 1] or uz != v[i, 2]:
+                v[i, 0], v[i, 1], v[i, 2] = ux, uy, uz
                 touched[i] = True
 
 
