@@ -248,8 +248,9 @@ def test_a_sheet_creeping_down_a_slope_is_not_reported_at_rest(solver: str) -> N
 
 #: the solvers whose cloth lying on a ball comes to rest: `springs`' explicit steps leave each
 #: substep at a sliver of g dt (as its box above); `anchor` springs back to its rest shape (flat), so
-#: it slides off; `implicit` holds contacts by velocity friction alone, and the sheet slides off
-#: (docs/performance.md, "Contact velocities that settle")
+#: it slides off; under `implicit` the sheet's contacts on the ball come and go (most of them
+#: judged impacts), static friction never holds them and the sheet slides off (docs/performance.md,
+#: "Static friction in the implicit solver")
 LYING_SOLVERS = ("verlet", "xpbd")
 
 

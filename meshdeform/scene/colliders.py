@@ -404,6 +404,19 @@ def settle_contacts(constraints: Sequence[Constraint], settle: bool) -> None:
             constraint.settles = settle
 
 
+def pushed_friction(constraints: Sequence[Constraint], vertex_count: int) -> np.ndarray:
+    """(V,) the friction coefficient of the still collider that moved each vertex in its last
+    `project` (the largest where several did; 0 where none did): `Control.friction`. A moving
+    collider's static friction would hold the vertex to its moving surface, which the solver
+    does not know: its contacts keep the velocity friction alone."""
+    friction = np.zeros(vertex_count)
+    for constraint in constraints:
+        pushed = constraint.pushed if isinstance(constraint, Collider) and not constraint.moves else None
+        if pushed is not None and pushed.shape[0] == vertex_count:
+            np.maximum(friction, np.where(pushed, constraint.friction, 0.0), out=friction)
+    return friction
+
+
 class Collider(Constraint, Remappable):
     """A shape as a Constraint: keeps the cloth's surface `thickness` outside it, with Coulomb friction.
 
@@ -431,9 +444,16 @@ class Collider(Constraint, Remappable):
         #: otherwise one pass of point impulses, the response the implicit solver's contact
         #: handling reads
         self.settles = True
+        #: (V,) bool: the vertices the last `project` moved (None before the first)
+        self.pushed: np.ndarray | None = None
         #: the shape kinds of the scene's colliders (`share_company`): which compiled contact
         #: pipeline runs this one (`collider_kernels.contact_kernel`)
         self.company: frozenset[int] = frozenset()
+
+    @property
+    def moves(self) -> bool:
+        """Whether its surface moves (animated keys; a deforming body overrides it)."""
+        return self.keys is not None
 
     @property
     def stats(self) -> ContactStats:
@@ -544,6 +564,7 @@ class Collider(Constraint, Remappable):
         touch = h * (1.0 + TOUCH_FRACTION) + 1e-12
         acting = ck.acting_contacts(ids, plane, end, d_end, push, touch, self._totals, counts)
         ids, rows, push = ids[:acting], plane[:acting], push[:acting]
+        self.pushed = moved.copy()
         if self.settles and self.friction > 0.0:
             ck.hold_still(x0, x1, prims, ids, rows, push, self.friction, inv_mass, moved)
         if self.keys is None:

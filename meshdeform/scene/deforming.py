@@ -92,6 +92,11 @@ class DeformingCollider(Collider):
         """World signed distance (N,) and outward normals (N, 3) to the body at `time`."""
         return self.shape.query_at(np.asarray(points, dtype=np.float64), time)
 
+    @property
+    def moves(self) -> bool:
+        """A deforming body's surface moves."""
+        return True
+
     def _shape_at(self, time: float) -> ck.ShapeArrays:
         return self.shape.arrays_at(time)
 

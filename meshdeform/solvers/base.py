@@ -52,6 +52,11 @@ class Control:
     #: back into the obstacle after its iterations (`_sink_pressed`); the cloth's own layers it
     #: releases in the last iteration
     self_contact: np.ndarray | None = None
+    #: (W,) float or None: the friction coefficient of the collider that pushed each vertex out
+    #: after the last substep (0 where none did; set by `simulate` each substep for a solver that
+    #: holds contacts, `Solver.holds_contacts`): implicit holds a pushed vertex whose forces lie
+    #: within that friction's cone where it is (static friction)
+    friction: np.ndarray | None = None
     #: iterations of this step in place of the solver's options (None: the options'); `simulate`
     #: sets it for a frame at the solver's `slow_steps`
     iterations: int | None = None

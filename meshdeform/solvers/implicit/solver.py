@@ -386,6 +386,9 @@ class ImplicitSolver(ModelCache, Solver):
             own = self._depth[pushed_vertices] - (0.0 if self.solid else self._sunk[pushed_vertices])
             self.contact_impacts = own > IMPACT_SINKS * sink
             self.contact_self = np.zeros(pushed_vertices.shape[0], dtype=np.bool_)
+            self.contact_friction = np.zeros(pushed_vertices.shape[0])
+            if control.friction is not None and control.friction.shape[0] == x.shape[0]:
+                self.contact_friction = control.friction[pushed_vertices]
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
@@ -408,6 +411,7 @@ class ImplicitSolver(ModelCache, Solver):
             x[self.free_vertices] = y[self.free_vertices]
         elif self.factor is not None:
             if self.options.method == "lbfgs":
+                self._step_start = x_n
                 gradient = self._quasi_newton(x, y, iterations)
                 if self.contact_rows.shape[0]:
                     self._sink_pressed(x, y, gradient)
@@ -452,6 +456,27 @@ class ImplicitSolver(ModelCache, Solver):
         )
         return held
 
+    def _stuck(self, gradient: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray | None:
+        """(K,) bool: the obstacle contacts that static friction holds in this step, from the step
+        energy's gradient (F, 3) at the iterations' start: pressed in (F_n = grad . n > 0, the
+        force the obstacle takes) with the rest of the force, momentum included, within the
+        friction's cone (|F_t| <= friction F_n); None where none is. Such a contact is held where
+        it is along every axis, not only its normal: held along the normal alone, a cloth on a
+        slope slid within every step by what gravity gives it along the slope, and the
+        velocity friction after the step took the speed but not the way (docs/performance.md,
+        "Static friction in the implicit solver")."""
+        friction = self.contact_friction
+        candidates = (friction > 0.0) & ~self.contact_self & ~self.contact_impacts
+        if not candidates.any():
+            return None
+        rows, normals = self.contact_rows, self.contact_normals
+        force = gradient[rows]
+        pressing = np.einsum("ij,ij->i", force, normals)
+        sliding = force - pressing[:, None] * normals
+        stuck = candidates & (pressing > 0.0)
+        stuck &= np.einsum("ij,ij->i", sliding, sliding) <= (friction * pressing) ** 2
+        return stuck if stuck.any() else None
+
     def _forget_contacts(self) -> None:
         """No vertex held: the free rows (K,) of F a constraint pushed before this step and the unit
         push of each (K, 3) are empty together, with whether each is an impact and whether
@@ -460,6 +485,7 @@ class ImplicitSolver(ModelCache, Solver):
         self.contact_normals = np.zeros((0, 3))
         self.contact_impacts = np.zeros(0, dtype=np.bool_)
         self.contact_self = np.zeros(0, dtype=np.bool_)
+        self.contact_friction = np.zeros(0)
 
     def _local_global(self, x: np.ndarray, y: np.ndarray, iterations: int) -> None:
         """Liu et al.'s `iterations`: project every spring, solve the prefactored system, repeat."""
@@ -562,6 +588,14 @@ class ImplicitSolver(ModelCache, Solver):
         slots: list[int] = []  # history slots, newest first
         alpha = np.zeros(HISTORY)
         no_rows, no_normals = self.contact_rows[:0], self.contact_normals[:0]
+        stuck = self._stuck(grad, x, y) if self.contact_rows.shape[0] else None
+        if stuck is not None:  # they start where the step started along their surface
+            vertices = fv[self.contact_rows[stuck]]
+            normals = self.contact_normals[stuck]
+            way = x[vertices] - self._step_start[vertices]
+            x[vertices] -= way - np.einsum("ij,ij->i", way, normals)[:, None] * normals
+            energy = self._energy(x, y, self.grad)
+            grad = self.grad
         for iteration in range(iterations):
             # contacts held while pressed (the docstring); self-collision's released in the last
             if self.contact_rows.shape[0]:
@@ -569,6 +603,10 @@ class ImplicitSolver(ModelCache, Solver):
                 if iteration + 1 == iterations:
                     held &= ~self.contact_self
                 rows, normals = self.contact_rows[held], self.contact_normals[held]
+                if stuck is not None and (stuck & held).any():  # held along every axis: static friction
+                    fixed = self.contact_rows[stuck & held]
+                    rows = np.concatenate([rows, np.repeat(fixed, 3)])
+                    normals = np.concatenate([normals, np.tile(_AXES, (fixed.shape[0], 1))])
             else:
                 rows, normals = no_rows, no_normals
             # two-loop recursion: direction = H grad, H0 = matrix^-1 (the step is -direction)
@@ -611,6 +649,8 @@ class ImplicitSolver(ModelCache, Solver):
         return grad
 
 
+#: the unit axes: a contact held along all three (`_stuck`) keeps its place
+_AXES = np.eye(3)
 #: the longest move of a vertex in one L-BFGS iteration of a step with contact, as a fraction of
 #: the median structural rest length: a cloth stretched around an obstacle otherwise slings a
 #: vertex across it in one step (29 m/s on the fold scene, then divergence); steps without
