@@ -1083,6 +1083,7 @@ def respond(
     tangent_total = np.zeros((count, 3))
     v_before = v.copy() if settle else v[:0]
     for sweep in range(sweeps):
+        largest = 0.0  # the largest change of a contact point's velocity in this sweep (m/s)
         for k in range(count):
             p = ids[k]
             i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
@@ -1114,6 +1115,7 @@ def respond(
             dy = stop * ny + gy - tangent_total[k, 1]
             dz = stop * nz + gz - tangent_total[k, 2]
             tangent_total[k, 0], tangent_total[k, 1], tangent_total[k, 2] = gx, gy, gz
+            largest = max(largest, abs(dx) + abs(dy) + abs(dz))
             for i, wk in ((i0, w0), (i1, w1), (i2, w2)):
                 f = wk * inv_mass[i] / denom
                 if f != 0.0:
@@ -1121,8 +1123,16 @@ def respond(
                     v[i, 1] += f * dy
                     v[i, 2] += f * dz
                     touched[i] = True
+        if sweep > 0 and largest <= SETTLED_SPEED:  # the contacts no longer change each other
+            break
     if settle:
         _settle_vertices(v, v_before, inv_mass, prims, ids, rows, surface_v, touched)
+
+
+#: a sweep of `respond` after the first that changes no contact point's velocity by more than this
+#: (m/s, summed over the axes) ends the sweeps: contacts that share no vertex (a cloth on a plane)
+#: settle in one
+SETTLED_SPEED = 1e-9
 
 
 @numba.njit(**_JIT)
