@@ -11,6 +11,8 @@ Scenes (recipes at their defaults, air damping 0.9, built as `meshdeform simulat
   ground (a light, stiff, closed solid);
 - sheet on ball / sheet on big ball: a 20 x 20 / 32 x 32 sheet of 1 m, flat, 0.1 m above a ball of
   radius 0.25 / 0.45 m lying on the ground (friction 0.3);
+- sheet laid on ball: a 12 x 12 sheet of 0.4 m, flat, 2 cm above a ball of radius 0.45 m, friction
+  0.5, no ground (its edges lie at 26 degrees: friction holds it);
 - slope: a 12 x 12 sheet of 1 m lying on a plane tilted 20 degrees, friction 0.5 (more than
   tan 20 = 0.36: static friction should hold it).
 
@@ -20,7 +22,8 @@ it on times the fps (m/s, to hold against the rest speed 1e-4 m/s); the last fra
 for the ball the largest distance of a vertex from its rest position at the end, over the radius,
 and that of its centre of mass; for the box the highest the lowest vertex rose after it first came
 within 2 cm of the ground (m); for the sheets on balls the highest vertex at the end (m: on the ball,
-or slid off onto the ground); for the slope how far the sheet's centre moved along the slope (m).
+or slid off onto the ground, or fallen below it without one); for the slope how far the sheet's
+centre moved along the slope (m).
 Figures go to docs/recipes.md ("Coming to rest") and docs/performance.md.
 """
 
@@ -106,11 +109,11 @@ def box() -> Mesh:
     return Mesh(positions=points, face_indices=faces.ravel(), face_offsets=np.arange(0, faces.size + 1, 3))
 
 
-def sheet(n: int, height: float) -> Mesh:
-    """An n x n grid of 1 m, flat (XZ), centred on the Y axis at `height` (m)."""
-    grid = grid_mesh(n, n, plane="xz")
+def sheet(n: int, height: float, size: float = 1.0) -> Mesh:
+    """An n x n grid of `size` (m), flat (XZ), centred on the Y axis at `height` (m)."""
+    grid = grid_mesh(n, n, size=(size, size), plane="xz")
     points = grid.positions.copy()
-    points += np.array([-0.5, height, -0.5])
+    points += np.array([-0.5 * size, height, -0.5 * size])
     return replace(grid, positions=points)
 
 
@@ -121,6 +124,11 @@ def tilted_sheet(n: int, degrees: float, gap: float) -> Mesh:
     turn = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
     normal = np.array([-np.sin(angle), np.cos(angle), 0.0])
     return replace(grid, positions=grid.positions @ turn.T + gap * normal)
+
+
+#: a ball of radius 0.45 m, its top 0.9 m up, friction 0.5, no ground (`tests/test_rest.py`'s
+#: cloth laid on a ball)
+LAID_BALL = "\n[[colliders]]\nsphere = { center = [0, 0.45, 0], radius = 0.45 }\nfriction = 0.5\n"
 
 
 def ball_on_ground(radius: float) -> str:
@@ -154,6 +162,9 @@ def scenes() -> dict[str, Callable[[str], list[tuple[str, Mesh, str, Figure | No
         "sheet on ball": lambda head: [("sheet on ball", sheet(20, 0.6), head + ball_on_ground(0.25), top_figure)],
         "sheet on big ball": lambda head: [
             ("sheet on big ball", sheet(32, 1.0), head + ball_on_ground(0.45), top_figure)
+        ],
+        "sheet laid on ball": lambda head: [
+            ("sheet laid on ball", sheet(12, 0.92, size=0.4), head + LAID_BALL, top_figure)
         ],
         "slope": lambda head: [("slope", tilted_sheet(12, 20.0, 0.0101), head +
                                 f"\n[[colliders]]\nplane = {{ point = [0, 0, 0], normal = {tilt} }}\nfriction = 0.5\n",
