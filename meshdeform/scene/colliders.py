@@ -564,9 +564,9 @@ class Collider(Constraint, Remappable):
         touch = h * (1.0 + TOUCH_FRACTION) + 1e-12
         acting = ck.acting_contacts(ids, plane, end, d_end, push, touch, self._totals, counts)
         ids, rows, push = ids[:acting], plane[:acting], push[:acting]
-        self.pushed = moved.copy()
         if self.settles and self.friction > 0.0:
             ck.hold_still(x0, x1, prims, ids, rows, push, self.friction, inv_mass, moved)
+        self.pushed = moved  # the kernel's own array, new each call
         if self.keys is None:
             ck.copy_rows(state.positions, x1, moved)
         else:

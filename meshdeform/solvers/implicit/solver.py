@@ -411,8 +411,7 @@ class ImplicitSolver(ModelCache, Solver):
             x[self.free_vertices] = y[self.free_vertices]
         elif self.factor is not None:
             if self.options.method == "lbfgs":
-                self._step_start = x_n
-                gradient = self._quasi_newton(x, y, iterations)
+                gradient = self._quasi_newton(x, y, iterations, x_n)
                 if self.contact_rows.shape[0]:
                     self._sink_pressed(x, y, gradient)
             else:
@@ -456,7 +455,7 @@ class ImplicitSolver(ModelCache, Solver):
         )
         return held
 
-    def _stuck(self, gradient: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray | None:
+    def _stuck(self, gradient: np.ndarray) -> np.ndarray | None:
         """(K,) bool: the obstacle contacts that static friction holds in this step, from the step
         energy's gradient (F, 3) at the iterations' start: pressed in (F_n = grad . n > 0, the
         force the obstacle takes) with the rest of the force, momentum included, within the
@@ -559,9 +558,10 @@ class ImplicitSolver(ModelCache, Solver):
             self.grad, self.trial_grad = self.trial_grad, self.grad
         return energy
 
-    def _quasi_newton(self, x: np.ndarray, y: np.ndarray, iterations: int) -> np.ndarray:
+    def _quasi_newton(self, x: np.ndarray, y: np.ndarray, iterations: int, start: np.ndarray) -> np.ndarray:
         """`iterations` of L-BFGS on the step's energy from x (= y on the free vertices), in place; returns the
-        energy's gradient (F, 3) at the x it leaves (one of the solver's buffers).
+        energy's gradient (F, 3) at the x it leaves (one of the solver's buffers). start (V, 3): where
+        the step started, to which the contacts static friction holds go back along their surface.
 
         The initial inverse Hessian is the prefactored matrix's inverse: one L-BFGS iteration
         without history is exactly one local/global iteration (the matrix times x minus the
@@ -588,11 +588,11 @@ class ImplicitSolver(ModelCache, Solver):
         slots: list[int] = []  # history slots, newest first
         alpha = np.zeros(HISTORY)
         no_rows, no_normals = self.contact_rows[:0], self.contact_normals[:0]
-        stuck = self._stuck(grad, x, y) if self.contact_rows.shape[0] else None
+        stuck = self._stuck(grad) if self.contact_rows.shape[0] else None
         if stuck is not None:  # they start where the step started along their surface
             vertices = fv[self.contact_rows[stuck]]
             normals = self.contact_normals[stuck]
-            way = x[vertices] - self._step_start[vertices]
+            way = x[vertices] - start[vertices]
             x[vertices] -= way - np.einsum("ij,ij->i", way, normals)[:, None] * normals
             energy = self._energy(x, y, self.grad)
             grad = self.grad
