@@ -1,4 +1,5 @@
-"""SpringModel (static, built once, read-only arrays) and State (what a solver advances).
+"""SpringModel (static, built once, read-only arrays), State (what a solver advances) and
+ContactPlanes (the colliders' contacts a solver may keep between two collider passes).
 
 The model lives on welded vertices (see `topology.weld`); `vertex_map` takes results back to
 the input's own vertex layout, which every output keeps.
@@ -7,6 +8,7 @@ the input's own vertex layout, which every output keeps.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -205,3 +207,25 @@ class State:
 
     def copy(self) -> State:
         return State(self.positions.copy(), self.previous.copy(), self.velocities.copy(), self.time)
+
+
+class ContactPlanes(NamedTuple):
+    """The colliders' contacts after the last substep as planes for the next one (`Control.planes`).
+
+    Row k: the cloth point p = sum_j weights[k, j] x[vertices[k, j]] (a vertex, an edge point or a
+    face point) keeps normals[k] . p >= offsets[k] + normals[k] . velocities[k] tau at the time
+    tau (s) into the substep: the collider's surface plane at the contact, `thickness` out, moving
+    with the surface's velocity (m/s) there; friction[k] is the collider's Coulomb coefficient.
+    Shapes: vertices (C, 3) int64, weights, normals and velocities (C, 3) float64, offsets (m) and
+    friction (C,) float64. A solver that runs many steps of its own between two collider passes
+    (the explicit ones) keeps its contacts on these planes in every step: otherwise a resting
+    cloth falls into the collider within those steps and is put back after them, and the cycle
+    never comes to rest.
+    """
+
+    vertices: np.ndarray
+    weights: np.ndarray
+    normals: np.ndarray
+    offsets: np.ndarray
+    velocities: np.ndarray
+    friction: np.ndarray

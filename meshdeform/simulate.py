@@ -73,7 +73,7 @@ from meshdeform.errors import MeshdeformError, SimulationDiverged
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
-from meshdeform.scene.colliders import pushed_friction, settle_contacts, share_company
+from meshdeform.scene.colliders import contact_planes, pushed_friction, settle_contacts, share_company
 from meshdeform.solvers import guard_kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions
 from meshdeform.solvers.common import spring_constants, structural_mask
@@ -469,6 +469,8 @@ def simulate(
                 constraint.project(model, state, t1, dt)
             if solver.holds_contacts and constraints:
                 control.friction = pushed_friction(constraints, model.vertex_count)
+            if solver.reads_planes and constraints:
+                control.planes = contact_planes(constraints, model, state)
             if self_collision is not None:
                 self_collision.project(model, state, t1, dt)
                 control.self_contact = self_collision.moved

@@ -182,18 +182,19 @@ def test_damped_scene_comes_to_rest_and_the_report_says_from_which_frame(
 #: above the ground, 6 s at 24 fps. A light, stiff, coarse solid: the hardest case for contact that
 #: must stop it rather than store its fall in its springs and give it back as a bounce
 BOX_SIDE, BOX_DROP, BOX_FRAMES = 0.3, 0.5, 24 * 6
-#: the solvers whose report sees the box at rest: `springs` holds it still in every written frame,
-#: but its collider contact acts once a substep, after several explicit steps, so the box's upper
-#: vertices end each substep at g dt of speed and its rest frame stays None (docs/performance.md,
-#: "A light, stiff, coarse solid comes to rest under implicit")
-LANDING_SOLVERS = ("anchor", "implicit", "verlet", "xpbd")
+#: each solver and the most the box's lowest vertex may rise again after landing (m): a tenth of
+#: the fall, it lands and is not thrown back up; `springs` a fifth: its explicit steps keep the
+#: contact on the ground in every step (`Control.planes`), so the fall stored in the box's springs
+#: comes back as the material's damping ratio lets it, with no numerical damping to take it (it
+#: rose 5.8 cm; docs/performance.md, "springs: contact planes in every explicit step")
+LANDING_SOLVERS = {"anchor": 0.05, "implicit": 0.05, "springs": 0.1, "verlet": 0.05, "xpbd": 0.05}
 
 
-@pytest.mark.parametrize("solver", LANDING_SOLVERS)
+@pytest.mark.parametrize("solver", sorted(LANDING_SOLVERS))
 def test_a_small_stiff_box_dropped_on_the_ground_lands_and_comes_to_rest(solver: str, tmp_path: Path) -> None:
     """Through a recipe at the solver's defaults, a ground collider at its default thickness: once
     the box's lowest vertex has come within 2 cm of the ground it never rises more than 5 cm again
-    (a tenth of the fall: it lands, it is not thrown back up), the report's rest frame is at least
+    (a tenth of the fall: it lands, it is not thrown back up; `LANDING_SOLVERS`), the report's rest frame is at least
     2 s before the end, the written positions barely move from it on, and the box at rest keeps its
     shape (every distance between two of its vertices within 2 % of the rest mesh's)."""
     box = trimesh.creation.box(extents=(BOX_SIDE,) * 3)
@@ -211,7 +212,7 @@ def test_a_small_stiff_box_dropped_on_the_ground_lands_and_comes_to_rest(solver:
     lowest = frames[:, :, 1].min(axis=1)
     touched = int(np.argmax(lowest < 0.02))
     assert lowest[touched] < 0.02
-    assert lowest[touched:].max() < 0.05
+    assert lowest[touched:].max() < LANDING_SOLVERS[solver]
     rest_frame = report["rest_frame"]
     assert rest_frame is not None and rest_frame <= BOX_FRAMES - AT_REST_FOR
     step = np.linalg.norm(np.diff(frames[rest_frame:], axis=0), axis=2).max()
@@ -246,12 +247,11 @@ def test_a_sheet_creeping_down_a_slope_is_not_reported_at_rest(solver: str) -> N
     assert np.all(travel[reported] < 1e-4)
 
 
-#: the solvers whose cloth lying on a ball comes to rest: `springs`' explicit steps leave each
-#: substep at a sliver of g dt (as its box above); `anchor` springs back to its rest shape (flat), so
+#: the solvers whose cloth lying on a ball comes to rest: `anchor` springs back to its rest shape (flat), so
 #: it slides off; under `implicit` the sheet's contacts on the ball come and go (most of them
 #: judged impacts), static friction never holds them and the sheet slides off (docs/performance.md,
 #: "Static friction in the implicit solver")
-LYING_SOLVERS = ("verlet", "xpbd")
+LYING_SOLVERS = ("springs", "verlet", "xpbd")
 
 
 @pytest.mark.parametrize("solver", LYING_SOLVERS)

@@ -969,8 +969,58 @@ def contact(
     return cand[contacts], plane[contacts], end[contacts], d_end[contacts], push[contacts], moved, reverted, counts
 
 
-def _family(suffix: str, query: Callable[..., tuple]) -> Callable[..., tuple]:
-    """The pipeline (`contact` and the helpers it calls) compiled for one closest-point query:
+def near(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    x: np.ndarray,
+    prims: np.ndarray,
+    movable: np.ndarray,
+    hint: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    reach: float,
+):  # pragma: no cover - compiled
+    """The primitives (P, 3) of the cloth at x (V, 3; local) with a movable vertex (movable (V,))
+    whose clearance from the shape is below `reach` (local units), with hint (P,) the open-sheet
+    sides as `contact` keeps them: their ids (N,), closest points (N, 9: w, q, n as `contact`'s
+    rows) and clearances (N,), in primitive order. The planes a solver keeps its contacts on
+    between two collider passes (`Collider.planes`)."""
+    cand = candidates(x, x, prims, movable, kind, params, lo, hi, reach)
+    rows = np.zeros((cand.shape[0], 9))
+    clearance = np.empty(cand.shape[0])
+    tri = np.empty((3, 3))
+    stack = new_stack()
+    found = 0
+    for k in range(cand.shape[0]):
+        p = cand[k]
+        d = _evaluate(
+            kind, params, closed, vertices, triangles, normals, bounds, nodes, order, tri_bounds,
+            x, prims, p, hint[p], reach, rows, found, tri, stack,
+        )  # fmt: skip
+        if d < reach:
+            cand[found] = p
+            clearance[found] = d
+            found += 1
+    return cand[:found], rows[:found], clearance[:found]
+
+
+class Family(NamedTuple):
+    """One closest-point query's compiled pipeline: `contact` and `near`."""
+
+    contact: Callable[..., tuple]
+    near: Callable[..., tuple]
+
+
+def _family(suffix: str, query: Callable[..., tuple]) -> Family:
+    """The pipeline (`contact`, `near` and the helpers they call) compiled for one closest-point query:
     copies of the functions whose globals name `closest` the query, each under its own name so
     Numba's disk cache keeps the builds apart (as `solvers.jit.serial_and_parallel` does). A
     query chosen inside the kernels by the shape's kind would cost a sphere's contact more than
@@ -978,7 +1028,7 @@ def _family(suffix: str, query: Callable[..., tuple]) -> Callable[..., tuple]:
     for each of them on every call."""
     env = dict(globals())
     env["closest"] = query
-    for name in ("_advance", "_solve", "_evaluate", "contact"):
+    for name in ("_advance", "_solve", "_evaluate", "contact", "near"):
         source = globals()[name]
         copy = types.FunctionType(source.__code__, env, f"{name}_{suffix}", source.__defaults__, source.__closure__)
         copy.__qualname__ = f"{name}_{suffix}"
@@ -987,13 +1037,19 @@ def _family(suffix: str, query: Callable[..., tuple]) -> Callable[..., tuple]:
         # cent of a sphere's contact time, about the noise of benchmarks/colliders.py, and cost
         # 4 s of compile time in every fresh process (CI runners, containers, Dask workers)
         env[name] = numba.njit(**_JIT)(copy)
-    return env["contact"]
+    return Family(contact=env["contact"], near=env["near"])
 
 
-#: `contact` for planes, spheres and capsules, for boxes and for meshes
-contact_simple = _family("simple", closest_simple)
-contact_box = _family("box", closest_box)
-contact_mesh = _family("mesh", closest_mesh)
+#: `contact` and `near` for planes, spheres and capsules, for boxes and for meshes
+contact_simple, near_simple = _family("simple", closest_simple)
+contact_box, near_box = _family("box", closest_box)
+contact_mesh, near_mesh = _family("mesh", closest_mesh)
+
+
+def near_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable[..., tuple]:
+    """The compiled `near` of the build `contact_kernel(kind, company)` runs in."""
+    contact = contact_kernel(kind, company)
+    return near_mesh if contact is contact_mesh else (near_box if contact is contact_box else near_simple)
 
 
 def contact_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable[..., tuple]:

@@ -37,7 +37,7 @@ import numpy as np
 from meshdeform.contact import collider_kernels as ck
 from meshdeform.contact.bvh import TriangleBVH
 from meshdeform.contact.surface import Surface, signed_closest, surface_of
-from meshdeform.model import SpringModel, State
+from meshdeform.model import ContactPlanes, SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 from meshdeform.scene.pins import Keyframes
 from meshdeform.topology import SpringKind
@@ -57,6 +57,9 @@ EXTRA_ROUNDS = 2
 FAIL_FRACTION = 0.1
 #: a contact counts as touching at the end (its velocity treated) within this fraction above h
 TOUCH_FRACTION = 1e-3
+#: a primitive of the cloth nearer than this many thicknesses to a collider after a substep gets a
+#: contact plane for the next (`Collider.planes`)
+PLANE_REACH = 1.5
 #: Gauss-Seidel sweeps of the contact velocities' sequential impulses (`collider_kernels.respond`)
 #: where the collider settles its contacts (`Collider.settles`)
 RESPONSE_SWEEPS = 4
@@ -417,6 +420,19 @@ def pushed_friction(constraints: Sequence[Constraint], vertex_count: int) -> np.
     return friction
 
 
+def contact_planes(constraints: Sequence[Constraint], model: SpringModel, state: State) -> ContactPlanes | None:
+    """The contact planes of the colliders among `constraints` after their last `project` for the
+    cloth of `model` at `state` (`Collider.planes`, the colliders' rows in list order;
+    `Control.planes`); None without any."""
+    parts = [c.planes(model, state.positions) for c in constraints if isinstance(c, Collider)]
+    parts = [p for p in parts if p is not None and p.offsets.shape[0] > 0]
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return parts[0]
+    return ContactPlanes(*(np.concatenate(column) for column in zip(*parts, strict=True)))
+
+
 class Collider(Constraint, Remappable):
     """A shape as a Constraint: keeps the cloth's surface `thickness` outside it, with Coulomb friction.
 
@@ -449,6 +465,8 @@ class Collider(Constraint, Remappable):
         #: the shape kinds of the scene's colliders (`share_company`): which compiled contact
         #: pipeline runs this one (`collider_kernels.contact_kernel`)
         self.company: frozenset[int] = frozenset()
+        #: the time and substep of the last `project` (`planes`; None before the first)
+        self._planes_at: tuple[float, float] | None = None
 
     @property
     def moves(self) -> bool:
@@ -483,6 +501,51 @@ class Collider(Constraint, Remappable):
             dist = dist * self._scale(time)
             normal = normal @ self.keys.rotation(time).T
         return dist, normal
+
+    def planes(self, model: SpringModel, positions: np.ndarray) -> ContactPlanes | None:
+        """Contact planes in the world (`ContactPlanes`) for the cloth of `model` at positions
+        (V, 3) after the last `project` (the substep's end): every primitive of the cloth with a
+        movable vertex nearer than `PLANE_REACH` thicknesses to the surface gets the surface's
+        tangent plane at its closest point, moved out by the thickness, with the surface's velocity
+        there. Not only the contacts the last `project` touched: a face or vertex that hovers a
+        hair above the surface after one substep falls onto it within the next (on a ball, a
+        face's middle lies below its corners), and would meet it unheld. None before the first
+        `project`."""
+        if self._planes_at is None:
+            return None
+        time, dt = self._planes_at
+        shape = self._shape_at(time)
+        prims = self._primitives(model)
+        scale = self._scale(time)
+        h, _ = self._gaps(shape, scale)
+        x = np.ascontiguousarray(self._to_local(positions, time), dtype=np.float64)
+        lo, hi = self._bounds(shape)
+        hint = self._hints(prims, x.shape[0], shape.kind == ck.MESH and not shape.closed)
+        ids, rows, _ = ck.near_kernel(shape.kind, self.company)(
+            *shape, x, prims, np.asarray(model.inv_mass) > 0.0, hint, lo, hi, PLANE_REACH * h,
+        )  # fmt: skip
+        surface_local = np.ascontiguousarray(rows[:, 3:6])
+        normals = np.ascontiguousarray(rows[:, 6:9])
+        if self.keys is not None:
+            normals = normals @ self.keys.rotation(time).T
+        surface = self._to_world(surface_local, time)
+        return ContactPlanes(
+            vertices=prims[ids], weights=np.ascontiguousarray(rows[:, 0:3]), normals=normals,
+            offsets=np.einsum("ij,ij->i", normals, surface) + h * scale,
+            velocities=self._surface_velocity(surface_local, time, dt), friction=np.full(ids.shape[0], self.friction),
+        )  # fmt: skip
+
+    def _gaps(self, shape: ck.ShapeArrays, scale: float) -> tuple[float, float]:
+        """The thickness kept and the advancement's tolerance, in the shape's local units."""
+        h = self.thickness / scale
+        if shape.kind == ck.MESH and not shape.closed:
+            h = max(h, MIN_SHEET_GAP / scale)
+        return h, (0.5 * h if h > 0 else MIN_SHEET_GAP / scale)
+
+    def _bounds(self, shape: ck.ShapeArrays) -> tuple[np.ndarray, np.ndarray]:
+        """The shape's local bounds (zeros for an unbounded plane)."""
+        bounds = self.shape.bounds() if shape.kind != ck.MESH else (shape.bounds[0, :3], shape.bounds[0, 3:])
+        return (np.zeros(3), np.zeros(3)) if bounds is None else bounds
 
     def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
         """After a tear (`index_map`: new vertex -> old): copies remember their original's side."""
@@ -543,15 +606,11 @@ class Collider(Constraint, Remappable):
         n = state.positions.shape[0]
         scale = self._scale(time)
         sheet = shape.kind == ck.MESH and not shape.closed
-        h = self.thickness / scale
-        if sheet:
-            h = max(h, MIN_SHEET_GAP / scale)
-        gap = 0.5 * h if h > 0 else MIN_SHEET_GAP / scale
+        h, gap = self._gaps(shape, scale)
         floor = h - FAIL_FRACTION * h if h > 0 else -gap
         x1 = np.array(self._to_local(state.positions, time), dtype=np.float64, order="C")
         x0 = np.ascontiguousarray(self._start_positions(state, x1, h, time, dt), dtype=np.float64)
-        bounds = self.shape.bounds() if shape.kind != ck.MESH else (shape.bounds[0, :3], shape.bounds[0, 3:])
-        lo, hi = (np.zeros(3), np.zeros(3)) if bounds is None else bounds
+        lo, hi = self._bounds(shape)
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         hint = self._hints(prims, n, sheet)
         ids, plane, end, d_end, push, moved, reverted, counts = ck.contact_kernel(shape.kind, self.company)(
@@ -574,6 +633,7 @@ class Collider(Constraint, Remappable):
                 state.positions[moved] = self._to_world(x1[moved], time)
             rows[:, 6:9] = rows[:, 6:9] @ self.keys.rotation(time).T
         surface_v = self._surface_velocity(np.ascontiguousarray(rows[:, 3:6]), time, dt)
+        self._planes_at = (time, dt)
         touched = moved.copy()
         sweeps, settle = (RESPONSE_SWEEPS, True) if self.settles else (1, False)
         ck.respond(

@@ -20,7 +20,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from meshdeform.model import SpringModel, State
+from meshdeform.model import ContactPlanes, SpringModel, State
 from meshdeform.solvers.options import SolverOptions
 
 
@@ -57,6 +57,9 @@ class Control:
     #: holds contacts, `Solver.holds_contacts`): implicit holds a pushed vertex whose forces lie
     #: within that friction's cone where it is (static friction)
     friction: np.ndarray | None = None
+    #: the colliders' contacts after the last substep as planes (set by `simulate` each substep for
+    #: a solver that reads them, `Solver.reads_planes`; None before the first or after a tear)
+    planes: ContactPlanes | None = None
     #: iterations of this step in place of the solver's options (None: the options'); `simulate`
     #: sets it for a frame at the solver's `slow_steps`
     iterations: int | None = None
@@ -89,6 +92,8 @@ class Solver(ABC):
         obstacle (implicit): the colliders then leave its positions along the surface alone and
         give its velocities one pass of point impulses (`scene.colliders.settle_contacts`), which
         the solver reads to find the obstacle.
+    reads_planes: whether its step reads `Control.planes` (the explicit solvers, whose many
+        steps between two collider passes keep the contacts on them).
 
     `state.time` is the caller's: `simulate` sets it after every `step` and after `advance`.
     """
@@ -103,6 +108,7 @@ class Solver(ABC):
     options_class: ClassVar[type[SolverOptions]]
     parallel_kernels: ClassVar[bool] = False
     holds_contacts: ClassVar[bool] = False
+    reads_planes: ClassVar[bool] = False
 
     def __init__(self, options: SolverOptions) -> None:
         self.options = options

@@ -23,7 +23,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from meshdeform.model import SpringModel, State
+from meshdeform.model import ContactPlanes, SpringModel, State
 from meshdeform.solvers.base import Control, Solver, velocity_retention
 from meshdeform.solvers.common import ModelCache, damping_coefficients, spring_constants, structural_mask
 from meshdeform.solvers.layout import spring_layout
@@ -57,6 +57,7 @@ class ExplicitSolver(ModelCache, Solver):
     """Semi-implicit Euler over springs and/or anchors; subclasses choose which."""
 
     use_springs: ClassVar[bool] = True
+    reads_planes: ClassVar[bool] = True
     #: decay rate (1/s) of velocities relative to the anchors (`anchor` only)
     anchor_damping: float = 0.0
 
@@ -126,6 +127,7 @@ class ExplicitSolver(ModelCache, Solver):
         limit = self.options.strain_limit
         ratio = float(limit) if (limit is not None and self.use_springs) else 0.0
         x, v, prev = state.positions, state.velocities, state.previous
+        planes = control.planes if control.planes is not None else NO_PLANES
         pinned_velocity(x, prev, v, self.inv_mass, 1.0 / dt)
         kernels.explicit_advance(
             x, v, prev, self.inv_mass, self.mass, control.accelerations,
@@ -133,7 +135,15 @@ class ExplicitSolver(ModelCache, Solver):
             self.a, self.b, self.rest, self.kt, self.kc, self.c, self.offsets, self.parts, self.forces,
             self.anchor_k, self.anchors, self.follow, self.rest_center, math.exp(-self.anchor_damping * h),
             self.la, self.lb, self.lrest, ratio, int(self.options.strain_iterations),
+            planes.vertices, planes.weights, planes.normals, planes.offsets, planes.velocities, planes.friction,
         )
+
+
+#: no contact planes (`Control.planes` None): the kernel's empty arrays of their types
+NO_PLANES = ContactPlanes(
+    vertices=np.zeros((0, 3), dtype=np.int64), weights=np.zeros((0, 3)), normals=np.zeros((0, 3)),
+    offsets=np.zeros(0), velocities=np.zeros((0, 3)), friction=np.zeros(0),
+)
 
 
 #: the most stable explicit steps a substep runs where something touches the cloth, when the
