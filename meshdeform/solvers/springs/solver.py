@@ -105,9 +105,11 @@ class ExplicitSolver(ModelCache, Solver):
     def contact_substeps(self, model: SpringModel, fps: float) -> int:
         """Substeps a frame at `fps` that keep each substep within `CONTACT_INNER_STEPS` stable
         explicit steps (0 without stable substeps, which trust the substeps given): a cloth
-        pressed onto a collider is pulled through it by its springs within the steps between two
-        collider projections when these are many spring periods apart, and each push back
-        stores energy (a sheet on a thin bar at 8 substeps of 29 steps blew up at 27x stretch)."""
+        pressed onto a collider was pulled through it by its springs within the steps between two
+        collider projections when these were many spring periods apart, and each push back
+        stored energy (a sheet on a thin bar at 8 substeps of 29 steps blew up at 27x stretch);
+        the contact planes now hold it in every step (`Control.planes`), and self-collision, which
+        still acts between substeps only, sets the bound."""
         if not self.options.stable_substeps:
             return 0
         kt, kc = spring_constants(model)
@@ -148,8 +150,9 @@ NO_PLANES = ContactPlanes(
 
 #: the most stable explicit steps a substep runs where something touches the cloth, when the
 #: substeps are the solver's default (`ExplicitSolver.contact_substeps`; figures in
-#: docs/performance.md, "springs: explicit steps under contact")
-CONTACT_INNER_STEPS = 16
+#: docs/performance.md, "springs: explicit steps under contact" and "springs: contact planes in
+#: every explicit step": 16 before the planes, 128 let self-collision's layers stretch to 1.12)
+CONTACT_INNER_STEPS = 64
 
 
 def pinned_velocity(x: np.ndarray, prev: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, inv_dt: float) -> None:
