@@ -469,8 +469,6 @@ def simulate(
                 constraint.project(model, state, t1, dt)
             if solver.holds_contacts and constraints:
                 control.friction = pushed_friction(constraints, model.vertex_count)
-            if solver.reads_planes and constraints:
-                control.planes = contact_planes(constraints, model, state)
             if self_collision is not None:
                 self_collision.project(model, state, t1, dt)
                 control.self_contact = self_collision.moved
@@ -478,6 +476,8 @@ def simulate(
                 state.positions[pinned_idx] = targets
             elif pinned_idx.size:
                 state.positions[pinned_idx] = pinned_rest
+            if solver.reads_planes and constraints:  # from where the substep leaves the cloth
+                control.planes = contact_planes(constraints, model, state)
             state.time = t1
             if tearing is not None:
                 event = tearing.after_substep(model, state, t1)

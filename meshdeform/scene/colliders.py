@@ -60,6 +60,11 @@ TOUCH_FRACTION = 1e-3
 #: a primitive of the cloth nearer than this many thicknesses to a collider after a substep gets a
 #: contact plane for the next (`Collider.planes`)
 PLANE_REACH = 1.5
+#: a contact point nearer than (1 - this) thicknesses after a substep gets its plane through
+#: itself (`Collider.planes`); within it, the thickness out: the colliders' Gauss-Seidel leaves
+#: points up to 1e-4 h inside (`collider_kernels.SETTLED`), and planes lowered to those let a
+#: sheet on a ball sink by that every substep and never rest
+PLANE_SLACK = 0.01
 #: Gauss-Seidel sweeps of the contact velocities' sequential impulses (`collider_kernels.respond`)
 #: where the collider settles its contacts (`Collider.settles`)
 RESPONSE_SWEEPS = 4
@@ -506,11 +511,11 @@ class Collider(Constraint, Remappable):
         """Contact planes in the world (`ContactPlanes`) for the cloth of `model` at positions
         (V, 3) after the last `project` (the substep's end): every primitive of the cloth with a
         movable vertex nearer than `PLANE_REACH` thicknesses to the surface gets the surface's
-        tangent plane at its closest point, moved out by the thickness, with the surface's velocity
-        there. Not only the contacts the last `project` touched: a face or vertex that hovers a
-        hair above the surface after one substep falls onto it within the next (on a ball, a
-        face's middle lies below its corners), and would meet it unheld. None before the first
-        `project`."""
+        tangent plane at its closest point, moved out by the thickness (or through the point itself
+        where it lies nearer), with the surface's velocity there. Not only the contacts the last
+        `project` touched: a face or vertex that hovers a hair above the surface after one substep
+        falls onto it within the next (on a ball, a face's middle lies below its corners), and
+        would meet it unheld. None before the first `project`."""
         if self._planes_at is None:
             return None
         time, dt = self._planes_at
@@ -529,9 +534,18 @@ class Collider(Constraint, Remappable):
         if self.keys is not None:
             normals = normals @ self.keys.rotation(time).T
         surface = self._to_world(surface_local, time)
+        vertices, weights = prims[ids], np.ascontiguousarray(rows[:, 0:3])
+        points = np.einsum("ij,ijk->ik", weights, positions[vertices])
+        # never further out than the point is now where it was left nearer than the thickness
+        # (beyond the colliders' own tolerance, `PLANE_SLACK`; by self-collision after the
+        # colliders, or a pin): it is not thrown out within the next steps, whose position-based
+        # velocity would turn the way into speed; the colliders' pass after the substep frees it
+        # with their own response
+        offsets = np.einsum("ij,ij->i", normals, surface) + h * scale
+        now = np.einsum("ij,ij->i", normals, points)
+        offsets = np.where(now < offsets - PLANE_SLACK * h * scale, now, offsets)
         return ContactPlanes(
-            vertices=prims[ids], weights=np.ascontiguousarray(rows[:, 0:3]), normals=normals,
-            offsets=np.einsum("ij,ij->i", normals, surface) + h * scale,
+            vertices=vertices, weights=weights, normals=normals, offsets=offsets,
             velocities=self._surface_velocity(surface_local, time, dt), friction=np.full(ids.shape[0], self.friction),
         )  # fmt: skip
 
