@@ -91,12 +91,10 @@ def _hold_planes(x, v, inv_mass, pv, pw, pn, poff, pvel, pfric, tau, dt):  # pra
     (`collider_kernels`), and the way it slid along the plane in the step (its velocity relative
     to the surface times dt) is taken back by Coulomb friction, up to pfric times the push (all of
     it within the cone: static friction, so a sheet on a slope does not creep). Each change of
-    position changes the velocity by itself over dt (position-based dynamics' velocity
-    update): a vertex that a pressed contact holds still ends the step still. Changing the
-    velocity by the point's stopped approach instead, spread over the face's corners, gave
-    a corner that several pressed faces share an outward velocity while it stood still (a sheet
-    on a ball kept 8e-4 m/s and never came to rest). Gauss-Seidel in row order; a point in front
-    of its plane is left alone (a contact only pushes)."""
+    position changes the velocity by itself over dt (position-based dynamics' velocity update),
+    so a vertex that pressed contacts hold still ends the step still, however many faces share
+    it (docs/performance.md, "springs: contact planes in every explicit step"). Gauss-Seidel in
+    row order; a point in front of its plane is left alone (a contact only pushes)."""
     for k in range(poff.shape[0]):
         i0, i1, i2 = pv[k, 0], pv[k, 1], pv[k, 2]
         w0, w1, w2 = pw[k, 0], pw[k, 1], pw[k, 2]
