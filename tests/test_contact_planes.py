@@ -2,7 +2,9 @@
 
 The planes are checked against closest points that trimesh computes (not the contact kernels): a
 sheet curved over a sphere, every triangle nearer to it than the planes' reach has a plane, at the
-sphere's own tangent plane moved out by the thickness.
+sphere's own tangent plane moved out by the thickness. How a solver keeps them is checked on free
+particles (`anchor` without anchors or springs), where the planes alone act: a point left inside
+the thickness is not launched, and particles on a slope stick or slide by Coulomb's law.
 """
 
 from __future__ import annotations
