@@ -65,6 +65,8 @@ class ContactAnchors:
     def __init__(self, rows: int, solid: bool = False) -> None:
         """rows: the free rows; solid: whether they make a closed surface (`SOLID_FLOOR_FRACTION`)."""
         self.anchored = np.zeros(rows, dtype=np.bool_)
+        #: how many times `anchored` was renewed: a factor made at another count is out of date
+        self.version = 0
         large = rows >= LARGE_ROWS
         #: steps a row stays anchored after it was last held, and the slack of a renewal
         self.window = 2 * ANCHOR_WINDOW if large else ANCHOR_WINDOW
@@ -85,6 +87,7 @@ class ContactAnchors:
         stale = int(np.count_nonzero(self.anchored & ~recent))
         if loose > max(self.slack * held.shape[0], self.floor) or stale > self.slack * anchored:
             self.anchored = recent
+            self.version += 1
             return True
         return False
 

@@ -77,8 +77,11 @@ rests sooner, the woven default later: docs/performance.md, "Calm steps of 3 ite
 Where something touches the cloth, the frames in which it moves slowly take 4 steps of 5
 iterations (`slow_steps`, `meshdeform.simulate.slow_steps_for`; with the contact
 anchors below a cloth lying or draping on its obstacles holds at those): a step of another
-length than the last refactorises the matrix and starts BDF2's history afresh, as at the first
-step (its contacts stay held).
+length than the last starts BDF2's history afresh, as at the first step (its contacts stay held),
+on that length's matrix: the factor of the length before is kept aside (`_StepLength`), so a run
+switching between its contact and its slow steps assembles and factorises each once, and again
+only where the anchored set was renewed in between (one more factor in memory; the drop scene of
+benchmarks/contact.py switched 44 times in 120 frames, 8 % of its time, docs/performance.md).
 
 Constraints (colliders, self-collision, tethers) move vertices after the step; BDF2 would
 extrapolate those vertices' former path through the correction (a landed vertex still falling
@@ -111,7 +114,7 @@ from __future__ import annotations
 
 import functools
 from concurrent.futures import Future
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -236,6 +239,13 @@ class ImplicitSolver(ModelCache, Solver):
             self.step_history, self.gradient_history = np.zeros((HISTORY, *shape)), np.zeros((HISTORY, *shape))
             self.rho = np.zeros(HISTORY)
         self.factor: cholesky.SparseCholesky | cholesky.CholmodFactor | None = None
+        #: the anchors' `version` the factor was made at
+        self._factored_version = 0
+        #: the quantities and factor of the step length before the current one (`_factorise`):
+        #: a run switching between its contact and its slow steps (`meshdeform.simulate`) does not
+        #: assemble and factorise the matrix at every switch
+        self._other_length: _StepLength | None = None
+        self.coarse_inertia: np.ndarray | None = None
         #: the matrix's lower triangle as CSC (indptr, indices, values), each column's diagonal first
         self._matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: the held contacts tied down in the matrix (L-BFGS only: local/global's matrix is exact)
@@ -282,6 +292,17 @@ class ImplicitSolver(ModelCache, Solver):
         self._state_key = None
 
     def _factorise(self, dt: float) -> None:
+        """The step-length quantities and the factor for steps of dt (s): the last length's, kept
+        aside (`_StepLength`), where dt is that one (refactorised where the anchored set was renewed
+        since); otherwise assembled and factorised, and the current length's kept aside in turn."""
+        current = self._current_length() if self._dt > 0.0 else None
+        other, self._other_length = self._other_length, current
+        if other is not None and other.dt == dt:
+            self._use_length(other)
+            if other.anchors_version != self._anchors_version():
+                self._factor()
+            return
+        self.factor = None  # the one kept aside is not refactorised in place
         beta = 2.0 * dt / 3.0
         beta2 = beta * beta
         # air damping as an implicit drag force of rate c = -ln(1 - damping) (1/s)
@@ -321,9 +342,29 @@ class ImplicitSolver(ModelCache, Solver):
         if self.coarse_space is not None:
             self.coarse_inertia = self.coarse_space.inertia_matrix(self.inertia)
 
+    def _current_length(self) -> _StepLength:
+        """The quantities of the current step length, to be kept aside (`_factorise`)."""
+        return _StepLength(
+            dt=self._dt, beta2=self.beta2, drag_factor=self.drag_factor, undamped=self.undamped, inertia=self.inertia,
+            matrix=self._matrix, factor=self.factor, anchors_version=self._factored_version,
+            coarse_inertia=self.coarse_inertia,
+        )  # fmt: skip
+
+    def _use_length(self, length: _StepLength) -> None:
+        """Make `length`'s quantities and factor the current ones."""
+        self._dt, self.beta2 = length.dt, length.beta2
+        self.drag_factor, self.undamped = length.drag_factor, length.undamped
+        self.inertia, self._matrix, self.factor = length.inertia, length.matrix, length.factor
+        self._factored_version, self.coarse_inertia = length.anchors_version, length.coarse_inertia
+
+    def _anchors_version(self) -> int:
+        """How many times the anchored set was renewed (0 without anchors)."""
+        return self.anchors.version if self.anchors is not None else 0
+
     def _factor(self) -> None:
         """Factorise the matrix `_factorise` assembled, the anchored rows' diagonal raised
         (`anchors` module docstring)."""
+        self._factored_version = self._anchors_version()
         indptr, indices, data = self._matrix
         if self.anchors is not None and self.anchors.anchored.any():
             data = data.copy()
@@ -647,6 +688,24 @@ class ImplicitSolver(ModelCache, Solver):
             grad, trial_grad = trial_grad, grad
             energy = trial
         return grad
+
+
+@dataclass
+class _StepLength:
+    """What a step length dt (s) fixes in `ImplicitSolver`: beta^2 (s^2), the drag factor q, the
+    restarted history's velocity factor, the free rows' inertia q m / beta^2 (F,) (kg/s^2), the
+    matrix's lower triangle (CSC) and its factor made at the anchors' `version`, and the coarse
+    space's inertia matrix (None without one)."""
+
+    dt: float
+    beta2: float
+    drag_factor: float
+    undamped: float
+    inertia: np.ndarray
+    matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    factor: cholesky.SparseCholesky | cholesky.CholmodFactor | None
+    anchors_version: int
+    coarse_inertia: np.ndarray | None
 
 
 #: the unit axes: a contact held along all three (`_stuck`) keeps its place
