@@ -1,5 +1,5 @@
 """What the tests build: cloth grids (the sheet, its pins, its spring model, an OBJ file of it, a
-slit in it) and a command-line app holding one command.
+slit in it), the turn of a slope and a command-line app holding one command.
 
 Every grid is `meshdeform.mesh.grid_mesh`: nx x ny vertices, vertex (i, j) at index `j * nx + i`,
 i along x and j along y (plane "xy", a hanging sheet with Y up) or along z (plane "xz", a
@@ -91,6 +91,15 @@ def grid_sheet(
             shift[[0, 1 if plane == "xy" else 2]] -= [width / 2, height / 2]
         mesh = mesh.with_positions(mesh.positions + shift)
     return mesh
+
+
+def slope_turn(degrees: float) -> np.ndarray:
+    """(3, 3) rotation by `degrees` about Z (Y up): it turns a horizontal sheet onto the plane
+    through the origin tilted that much, whose unit normal is its column 1 ([-sin, cos, 0]) and
+    whose downhill direction is minus its column 0 ([-cos, -sin, 0]). Apply as `points @ turn.T`."""
+    angle = np.radians(degrees)
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def grid_pins(nx: int, ny: int, pins: Iterable[Pin]) -> np.ndarray:

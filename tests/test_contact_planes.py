@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import trimesh
-from factories import grid_sheet
+from factories import grid_sheet, slope_turn
 
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.colliders import PLANE_REACH, Collider, Plane, Sphere
@@ -108,10 +108,9 @@ def test_a_particle_on_a_slope_sticks_or_slides_by_coulomb_through_its_plane(fri
     (static friction takes back the way they slid in the step); at 0.2 they slide down the slope
     at g (sin 20 - 0.2 cos 20) dt after the step (Coulomb), and keep their distance from the plane."""
     slope = np.radians(20.0)
-    normal = np.array([-np.sin(slope), np.cos(slope), 0.0])
-    down = np.array([-np.cos(slope), -np.sin(slope), 0.0])  # along the plane, downhill
+    turn = slope_turn(20.0)
+    normal, down = turn[:, 1], -turn[:, 0]  # the plane's normal; along the plane, downhill
     mesh = grid_sheet(4, size=0.3, plane="xz", centred=True)
-    turn = np.array([[np.cos(slope), -np.sin(slope), 0.0], [np.sin(slope), np.cos(slope), 0.0], [0.0, 0.0, 1.0]])
     model = SpringModel.from_mesh(replace(mesh, positions=mesh.positions @ turn.T + THICKNESS * normal))
     collider = Collider(Plane((0.0, 0.0, 0.0), normal), friction=friction, thickness=THICKNESS)
     state = State.at_rest(model)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from factories import TOP_CORNERS, grid_pins, write_grid
+from factories import TOP_CORNERS, grid_pins, slope_turn, write_grid
 
 from meshdeform.io import load, write_obj
 from meshdeform.mesh import Mesh, grid_mesh
@@ -229,9 +229,8 @@ def test_a_sheet_creeping_down_a_slope_is_not_reported_at_rest(solver: str) -> N
     whether it creeps (the colliders' friction removes its velocity after every substep, but not
     the way it slid within the substep) or lies still, every frame reported at rest has moved less
     than the rest speed times the frame time since the frame before, as the positions show."""
-    slope = np.radians(20.0)
-    normal = np.array([-np.sin(slope), np.cos(slope), 0.0])
-    turn = np.array([[np.cos(slope), -np.sin(slope), 0.0], [np.sin(slope), np.cos(slope), 0.0], [0.0, 0.0, 1.0]])
+    turn = slope_turn(20.0)
+    normal = turn[:, 1]
     grid = grid_mesh(12, 12, plane="xz")
     mesh = replace(grid, positions=(grid.positions - [0.5, 0.0, 0.5]) @ turn.T + 0.0101 * normal)
     plane = f"[{float(normal[0])!r}, {float(normal[1])!r}, 0.0]"
