@@ -20,9 +20,12 @@ Sides, each on the same vertices and quads:
   modifier (a 50 m plane, a 64 x 32 UV sphere, an 8-vertex box), Blender's default cloth otherwise.
   The scene is built Z up (x, -z, y) and its vertices read back into Y up.
 
-Printed per scene and side: frames/s of the simulated frames alone (meshdeform: report.json's
-`seconds`; Blender: the `frame_set` calls from frame 2 on, frame 1 being the rest pose), the median
-of `--repeats` runs; the worst structural stretch (a quad side's length over its rest length)
+The sides run in rounds, one run of each side a round (`--repeats` rounds, after meshdeform's
+untimed warm-up runs), so that a machine whose speed drifts during the minutes of a scene slows
+both sides of a round alike. Printed per scene and side: frames/s of the simulated frames alone
+(meshdeform: report.json's `seconds`; Blender: the `frame_set` calls from frame 2 on, frame 1
+being the rest pose), the median of the rounds; x Blender, the median of the rounds' ratios to
+Blender's run of the same round; the worst structural stretch (a quad side's length over its rest length)
 over the frames; the largest count over frames of intersecting triangle pairs that share no
 vertex (tests/intersections.py, decided by ipctk; quads split along their 0-2 diagonal) and the
 frame it occurs in; the smallest distance over frames of any cloth vertex to each collider's
@@ -188,6 +191,14 @@ class Side:
     def median(self) -> float:
         return statistics.median(self.frames_per_second)
 
+    def paired_ratio(self, base: Side) -> float:
+        """The median over the rounds of this side's frames/s over `base`'s in the same round."""
+        return statistics.median(a / b for a, b in zip(self.frames_per_second, base.frames_per_second, strict=True))
+
+    def then(self, later: Side) -> Side:
+        """This side with a later round's runs added (the first round's frames and work kept)."""
+        return Side(self.label, [*self.frames_per_second, *later.frames_per_second], self.positions, self.work)
+
 
 # ---------------------------------------------------------------------------------------------- meshdeform
 
@@ -214,16 +225,18 @@ def recipe(scene: ContactScene, frames: int, self_collision: bool, solver: str =
 
 
 def run_meshdeform(
-    scene: ContactScene, frames: int, repeats: int, self_collision: bool, folder: Path, solver: str = "xpbd"
+    scene: ContactScene, frames: int, repeats: int, self_collision: bool, folder: Path, solver: str = "xpbd",
+    warm: bool = True, round_tag: int = 0,
 ) -> Side:
-    """`simulate` through the CLI, once untimed to warm the cache, then `repeats` timed runs."""
+    """`simulate` through the CLI, once untimed to warm the cache (where `warm`), then `repeats`
+    timed runs (their files tagged with `round_tag`)."""
     label = f"meshdeform {solver}, self-collision {'on' if self_collision else 'off'}"
     mesh = Mesh(
         positions=scene.positions,
         face_indices=scene.quads.ravel().astype(np.int64),
         face_offsets=np.arange(0, scene.quads.size + 1, 4, dtype=np.int64),
     )
-    tag = f"{scene.name}_{solver}_{'on' if self_collision else 'off'}"
+    tag = f"{scene.name}_{solver}_{'on' if self_collision else 'off'}_{round_tag}"
     obj = folder / f"{scene.name}.obj"
     write_obj(obj, mesh)
     env = {
@@ -233,7 +246,7 @@ def run_meshdeform(
     rates: list[float] = []
     positions = None
     work: dict[str, int] = {}
-    for run in range(repeats + 1):
+    for run in range(0 if warm else 1, repeats + 1):
         toml = folder / f"{tag}_{run}.toml"
         toml.write_text(recipe(scene, 2 if run == 0 else frames, self_collision, solver))
         out = folder / f"{tag}_{run}"
@@ -321,8 +334,11 @@ BLENDER_SIDE = textwrap.dedent(
 )
 
 
-def run_blender(python: str, scene: ContactScene, frames: int, repeats: int, folder: Path) -> Side:
-    """Blender's cloth with self-collision on, `repeats` runs, each in a fresh interpreter."""
+def run_blender(
+    python: str, scene: ContactScene, frames: int, repeats: int, folder: Path, round_tag: int = 0
+) -> Side:
+    """Blender's cloth with self-collision on, `repeats` runs, each in a fresh interpreter (their
+    files tagged with `round_tag`)."""
     spec = {
         "frames": frames,
         "fps": FPS,
@@ -340,7 +356,7 @@ def run_blender(python: str, scene: ContactScene, frames: int, repeats: int, fol
     positions = None
     version = ""
     for run in range(repeats):
-        out = folder / f"{scene.name}_blender_{run}.npy"
+        out = folder / f"{scene.name}_blender_{round_tag}_{run}.npy"
         proc = subprocess.run(
             [python, "-c", BLENDER_SIDE, str(spec_path), str(out)], capture_output=True, text=True, check=False
         )
@@ -360,17 +376,17 @@ def run_blender(python: str, scene: ContactScene, frames: int, repeats: int, fol
 
 
 def describe(
-    scene: ContactScene, side: Side, oracle: Callable[[np.ndarray, np.ndarray], int], base: float | None
+    scene: ContactScene, side: Side, oracle: Callable[[np.ndarray, np.ndarray], int], base: Side | None
 ) -> str:
-    """One table row: frames/s, x Blender, worst structural stretch over the frames, max
-    intersecting pairs (frame), clearance per collider."""
+    """One table row: frames/s, x Blender (the rounds' paired ratios' median), worst structural
+    stretch over the frames, max intersecting pairs (frame), clearance per collider."""
     assert side.positions is not None
     triangles = scene.triangles()
     counts = [oracle(frame, triangles) for frame in side.positions]
     worst = int(np.argmax(counts))
     at = f"{worst + 1:6d}" if counts[worst] else f"{'-':>6s}"
     clearance = [1000.0 * (float(c.signed_distance(side.positions).min()) - c.thickness) for c in scene.colliders]
-    ratio = f"{side.median / base:9.2f}" if base else f"{'-':>9s}"
+    ratio = f"{side.paired_ratio(base):9.2f}" if base else f"{'-':>9s}"
     gaps = "  ".join(f"{value:8.2f}" for value in clearance)
     stretch = max(structural_stretch(scene, frame) for frame in side.positions)
     return f"  {side.label:40s} {side.median:9.1f} {ratio} {stretch:8.3f} {counts[worst]:9d} {at}   {gaps}"
@@ -399,20 +415,23 @@ def main() -> None:
     oracle = _load_oracle()
     wanted = args.scenes.split(",")
     chosen = [s for s in scenes(args.n) if s.name in wanted]
-    print(f"{args.n} x {args.n} sheet, 1 m, {args.frames} frames at {FPS} fps, median of {args.repeats} runs")
+    print(f"{args.n} x {args.n} sheet, 1 m, {args.frames} frames at {FPS} fps, medians of {args.repeats} rounds")
     print(f"collider thickness {1000 * COLLIDER_THICKNESS:g} mm, self-collision thickness {1000 * SELF_THICKNESS:g} mm")
     with tempfile.TemporaryDirectory(prefix="meshdeform-contact-") as tmp:
         folder = Path(tmp)
         for scene in chosen:
-            runs = {}
-            for solver in args.solvers.split(","):
-                runs[f"{solver}_off"] = run_meshdeform(scene, args.frames, args.repeats, False, folder, solver)
-                runs[f"{solver}_on"] = run_meshdeform(scene, args.frames, args.repeats, True, folder, solver)
-            blender = None
-            if args.blender_python:
-                blender = run_blender(args.blender_python, scene, args.frames, args.repeats, folder)
-                runs["blender"] = blender
-            base = blender.median if blender else None
+            runs: dict[str, Side] = {}
+            for round_tag in range(args.repeats):  # a run of each side a round (the module docstring)
+                this_round: dict[str, Side] = {}
+                for solver in args.solvers.split(","):
+                    for self_collision in (False, True):
+                        this_round[f"{solver}_{'on' if self_collision else 'off'}"] = run_meshdeform(
+                            scene, args.frames, 1, self_collision, folder, solver, round_tag == 0, round_tag
+                        )
+                if args.blender_python:
+                    this_round["blender"] = run_blender(args.blender_python, scene, args.frames, 1, folder, round_tag)
+                runs = {key: runs[key].then(side) if key in runs else side for key, side in this_round.items()}
+            base = runs.get("blender")
             names = "  ".join(f"{c.shape:>8s}" for c in scene.colliders)
             print(f"\n{scene.name}: {scene.summary}")
             heading = f"{'side':40s} {'frames/s':>9s} {'x blender':>9s} {'stretch':>8s} {'max pairs':>9s} {'frame':>6s}"
@@ -424,7 +443,7 @@ def main() -> None:
                     np.save(args.save / f"{scene.name}_{key}.npy", side.positions)
             for solver in args.solvers.split(","):
                 off, on = runs[f"{solver}_off"], runs[f"{solver}_on"]
-                print(f"  {solver}: self-collision cost (frames/s off / on): {off.median / on.median:.2f}x")
+                print(f"  {solver}: self-collision cost (frames/s off / on): {off.paired_ratio(on):.2f}x")
                 done = ", ".join(f"{key} {value}" for key, value in on.work.items())
                 print(f"  {solver}: self-collision work over the {args.frames} frames: {done}")
             sys.stdout.flush()
