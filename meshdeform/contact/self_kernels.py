@@ -162,35 +162,6 @@ def _grow(
 
 
 @nb.njit(**JIT)
-def _keep_vf(
-    x: np.ndarray, rest: np.ndarray, v: int, t: int, triangles: np.ndarray, origin: np.ndarray,
-    ring_start: np.ndarray, ring: np.ndarray, motion: np.ndarray, span: float, reach: float,
-    pairs: np.ndarray, near: np.ndarray, rest_gap: np.ndarray, count: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Append the VF pair (v, t) to the buffers unless v is a corner of t or the pair is further
-    apart in x than `reach` plus `span` substeps of v's motion relative to the corners; the
-    buffers (grown when full) and the new count."""
-    a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
-    if v in (a, b, c):
-        return pairs, near, rest_gap, count
-    closing = np.sqrt(max(_apart2(motion, v, a), max(_apart2(motion, v, b), _apart2(motion, v, c))))
-    limit = reach + span * closing
-    if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
-        return pairs, near, rest_gap, count
-    if count == pairs.shape[0]:
-        pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
-    ov = origin[v]
-    pairs[count, 0] = v
-    pairs[count, 1] = t
-    near[count] = not (
-        _adjacent(ring_start, ring, ov, origin[a]) or _adjacent(ring_start, ring, ov, origin[b])
-        or _adjacent(ring_start, ring, ov, origin[c])
-    )
-    rest_gap[count] = _vf_gap(rest, v, a, b, c)[0]
-    return pairs, near, rest_gap, count + 1
-
-
-@nb.njit(**JIT)
 def vf_candidates(
     x: np.ndarray, rest: np.ndarray, queries: np.ndarray, skip: np.ndarray,
     qlo: np.ndarray, qhi: np.ndarray, tlo: np.ndarray, thi: np.ndarray, by_triangle: bool,
@@ -220,11 +191,26 @@ def vf_candidates(
             n, found = query_grown(qlo, qhi, q, tlo, thi, inv_cell, start, element, cell, box, anyone, found)
         for j in range(n):
             v, t = (found[j], q) if by_triangle else (q, found[j])
-            if skip[v]:
+            a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+            if skip[v] or v in (a, b, c):
                 continue
-            pairs, near, rest_gap, count = _keep_vf(
-                x, rest, v, t, triangles, origin, ring_start, ring, motion, span, reach, pairs, near, rest_gap, count
+            # written out here, not in a helper: one returning the buffers cost 1.8x this search
+            # (its arrays counted on every call; docs/performance.md, "VF pairs written out")
+            closing = np.sqrt(max(_apart2(motion, v, a), max(_apart2(motion, v, b), _apart2(motion, v, c))))
+            limit = reach + span * closing
+            if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
+                continue
+            if count == pairs.shape[0]:
+                pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
+            ov = origin[v]
+            pairs[count, 0] = v
+            pairs[count, 1] = t
+            near[count] = not (
+                _adjacent(ring_start, ring, ov, origin[a]) or _adjacent(ring_start, ring, ov, origin[b])
+                or _adjacent(ring_start, ring, ov, origin[c])
             )
+            rest_gap[count] = _vf_gap(rest, v, a, b, c)[0]
+            count += 1
     return pairs[:count], near[:count], rest_gap[:count]
 
 
