@@ -30,10 +30,19 @@ def cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
     nearly every element spans at most two cells per axis while a few long ones span more."""
     if lo.shape[0] == 0:
         return 1.0
-    sides = hi - lo
-    extent = np.maximum(np.maximum(sides[:, 0], sides[:, 1]), sides[:, 2])  # 9x faster than max(axis=1)
+    extent = _largest_sides(lo, hi)
     size = _percentile_90(extent)
     return size if size > 1e-9 else max(float(extent.max()), 1e-6)
+
+
+@nb.njit(**JIT)
+def _largest_sides(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Each box's largest side (M,), m, of boxes lo, hi (M, 3) (in one pass: NumPy's took
+    a third of a whole grid's build)."""
+    extent = np.empty(lo.shape[0])
+    for e in range(lo.shape[0]):
+        extent[e] = max(max(hi[e, 0] - lo[e, 0], hi[e, 1] - lo[e, 1]), hi[e, 2] - lo[e, 2])
+    return extent
 
 
 def _percentile_90(values: np.ndarray) -> float:
@@ -268,7 +277,8 @@ def grid_for(
     boxes of the two, unless `inv_cell` is given (any cell finds the same pairs; sizing it reads
     every box, a tenth of a search that asks the grid for a few elements only)."""
     if inv_cell is None:
-        inv_cell = 1.0 / max(cell_size(elo, ehi), cell_size(qlo, qhi))
+        size = cell_size(elo, ehi)
+        inv_cell = 1.0 / (size if qlo is elo and qhi is ehi else max(size, cell_size(qlo, qhi)))
     return (inv_cell, *build_grid(elo, ehi, inv_cell, dense_factor))
 
 
