@@ -194,8 +194,8 @@ def vf_candidates(
             a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
             if skip[v] or v in (a, b, c):
                 continue
-            # written out here, not in a helper: one returning the buffers cost 1.8x this search
-            # (its arrays counted on every call; docs/performance.md, "VF pairs written out")
+            # written out here, not in a helper returning the buffers: Numba counts the references
+            # of returned arrays on every call (docs/performance.md, "The VF search written out")
             closing = np.sqrt(max(_apart2(motion, v, a), max(_apart2(motion, v, b), _apart2(motion, v, c))))
             limit = reach + span * closing
             if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
