@@ -183,15 +183,17 @@ def test_static_ground_handles_a_vertex_that_crossed_it_within_a_substep() -> No
     assert np.all(state.positions[:, 1] >= 0.01 - 1e-12)
 
 
-@pytest.mark.parametrize("beside", ["box", "mesh"])
+@pytest.mark.parametrize("beside", ["box", "mesh", "sphere"])
 def test_the_ground_beside_a_box_or_a_mesh_runs_in_its_pipeline_with_the_bytes_of_the_ground_alone(beside) -> None:
     """A plane runs in the compiled contact pipeline of a box or mesh collider of its scene (one
-    pipeline to compile in a fresh process instead of two); its contact is the same arithmetic
-    in every pipeline, so a sheet dropped on the ground lands to the same bytes whether a collider
-    it never reaches sits beside the ground or not."""
+    pipeline to compile in a fresh process instead of two), in the simple one beside a sphere,
+    and alone in one of its own; its contact is the same arithmetic in every pipeline, so a sheet
+    dropped on the ground lands to the same bytes whether a collider it never reaches sits beside
+    the ground or not."""
     import meshdeform.contact.collider_kernels as ck
 
     far = {
+        "sphere": lambda: Sphere((5.0, 0.5, 5.0), 0.5),
         "box": lambda: Box((5.0, 0.0, 5.0), (6.0, 1.0, 6.0)),
         "mesh": lambda: TriangleMesh(
             np.array([[5.0, 0.0, 5.0], [6.0, 0.0, 5.0], [5.0, 1.0, 5.0], [5.0, 0.0, 6.0]]),
@@ -205,10 +207,9 @@ def test_the_ground_beside_a_box_or_a_mesh_runs_in_its_pipeline_with_the_bytes_o
         ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), friction=0.4, thickness=0.01)
         scene = Scene(constraints=[ground, Collider(far())] if with_far else [ground])
         frames = np.array([f.positions for f in simulate(model, scene, settings)])
-        kind = {"box": ck.BOX, "mesh": ck.MESH}[beside]
         pipeline = ck.contact_kernel(ck.PLANE, ground.company)
-        expected = (ck.contact_box if kind == ck.BOX else ck.contact_mesh) if with_far else ck.contact_simple
-        assert pipeline is expected
+        beside_far = {"box": ck.contact_box, "mesh": ck.contact_mesh, "sphere": ck.contact_simple}[beside]
+        assert pipeline is (beside_far if with_far else ck.contact_plane)
         return frames
 
     alone, beside_far = landing(False), landing(True)

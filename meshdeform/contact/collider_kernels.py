@@ -13,7 +13,7 @@ vertices, the surface point q and the outward unit normal n, with d = n . (p - q
 cloth point p = sum w_k x_k. The contact asks for d >= h (h: the collider's thickness in local
 units).
 
-`contact` runs one substep for one shape (compiled once per query: `contact_kernel(kind)`):
+`contact` runs one substep for one shape (compiled once per query: `contact_kernel(kind, company)`):
 - `_advance` is conservative advancement (Mirtich 1996; Zhang et al., "Continuous collision
   detection for articulated models using Taylor models and temporal culling", 2007): along the
   path a point of the primitive moves at most L = max_k |x1_k - x0_k| (its vertices move
@@ -1040,7 +1040,33 @@ def _family(suffix: str, query: Callable[..., tuple]) -> Family:
     return Family(contact=env["contact"], near=env["near"])
 
 
-#: `contact` and `near` for planes, spheres and capsules, for boxes and for meshes
+@numba.njit(**_JIT)
+def closest_only_plane(
+    kind: int,
+    params: np.ndarray,
+    closed: bool,
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    bounds: np.ndarray,
+    nodes: np.ndarray,
+    order: np.ndarray,
+    tri_bounds: np.ndarray,
+    tri: np.ndarray,
+    i0: int,
+    i1: int,
+    i2: int,
+    hint: float,
+    limit: float,
+    stack: np.ndarray,
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
+    """`closest_simple`'s signature answered for a plane alone (`closest_plane`): the query of
+    the build for scenes whose colliders are all planes, no dispatch on the kind."""
+    return closest_plane(params, tri, i0, i1, i2)
+
+
+#: `contact` and `near` for planes alone, for planes, spheres and capsules, for boxes and for meshes
+contact_plane, near_plane = _family("plane", closest_only_plane)
 contact_simple, near_simple = _family("simple", closest_simple)
 contact_box, near_box = _family("box", closest_box)
 contact_mesh, near_mesh = _family("mesh", closest_mesh)
@@ -1049,7 +1075,8 @@ contact_mesh, near_mesh = _family("mesh", closest_mesh)
 def near_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable[..., tuple]:
     """The compiled `near` of the build `contact_kernel(kind, company)` runs in."""
     contact = contact_kernel(kind, company)
-    return near_mesh if contact is contact_mesh else (near_box if contact is contact_box else near_simple)
+    builds = {contact_plane: near_plane, contact_simple: near_simple, contact_box: near_box}
+    return builds.get(contact, near_mesh)
 
 
 def contact_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable[..., tuple]:
@@ -1057,10 +1084,15 @@ def contact_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable
     scene's). Each build compiles the whole pipeline, seconds in a process with an empty compile
     cache, and every build answers planes: a plane runs in the build of a box or mesh in its
     company (unless a sphere or capsule needs the simple one anyway), so the ground beside a box
-    or a mesh costs no second build. The build changes no result (the same plane code, no
-    fast-math)."""
-    if kind == PLANE and not company & {SPHERE, CAPSULE}:
-        kind = BOX if BOX in company else (MESH if MESH in company else PLANE)
+    or a mesh costs no second build; planes alone (a ground, walls) run in a build of their own,
+    whose query is the plane's alone: no dispatch on the kind, cheaper to compile and to run than
+    the simple build (docs/performance.md, "Planes alone in a build of their own"). The build
+    changes no result (the same plane code, no fast-math)."""
+    if kind == PLANE:
+        if not company - {PLANE}:
+            return contact_plane
+        if not company & {SPHERE, CAPSULE}:
+            kind = BOX if BOX in company else MESH
     if kind == MESH:
         return contact_mesh
     return contact_box if kind == BOX else contact_simple
