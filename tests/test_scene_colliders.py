@@ -184,7 +184,7 @@ def test_static_ground_handles_a_vertex_that_crossed_it_within_a_substep() -> No
 
 
 @pytest.mark.parametrize("beside", ["box", "mesh", "sphere"])
-def test_the_ground_beside_a_box_or_a_mesh_runs_in_its_pipeline_with_the_bytes_of_the_ground_alone(beside) -> None:
+def test_the_ground_runs_in_its_scenes_pipeline_with_the_bytes_of_the_ground_alone(beside) -> None:
     """A plane runs in the compiled contact pipeline of a box or mesh collider of its scene (one
     pipeline to compile in a fresh process instead of two), in the simple one beside a sphere,
     and alone in one of its own; its contact is the same arithmetic in every pipeline, so a sheet
@@ -208,8 +208,8 @@ def test_the_ground_beside_a_box_or_a_mesh_runs_in_its_pipeline_with_the_bytes_o
         scene = Scene(constraints=[ground, Collider(far())] if with_far else [ground])
         frames = np.array([f.positions for f in simulate(model, scene, settings)])
         pipeline = ck.contact_kernel(ck.PLANE, ground.company)
-        beside_far = {"box": ck.contact_box, "mesh": ck.contact_mesh, "sphere": ck.contact_simple}[beside]
-        assert pipeline is (beside_far if with_far else ck.contact_plane)
+        shared = {"box": ck.contact_box, "mesh": ck.contact_mesh, "sphere": ck.contact_simple}[beside]
+        assert pipeline is (shared if with_far else ck.contact_plane)
         return frames
 
     alone, beside_far = landing(False), landing(True)

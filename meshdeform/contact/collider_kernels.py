@@ -1070,13 +1070,13 @@ contact_plane, near_plane = _family("plane", closest_only_plane)
 contact_simple, near_simple = _family("simple", closest_simple)
 contact_box, near_box = _family("box", closest_box)
 contact_mesh, near_mesh = _family("mesh", closest_mesh)
+#: each build's `near`, by its `contact`
+_NEAR = {contact_plane: near_plane, contact_simple: near_simple, contact_box: near_box, contact_mesh: near_mesh}
 
 
 def near_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable[..., tuple]:
     """The compiled `near` of the build `contact_kernel(kind, company)` runs in."""
-    contact = contact_kernel(kind, company)
-    builds = {contact_plane: near_plane, contact_simple: near_simple, contact_box: near_box}
-    return builds.get(contact, near_mesh)
+    return _NEAR[contact_kernel(kind, company)]
 
 
 def contact_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable[..., tuple]:
