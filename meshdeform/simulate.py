@@ -73,7 +73,7 @@ from meshdeform.errors import MeshdeformError, SimulationDiverged
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
-from meshdeform.scene.colliders import contact_planes, pushed_friction, settle_contacts, share_company
+from meshdeform.scene.colliders import contact_planes, hold_contacts_still, pushed_friction, share_company
 from meshdeform.solvers import guard_kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions
 from meshdeform.solvers.common import spring_constants, structural_mask
@@ -404,7 +404,7 @@ def simulate(
     forces = list(scene.forces)
     constraints = list(scene.constraints)
     share_company(constraints)  # which compiled contact pipelines the colliders run
-    settle_contacts(constraints, not solver.holds_contacts)  # the colliders settle contacts, unless the solver holds
+    hold_contacts_still(constraints, not solver.holds_contacts)  # static friction's hold: the solver's, where it holds
     remappable = scene.remappables()  # the forces and constraints with per-vertex data (follow tears)
     pin_motion = scene.pin_motion if pinned_idx.size else None
     center = model.rest_positions.mean(axis=0) if model.vertex_count else np.zeros(3)

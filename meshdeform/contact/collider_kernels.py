@@ -1149,7 +1149,6 @@ def respond(
     dt: float,
     touched: np.ndarray,
     sweeps: int,
-    settle: bool,
 ) -> None:  # pragma: no cover - compiled
     """Contact velocities by sequential impulses (world frame): `sweeps` Gauss-Seidel
     sweeps over the contacts `ids` in order, each contact point (rows (C, 9): weights w, surface
@@ -1164,12 +1163,12 @@ def respond(
     on the least pushes that stop them all: one pass of independent corrections over-pushed a
     vertex that several touching edges and faces share (each lifted it by its own approach) and
     sent it off the obstacle every substep, so a cloth lying on a ball never came to rest. The
-    first sweep is that pass. `settle`: each vertex settled after the sweeps (`_settle_vertices`).
+    first sweep is that pass. Then each vertex is settled (`_settle_vertices`).
     v (V, 3) is updated in place, touched (V,) marks the vertices changed."""
     count = ids.shape[0]
     normal_total = np.zeros(count)
     tangent_total = np.zeros((count, 3))
-    v_before = v.copy() if settle else v[:0]
+    v_before = v.copy()
     for sweep in range(sweeps):
         largest = 0.0  # the largest change of a contact point's velocity in this sweep (m/s)
         for k in range(count):
@@ -1213,8 +1212,7 @@ def respond(
                     touched[i] = True
         if sweep > 0 and largest <= SETTLED_SPEED:  # the contacts no longer change each other
             break
-    if settle:
-        _settle_vertices(v, v_before, inv_mass, prims, ids, rows, surface_v, touched)
+    _settle_vertices(v, v_before, inv_mass, prims, ids, rows, surface_v, touched)
 
 
 #: a sweep of `respond` after the first that changes no contact point's velocity by more than this

@@ -22,7 +22,7 @@ straight line in the plane's frame. Boxes have exact closest points of their own
 (`meshdeform.contact.box_distance`). Mesh colliders find exact closest points with a BVH over their
 triangles; closed meshes are solids (inside: behind the nearest surface point by its
 angle-weighted pseudo-normal), open ones two-sided sheets (each vertex keeps the side it was
-last seen on; they keep at least `MIN_SHEET_GAP`). Colliders can follow keyframes (rigid motion
+last seen on). Every collider keeps at least `MIN_GAP`. Colliders can follow keyframes (rigid motion
 plus uniform scale) like pins. `Collider.stats` counts the contacts and how often the swept
 test found what the end positions alone would have missed.
 """
@@ -42,9 +42,11 @@ from meshdeform.scene.base import Constraint, Remappable
 from meshdeform.scene.pins import Keyframes
 from meshdeform.topology import SpringKind
 
-#: scene units: the least contact gap of an open mesh collider (two-sided: a sheet's side is
-#: only known while the cloth keeps clear of it) and the advancement's tolerance at thickness 0
-MIN_SHEET_GAP = 1e-4
+#: scene units: the least contact gap of every collider, whatever its `thickness`: at 0, the cloth's
+#: vertices lay on a box's faces with the triangles between them cutting its edges (5 to 12 mm
+#: deep), and an open mesh collider is two-sided: a sheet's side is only known while the cloth
+#: keeps clear of it
+MIN_GAP = 1e-4
 #: steps of conservative advancement per primitive and substep before a grazing path counts as a hit
 MAX_ADVANCE_STEPS = 256
 #: Gauss-Seidel sweeps: over the time-of-impact planes alone, then over planes and closest points
@@ -66,7 +68,6 @@ PLANE_REACH = 1.5
 #: sheet on a ball sink by that every substep and never rest
 PLANE_SLACK = 0.01
 #: Gauss-Seidel sweeps of the contact velocities' sequential impulses (`collider_kernels.respond`)
-#: where the collider settles its contacts (`Collider.settles`)
 RESPONSE_SWEEPS = 4
 
 
@@ -403,13 +404,13 @@ def share_company(constraints: Sequence[Constraint]) -> None:
             constraint.company = kinds
 
 
-def settle_contacts(constraints: Sequence[Constraint], settle: bool) -> None:
-    """Tells each collider among `constraints` whether it settles its contacts itself
-    (`Collider.settles`): off for a solver that holds contacts in its own step and finds the
-    obstacle from how the collider moved and slowed them (`Solver.holds_contacts`)."""
+def hold_contacts_still(constraints: Sequence[Constraint], hold: bool) -> None:
+    """Tells each collider among `constraints` whether static friction puts a held contact back
+    where it was along the surface (`Collider.holds_still`): off for a solver that holds contacts
+    in its own step, whose own static friction holds them (`Solver.holds_contacts`)."""
     for constraint in constraints:
         if isinstance(constraint, Collider):
-            constraint.settles = settle
+            constraint.holds_still = hold
 
 
 def pushed_friction(constraints: Sequence[Constraint], vertex_count: int) -> np.ndarray:
@@ -458,13 +459,14 @@ class Collider(Constraint, Remappable):
         self._totals = np.zeros(6, dtype=np.int64)  # `ContactStats`' fields in order, summed
         self._model: SpringModel | None = None
         self._prims: _ClothPrimitives | None = None
-        #: whether this collider settles its contacts itself (`settle_contacts`): a vertex contact
-        #: that static friction holds is put back where it was along the surface
-        #: (`collider_kernels.hold_still`) and the contact velocities are solved to the end
-        #: (`collider_kernels.respond`: sweeps of sequential impulses, then each vertex settled);
-        #: otherwise one pass of point impulses, the response the implicit solver's contact
-        #: handling reads
-        self.settles = True
+        #: whether a vertex contact that static friction holds is put back where it was along the
+        #: surface (`collider_kernels.hold_still`; `hold_contacts_still`): off for a solver that
+        #: holds contacts in its own step. Either way the contact velocities are solved to the end
+        #: (`collider_kernels.respond`: sweeps of sequential impulses, then each vertex settled):
+        #: one pass of point impulses over-pushed a vertex shared by several contacts, and a
+        #: moving collider threw the cloth it carried (docs/performance.md, "A moving collider's
+        #: contacts under implicit")
+        self.holds_still = True
         #: (V,) bool: the vertices the last `project` moved (None before the first)
         self.pushed: np.ndarray | None = None
         #: the shape kinds of the scene's colliders (`share_company`): which compiled contact
@@ -522,7 +524,7 @@ class Collider(Constraint, Remappable):
         shape = self._shape_at(time)
         prims = self._primitives(model)
         scale = self._scale(time)
-        h, _ = self._gaps(shape, scale)
+        h, _ = self._gaps(scale)
         x = np.ascontiguousarray(self._to_local(positions, time), dtype=np.float64)
         lo, hi = self._bounds(shape)
         hint = self._hints(prims, x.shape[0], shape.kind == ck.MESH and not shape.closed)
@@ -549,12 +551,11 @@ class Collider(Constraint, Remappable):
             velocities=self._surface_velocity(surface_local, time, dt), friction=np.full(ids.shape[0], self.friction),
         )  # fmt: skip
 
-    def _gaps(self, shape: ck.ShapeArrays, scale: float) -> tuple[float, float]:
-        """The thickness kept and the advancement's tolerance, in the shape's local units."""
-        h = self.thickness / scale
-        if shape.kind == ck.MESH and not shape.closed:
-            h = max(h, MIN_SHEET_GAP / scale)
-        return h, (0.5 * h if h > 0 else MIN_SHEET_GAP / scale)
+    def _gaps(self, scale: float) -> tuple[float, float]:
+        """The thickness kept (at least `MIN_GAP`) and the advancement's tolerance, in the shape's
+        local units (`scale`: the collider's scale at the time)."""
+        h = max(self.thickness, MIN_GAP) / scale
+        return h, 0.5 * h
 
     def _bounds(self, shape: ck.ShapeArrays) -> tuple[np.ndarray, np.ndarray]:
         """The shape's local bounds (zeros for an unbounded plane)."""
@@ -620,8 +621,8 @@ class Collider(Constraint, Remappable):
         n = state.positions.shape[0]
         scale = self._scale(time)
         sheet = shape.kind == ck.MESH and not shape.closed
-        h, gap = self._gaps(shape, scale)
-        floor = h - FAIL_FRACTION * h if h > 0 else -gap
+        h, gap = self._gaps(scale)
+        floor = h - FAIL_FRACTION * h
         x1 = np.array(self._to_local(state.positions, time), dtype=np.float64, order="C")
         x0 = np.ascontiguousarray(self._start_positions(state, x1, h, time, dt), dtype=np.float64)
         lo, hi = self._bounds(shape)
@@ -637,7 +638,7 @@ class Collider(Constraint, Remappable):
         touch = h * (1.0 + TOUCH_FRACTION) + 1e-12
         acting = ck.acting_contacts(ids, plane, end, d_end, push, touch, self._totals, counts)
         ids, rows, push = ids[:acting], plane[:acting], push[:acting]
-        if self.settles and self.friction > 0.0:
+        if self.holds_still and self.friction > 0.0:
             ck.hold_still(x0, x1, prims, ids, rows, push, self.friction, inv_mass, moved)
         self.pushed = moved  # the kernel's own array, new each call
         if self.keys is None:
@@ -649,10 +650,9 @@ class Collider(Constraint, Remappable):
         surface_v = self._surface_velocity(np.ascontiguousarray(rows[:, 3:6]), time, dt)
         self._planes_at = (time, dt)
         touched = moved.copy()
-        sweeps, settle = (RESPONSE_SWEEPS, True) if self.settles else (1, False)
         ck.respond(
             state.velocities, inv_mass, prims, ids, rows, surface_v, push * scale, self.friction, dt, touched,
-            sweeps, settle,
+            RESPONSE_SWEEPS,
         )  # fmt: skip
         if reverted.any():  # they move with the collider
             state.velocities[reverted] = self._surface_velocity(np.ascontiguousarray(x0[reverted]), time, dt)

@@ -89,9 +89,9 @@ class Solver(ABC):
         must not be launched from two threads at once under Numba's workqueue threading layer,
         so nothing steps such a solver beside a run (`pipeline.compile_ahead`).
     holds_contacts: whether its step holds the vertices the constraints pushed against their
-        obstacle (implicit): the colliders then leave its positions along the surface alone and
-        give its velocities one pass of point impulses (`scene.colliders.settle_contacts`), which
-        the solver reads to find the obstacle.
+        obstacle (implicit), finding the obstacle from how they moved them: the colliders then
+        leave its positions along the surface alone, its own static friction holding them
+        (`scene.colliders.hold_contacts_still`).
     reads_planes: whether its step reads `Control.planes` (the explicit solvers, whose many
         steps between two collider passes keep the contacts on them).
 
