@@ -35,7 +35,6 @@ import numba as nb
 import numpy as np
 from scipy.sparse import csr_matrix, diags
 
-from meshdeform.solvers.implicit.kernels import spring_constant
 from meshdeform.solvers.jit import FAST, JIT
 from meshdeform.solvers.threads import beside
 
@@ -269,7 +268,11 @@ def spring_hessian(
 ):  # pragma: no cover - compiled
     """out (3C, 3C) += sum over `springs` of (z_a - z_b)(z_a - z_b)^T (x) H_s at positions x (V, 3),
     H_s = k (n n^T + max(0, 1 - L / l) (I - n n^T)): a spring's Hessian with the part across it
-    that a compressed spring would make negative left out (positive semi-definite).
+    that a compressed spring would make negative left out (positive semi-definite), k the larger of
+    its tension and compression stiffness whichever way it is strained: a Newton step that read a
+    compressed spring's soft stiffness (1 % of the tension's) stepped far across its rest length,
+    where the spring is stiff, and a strip pushed together flailed at metres a second
+    (docs/performance.md, "Soft compression and the coarse Newton steps").
 
     A group of springs with the same nodes is taken `HESSIAN_CHUNK` springs at a time: the six
     entries of each spring's H_s (xx, yy, zz, xy, xz, yz) into a small buffer, then for each pair of
@@ -297,7 +300,7 @@ def spring_hessian(
                 dy = x[ia, 1] - x[ib, 1]
                 dz = x[ia, 2] - x[ib, 2]
                 length = np.sqrt(dx * dx + dy * dy + dz * dz)
-                stiffness = spring_constant(length - rest[s], stiff_t[s], stiff_c[s], modulus)
+                stiffness = max(max(stiff_t[s], stiff_c[s]), 0.0) * modulus
                 j = k - start
                 if length < 1e-12 or stiffness == 0.0:
                     for e in range(6):
