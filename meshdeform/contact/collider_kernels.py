@@ -24,8 +24,10 @@ units).
 - `_solve` enforces those planes and the closest-point contacts at the end positions by
   Gauss-Seidel position corrections weighted by the contact weights and inverse masses
   (position-based dynamics: lambda = depth / sum_k w_k^2 m_k^-1, dx_k = lambda w_k m_k^-1 n);
-- a fail-safe puts back at their start the vertices of any primitive the corrections could
-  not free (the start was clear, so the end is).
+- static friction holds the vertex contacts within its cone where they were along the surface
+  (`hold_still`; for the solvers that do not hold contacts themselves);
+- a fail-safe puts back at their start the vertices of any primitive the corrections or the hold
+  could not keep clear (the start was clear, so the end is).
 `respond` then removes the approaching normal velocity of every contact point (relative to the
 surface) and applies Coulomb friction, spread over the vertices the same way. Everything runs
 serially in the primitives' order: the same input gives the same bytes.
@@ -642,6 +644,54 @@ def _evaluate(
     return d
 
 
+@numba.njit(**_JIT)
+def hold_still(
+    x0: np.ndarray,
+    x1: np.ndarray,
+    prims: np.ndarray,
+    cand: np.ndarray,
+    contacts: np.ndarray,
+    plane: np.ndarray,
+    end: np.ndarray,
+    d_end: np.ndarray,
+    push: np.ndarray,
+    touch: float,
+    friction: float,
+    inv_mass: np.ndarray,
+    held: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Static friction in positions, in the shape's rest frame (the surface still), inside
+    `contact` before its fail-safe: each vertex contact among `contacts` (rows of cand, plane and
+    end (C, 9), d_end and push (C,); a primitive whose three corners are one vertex) that acts
+    (`acting_contacts`: touching at the end within `touch`, its final normal, or pushed, its
+    time-of-impact plane's) and whose way along the surface over the substep, from x0 to x1
+    (V, 3), is within `friction` times its push out of the shape (m) is put back where it started
+    along the surface (x1 in place; held (V,) gets how far, m). The velocity friction (`respond`) removes
+    a sticking contact's velocity but not the way it slid within the substep, so a cloth lying
+    still on a slope crept down by 1/2 g sin(slope) dt^2 a substep; beyond the cone the contact
+    slides, and `respond` slows it. Edge and face contacts keep the velocity friction alone."""
+    for k in contacts:
+        touches = d_end[k] <= touch
+        if not (touches or push[k] > 0.0):
+            continue
+        p = cand[k]
+        i = prims[p, 0]
+        if prims[p, 1] != i or prims[p, 2] != i or not inv_mass[i] > 0.0:
+            continue
+        row = end if touches else plane
+        nx, ny, nz = row[k, 6], row[k, 7], row[k, 8]
+        dx = x1[i, 0] - x0[i, 0]
+        dy = x1[i, 1] - x0[i, 1]
+        dz = x1[i, 2] - x0[i, 2]
+        along = dx * nx + dy * ny + dz * nz
+        tx, ty, tz = dx - along * nx, dy - along * ny, dz - along * nz
+        if tx * tx + ty * ty + tz * tz <= (friction * max(push[k], 0.0)) ** 2:
+            x1[i, 0] -= tx
+            x1[i, 1] -= ty
+            x1[i, 2] -= tz
+            held[i] = np.sqrt(tx * tx + ty * ty + tz * tz)
+
+
 def contact(
     kind: int,
     params: np.ndarray,
@@ -668,17 +718,25 @@ def contact(
     plane_sweeps: int,
     joint_sweeps: int,
     rounds: int,
+    friction: float,
+    touch: float,
 ):  # pragma: no cover - compiled
     """One substep of contact with one shape, in its rest frame: x0, x1 (V, 3) the start and
     end positions (x1 corrected in place), prims (P, 3), movable and inv_mass (V,), hint (P,)
     the open-sheet sides (updated: see `_advance`; 0 away from the shape), h the thickness, gap the advancement's
-    tolerance, floor the clearance below which the fail-safe puts vertices back.
+    tolerance, floor the clearance below which the fail-safe puts vertices back; friction: the
+    static friction that holds vertex contacts where they were along the surface (`hold_still`;
+    0: none), touch the clearance within which a contact touches at the end (`acting_contacts`).
 
     1. candidates (swept boxes near the shape), each swept by `_advance`;
     2. the hits resolved by `_solve`; up to `rounds` times, candidates that the corrections
-       moved are swept again from x0 and new hits added and solved;
-    3. the fail-safe: every contact (and every primitive with a vertex put back) still nearer
-       than floor has its movable vertices put back at x0, until none is (the start was clear);
+       moved are swept again from x0 and new hits added and solved; then static friction's hold
+       (`hold_still`);
+    3. the fail-safe: every contact and every candidate the corrections or the hold moved (and
+       every primitive with a vertex put back) still nearer than floor has its movable vertices
+       put back at x0, until none is (the start was clear): the corrections of one contact, or
+       a vertex held where it was along a moving box's top, could drive a triangle beside it
+       into the box's edge;
     4. the contacts evaluated at their final positions.
 
     Returns (ids (C,) primitive ids, plane (C, 9) the time-of-impact w, q, n, end (C, 9) the
@@ -883,6 +941,11 @@ def contact(
             tri,
             stack,
         )
+    held = np.zeros(n)  # how far static friction's hold moved each vertex (m)
+    if friction > 0.0:
+        hold_still(x0, x1, prims, cand, contacts, plane, end, d_end, push, touch, friction, inv_mass, held)
+        for i in range(n):
+            moved[i] = moved[i] or held[i] > 0.0
     # the fail-safe; a primitive is looked at again once one of its vertices has been put back
     changed = True
     first = True
@@ -892,7 +955,8 @@ def contact(
             p = cand[k]
             i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
             touched = reverted[i0] or reverted[i1] or reverted[i2]
-            if not (touched or (first and hit[k])):
+            shift = max(held[i0], max(held[i1], held[i2]))  # a clearance changes by at most this
+            if not (touched or (first and (hit[k] or shift > 0.0))):
                 continue
             free = False
             for i in (i0, i1, i2):
@@ -902,7 +966,7 @@ def contact(
                 continue
             d = (
                 d_end[k]
-                if (first and not touched)
+                if (first and not touched and (shift == 0.0 or (hit[k] and d_end[k] - shift >= floor)))
                 else _evaluate(
                     kind,
                     params,
@@ -1096,44 +1160,6 @@ def contact_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable
     if kind == MESH:
         return contact_mesh
     return contact_box if kind == BOX else contact_simple
-
-
-@numba.njit(**_JIT)
-def hold_still(
-    x0: np.ndarray,
-    x1: np.ndarray,
-    prims: np.ndarray,
-    ids: np.ndarray,
-    rows: np.ndarray,
-    push: np.ndarray,
-    friction: float,
-    inv_mass: np.ndarray,
-    moved: np.ndarray,
-) -> None:  # pragma: no cover - compiled
-    """Static friction in positions, in the shape's rest frame (the surface still): each vertex
-    contact among `ids` (a primitive whose three corners are one vertex) whose way along the
-    surface over the substep, from x0 to x1 (V, 3), is within `friction` times its push out of the
-    shape (push (C,), m) is put back where it started along the surface (x1 in place; moved (V,)
-    marks it). The velocity friction (`respond`) removes a sticking contact's velocity but not
-    the way it slid within the substep, so a cloth lying still on a slope crept down by
-    1/2 g sin(slope) dt^2 a substep; beyond the cone the contact slides, and `respond` slows it.
-    Edge and face contacts keep the velocity friction alone. rows (C, 9): the unit normal in 6:9."""
-    for k in range(ids.shape[0]):
-        p = ids[k]
-        i = prims[p, 0]
-        if prims[p, 1] != i or prims[p, 2] != i or not inv_mass[i] > 0.0:
-            continue
-        nx, ny, nz = rows[k, 6], rows[k, 7], rows[k, 8]
-        dx = x1[i, 0] - x0[i, 0]
-        dy = x1[i, 1] - x0[i, 1]
-        dz = x1[i, 2] - x0[i, 2]
-        along = dx * nx + dy * ny + dz * nz
-        tx, ty, tz = dx - along * nx, dy - along * ny, dz - along * nz
-        if tx * tx + ty * ty + tz * tz <= (friction * max(push[k], 0.0)) ** 2:
-            x1[i, 0] -= tx
-            x1[i, 1] -= ty
-            x1[i, 2] -= tz
-            moved[i] = True
 
 
 @numba.njit(**_JIT)

@@ -628,18 +628,19 @@ class Collider(Constraint, Remappable):
         lo, hi = self._bounds(shape)
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         hint = self._hints(prims, n, sheet)
+        # a contact touches at the end within `touch`; static friction's hold runs inside the kernel,
+        # before its fail-safe (a vertex held on a moving box's top could drag a triangle into its edge)
+        touch = h * (1.0 + TOUCH_FRACTION) + 1e-12
+        hold = self.friction if self.holds_still else 0.0
         ids, plane, end, d_end, push, moved, reverted, counts = ck.contact_kernel(shape.kind, self.company)(
             *shape, x0, x1, prims, inv_mass > 0, inv_mass, hint, lo, hi, h, gap, floor,
-            MAX_ADVANCE_STEPS, PLANE_SWEEPS, JOINT_SWEEPS, EXTRA_ROUNDS,
+            MAX_ADVANCE_STEPS, PLANE_SWEEPS, JOINT_SWEEPS, EXTRA_ROUNDS, hold, touch,
         )  # fmt: skip
         if sheet:  # each vertex's side as the sweep found it (none crosses)
             self._side = hint[:n].copy()
         # velocities: at the final contact where it touches, else where a time-of-impact plane pushed
-        touch = h * (1.0 + TOUCH_FRACTION) + 1e-12
         acting = ck.acting_contacts(ids, plane, end, d_end, push, touch, self._totals, counts)
         ids, rows, push = ids[:acting], plane[:acting], push[:acting]
-        if self.holds_still and self.friction > 0.0:
-            ck.hold_still(x0, x1, prims, ids, rows, push, self.friction, inv_mass, moved)
         self.pushed = moved  # the kernel's own array, new each call
         if self.keys is None:
             ck.copy_rows(state.positions, x1, moved)
