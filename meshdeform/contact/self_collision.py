@@ -19,13 +19,17 @@ and the colliders produced, from the positions x0 the substep started at:
 3. **Fail-safe.** The vertices of flagged pairs form impact zones (Provot 1997; Bridson et al.
    2002): each zone takes one common translation (its mass-weighted mean displacement), which
    keeps all distances inside it, and the check repeats until nothing is flagged. It always
-   ends: at worst all involved vertices share one translation.
+   ends: at worst all involved vertices share one translation. Zones that fall back to where
+   the substep started are clear of a still collider there, not of a moving one, which has moved
+   on into that start: the moving colliders are projected once more after them, and keep their
+   thickness; at extreme speeds that can leave layers they squeeze intersecting (a plate at
+   60 m/s through a lying sheet: docs/performance.md, "Self-collision's zones and a moving collider").
 
 Because the rest mesh is free of intersections and every substep moves from an
 intersection-free state along paths proven not to touch, no two triangles that share no vertex
-ever intersect after a substep, at any speed. The broad phase is a hashed grid filled by
-counting sort (`broad_phase`), and all kernels run serially in fixed orders, so the result is
-the same bytes whatever the executor or thread count.
+ever intersect after a substep, at any speed (but for that last pass of a moving collider). The
+broad phase is a hashed grid filled by counting sort (`broad_phase`), and all kernels run
+serially in fixed orders, so the result is the same bytes whatever the executor or thread count.
 
 Tearing: the copies a tear makes start where their original is, touching the triangles of its
 other side. Proximity judges pairs by the rest-mesh vertex each vertex came from (`origin`,
@@ -48,6 +52,7 @@ from meshdeform.contact.broad_phase import SCAN_QUERIES, grid_for, scan_grid, st
 from meshdeform.contact.parts import by_rows, search_in_parts
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
+from meshdeform.scene.colliders import Collider
 from meshdeform.solvers.threads import ThreadPicker, split_threads
 
 
@@ -436,6 +441,11 @@ class SelfCollision(Constraint, Remappable):
             x3 = x.copy()
             self._impact_zones(model, topology, x0, x, inv_mass, work, translate=False, threads=threads)
             _settle(state, x3, dt)
+            # where the substep started is clear of a still collider, but a moving one has moved
+            # on into it (a plate rising at 5 m/s through the cloth it carries): the moving ones again
+            for collider in self.colliders:
+                if isinstance(collider, Collider) and collider.moves:
+                    collider.project(model, state, time, dt)
         self._start = x.copy()
         self.moved = np.any(x != x1, axis=1)
         self.work.add(work)
