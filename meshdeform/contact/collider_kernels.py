@@ -26,8 +26,8 @@ units).
   (position-based dynamics: lambda = depth / sum_k w_k^2 m_k^-1, dx_k = lambda w_k m_k^-1 n);
 - static friction holds the vertex contacts within its cone where they were along the surface
   (`hold_still`; for the solvers that do not hold contacts themselves);
-- a fail-safe puts back at their start the vertices of any primitive the corrections or the hold
-  could not keep clear (the start was clear, so the end is).
+- a fail-safe puts back at their start the vertices of any contact the corrections could not
+  free, or primitive the hold brought within the floor (the start was clear, so the end is).
 `respond` then removes the approaching normal velocity of every contact point (relative to the
 surface) and applies Coulomb friction, spread over the vertices the same way. Everything runs
 serially in the primitives' order: the same input gives the same bytes.
@@ -732,11 +732,10 @@ def contact(
     2. the hits resolved by `_solve`; up to `rounds` times, candidates that the corrections
        moved are swept again from x0 and new hits added and solved; then static friction's hold
        (`hold_still`);
-    3. the fail-safe: every contact and every candidate the corrections or the hold moved (and
-       every primitive with a vertex put back) still nearer than floor has its movable vertices
-       put back at x0, until none is (the start was clear): the corrections of one contact, or
-       a vertex held where it was along a moving box's top, could drive a triangle beside it
-       into the box's edge;
+    3. the fail-safe: every contact, every candidate with a vertex the hold moved (a vertex held
+       where it was along a moving box's top could drive a triangle beside it into the box's
+       edge) and every primitive with a vertex put back, still nearer than floor, has its movable
+       vertices put back at x0, until none is (the start was clear);
     4. the contacts evaluated at their final positions.
 
     Returns (ids (C,) primitive ids, plane (C, 9) the time-of-impact w, q, n, end (C, 9) the
