@@ -51,7 +51,7 @@ def test_the_coarse_matrix_is_the_step_hessian_seen_through_the_lattice() -> Non
     y = x + rng.normal(0.0, 0.01, rest.shape)
     assert (np.linalg.norm(x[solver.a] - x[solver.b], axis=1) > solver.rest).all()  # every spring stretched
     matrix = solver.coarse_inertia.copy()
-    space.add_spring_hessian(x, solver.a, solver.b, solver.rest, solver.stiff_t, solver.stiff_c, solver.modulus, matrix)
+    space.add_spring_hessian(x, solver.a, solver.b, solver.rest, solver.weight, matrix)
     assert np.allclose(matrix, matrix.T)
     fv = solver.free_vertices
     eps = 1e-6
@@ -109,5 +109,5 @@ def test_a_lattice_no_spring_reaches_builds_and_steps() -> None:
     space = coarse.coarse_space(rest[2:], free, a, b, np.array([True]), 4)
     assert space is not None and space.springs.shape[0] == 0
     matrix = np.eye(3 * space.count)
-    space.add_spring_hessian(rest, a, b, np.ones(1), np.ones(1), np.ones(1), 1.0, matrix)
+    space.add_spring_hessian(rest, a, b, np.ones(1), np.ones(1), matrix)
     assert np.array_equal(matrix, np.eye(3 * space.count))

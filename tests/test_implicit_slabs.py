@@ -86,7 +86,7 @@ def test_the_coarse_hessian_in_two_halves_is_the_one_sum(cloth) -> None:
     space = solver.coarse_space
     rng = np.random.default_rng(8)
     x = np.asarray(model.rest_positions, dtype=np.float64) * 1.05 + rng.normal(0.0, 0.001, (model.vertex_count, 3))
-    args = (x, solver.a, solver.b, solver.rest, solver.stiff_t, solver.stiff_c, solver.modulus)
+    args = (x, solver.a, solver.b, solver.rest, solver.weight)
     halves = [solver.coarse_inertia.copy() for _ in (1, 2)]
     for threads, matrix in zip((1, 2), halves, strict=True):
         space.add_spring_hessian(*args, matrix, threads)

@@ -13,6 +13,7 @@ from intersections import intersecting_pairs
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 from scipy.spatial import cKDTree
+from test_collider_contact import box_distance, lattice
 
 from meshdeform.contact import broad_phase, self_kernels
 from meshdeform.contact.broad_phase import overlapping_pairs
@@ -22,6 +23,8 @@ from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
 from meshdeform.scene.colliders import Collider, Plane
 from meshdeform.simulate import Settings, simulate
+from pipeline.build import build_simulation
+from pipeline.recipe import parse_recipe
 
 THICKNESS = 0.005
 
@@ -505,13 +508,7 @@ def test_a_plate_carrying_the_cloth_through_self_collision_zones_stays_out_of_it
     fall back to where the substep started, the plate has moved on into that start, 2.6 cm a
     substep. The moving collider is projected once more after them: the sheet's faces keep the
     plate's thickness less 1 mm (4 mm into it before) and never pass through themselves."""
-    from factories import grid_sheet as sheet
-    from test_collider_contact import box_distance, lattice
-
-    from pipeline.build import build_simulation
-    from pipeline.recipe import parse_recipe
-
-    mesh = sheet(25, 25, size=1.0, plane="xz", triangles=True, centred=True, offset=(0.0, 0.5, 0.0))
+    mesh = grid_sheet(25, 25, size=1.0, plane="xz", triangles=True, centred=True, offset=(0.0, 0.5, 0.0))
     text = (
         '[simulation]\nsolver = "implicit"\nfps = 24\nframes = 8\ngravity = [0, 0, 0]\n\n[self_collision]\n\n'
         "[[colliders]]\nbox = { min = [-0.3, 0.0, -0.3], max = [0.3, 0.01, 0.3] }\nfriction = 0.5\nthickness = 0.005\n"

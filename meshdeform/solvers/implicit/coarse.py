@@ -83,17 +83,17 @@ class CoarseSpace:
     second_half: int
 
     def add_spring_hessian(
-        self, x: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, stiff_t: np.ndarray,
-        stiff_c: np.ndarray, modulus: float, out: np.ndarray, threads: int = 1,
+        self, x: np.ndarray, a: np.ndarray, b: np.ndarray, rest: np.ndarray, weight: np.ndarray,
+        out: np.ndarray, threads: int = 1,
     ) -> None:
         """out (3C, 3C) += Z^T H Z of the assembled springs at positions x (V, 3) (`spring_hessian`;
-        a, b, rest, stiff_t, stiff_c, modulus: the solver's spring arrays): in one sum, or where
+        a, b, rest, weight: the solver's spring arrays): in one sum, or where
         `second_half` splits the groups, the first half into out and the second into a matrix of its
         own added after it (the halves beside each other where `threads` >= 2: the same bytes)."""
 
         def groups(half: int, first: int, stop: int, into: np.ndarray) -> None:
             spring_hessian(
-                x, a, b, rest, stiff_t, stiff_c, modulus, self.springs, self.spring_nodes, self.spring_coefficients,
+                x, a, b, rest, weight, self.springs, self.spring_nodes, self.spring_coefficients,
                 self.group_start[first : stop + 1], self.hessian_terms[half], self.hessian_sums[half], into,
             )
 
@@ -263,13 +263,13 @@ STENCIL_CHUNK = 16384
 
 @nb.njit(**FAST)
 def spring_hessian(
-    x, a, b, rest, stiff_t, stiff_c, modulus, springs, spring_nodes, spring_coefficients, group_start, terms, sums,
-    out,
+    x, a, b, rest, weight, springs, spring_nodes, spring_coefficients, group_start, terms, sums, out,
 ):  # pragma: no cover - compiled
     """out (3C, 3C) += sum over `springs` of (z_a - z_b)(z_a - z_b)^T (x) H_s at positions x (V, 3),
     H_s = k (n n^T + max(0, 1 - L / l) (I - n n^T)): a spring's Hessian with the part across it
-    that a compressed spring would make negative left out (positive semi-definite), k the larger of
-    its tension and compression stiffness whichever way it is strained: a Newton step that read a
+    that a compressed spring would make negative left out (positive semi-definite), k = weight (N/m)
+    the larger of its tension and compression constants whichever way it is strained (the
+    prefactored matrix's weight, `ImplicitSolver.weight`): a Newton step that read a
     compressed spring's soft stiffness (1 % of the tension's) stepped far across its rest length,
     where the spring is stiff, and a strip pushed together flailed at metres a second
     (docs/performance.md, "Soft compression and the coarse Newton steps").
@@ -300,7 +300,7 @@ def spring_hessian(
                 dy = x[ia, 1] - x[ib, 1]
                 dz = x[ia, 2] - x[ib, 2]
                 length = np.sqrt(dx * dx + dy * dy + dz * dz)
-                stiffness = max(max(stiff_t[s], stiff_c[s]), 0.0) * modulus
+                stiffness = weight[s]
                 j = k - start
                 if length < 1e-12 or stiffness == 0.0:
                     for e in range(6):

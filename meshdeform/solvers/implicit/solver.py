@@ -567,9 +567,7 @@ class ImplicitSolver(ModelCache, Solver):
         space = self.coarse_space
         fv = self.free_vertices
         matrix = self.coarse_inertia.copy()
-        space.add_spring_hessian(
-            x, self.a, self.b, self.rest, self.stiff_t, self.stiff_c, self.modulus, matrix, self._threads
-        )
+        space.add_spring_hessian(x, self.a, self.b, self.rest, self.weight, matrix, self._threads)
         skip = space.skip
         coarse.factor_spd(matrix, skip)
         gradient = np.empty(3 * space.count)
