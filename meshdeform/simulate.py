@@ -63,6 +63,7 @@ force, and the springs broken, vertices added and connected pieces.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
@@ -286,6 +287,9 @@ SLIVER_FRACTION = 0.25
 #: 0.6 edges a step at 4 a frame) keeps the defaults, one lying or draping on it (0.2-0.5 m/s)
 #: takes the slow steps (docs/performance.md, "Slow steps")
 SLOW_STEP_EDGES = 0.35
+#: a frame that takes more substeps for a fast cloth (`fast_substeps`) takes at most this many
+#: times the settings' substeps
+FAST_STEP_FACTOR = 4
 
 
 def _speed_limit(diagonal: float, gravity: np.ndarray, time: float) -> float:
@@ -371,6 +375,38 @@ def slow_steps_for(settings: Settings, scene: Scene) -> tuple[int, int] | None:
     return steps if int(settings.subframes) <= steps[0] else None
 
 
+def fast_steps_for(settings: Settings, scene: Scene) -> float | None:
+    """The solver's `fast_step_edges` for a run at `settings` as `steps_for` resolved them, where the
+    scene is not calm and the substeps were left to the solver; None otherwise (no frame takes
+    more steps for speed).
+
+    Why: where an obstacle stops part of the cloth within a step, the springs to the vertices that
+    move on stretch by what those move in the step: a cloth shot at 50 m/s onto bumpy ground
+    moved 7 edges a step at implicit's 8 a frame and its few iterations could not pull the
+    springs back from that (docs/performance.md, "Fast steps")."""
+    edges = solver_class(settings.solver).fast_step_edges
+    if edges is None or calm(scene) or not settings.substeps_defaulted:
+        return None
+    return edges
+
+
+def fast_substeps(speed: float, edge: float, fps: float, substeps: int, edges: float) -> int:
+    """The substeps of a frame at `fps` (frames/s) whose fastest vertex is expected at `speed` (m/s)
+    on a cloth of median structural rest length `edge` (m): the fewest multiple of `substeps`
+    (whole multiples: few step lengths in a run, each one met again) that keeps that vertex
+    within `edges` rest lengths a step, at most `FAST_STEP_FACTOR` times `substeps`."""
+    if edge <= 0.0 or edges <= 0.0:
+        return substeps
+    needed = math.ceil(speed / (edges * edge * fps * substeps) - 1e-9)
+    return substeps * min(max(needed, 1), FAST_STEP_FACTOR)
+
+
+def steps_vary(settings: Settings, scene: Scene) -> bool:
+    """Whether the frames of a run at `settings` (as `steps_for` resolved them) may take other steps
+    than the settings' (`slow_steps_for`, `fast_steps_for`): its frames then say theirs."""
+    return slow_steps_for(settings, scene) is not None or fast_steps_for(settings, scene) is not None
+
+
 def moves_slowly(speed: float, edge: float, fps: float, substeps: int) -> bool:
     """Whether a frame of `substeps` steps at `fps` (frames/s) moves a cloth whose fastest vertex
     goes at `speed` (m/s) by at most `SLOW_STEP_EDGES` of its median structural rest length
@@ -401,7 +437,9 @@ def simulate(
     accelerations = np.empty_like(state.positions)
     accelerations[:] = gravity
     control = Control(accelerations=accelerations, pulled=scene.pulled(model.vertex_count))
-    forces = list(scene.forces)
+    forces = [force for force in scene.forces if not force.kicks]
+    kicks = [force for force in scene.forces if force.kicks]
+    control.kicks = np.zeros_like(accelerations) if kicks else None
     constraints = list(scene.constraints)
     share_company(constraints)  # which compiled contact pipelines the colliders run
     hold_contacts_still(constraints, not solver.holds_contacts)  # static friction's hold: the solver's, where it holds
@@ -422,22 +460,31 @@ def simulate(
     # nothing between the substeps (no forces, constraints, pin motion or tearing): the solver
     # runs a whole frame in one call (`Solver.advance`), with the same result as substep by substep
     self_collision = scene.self_collision
-    whole_frames = (
-        not forces and not constraints and pin_motion is None and tearing is None and self_collision is None
+    whole_frames = not (forces or kicks or constraints) and all(
+        item is None for item in (pin_motion, tearing, self_collision)
     )
     keep_after = settings.subframe_substeps  # substeps whose state the frame keeps (motion blur)
     # frames in which the cloth moves slowly at the solver's slow steps (`slow_steps_for`), judged
     # by its speed at the end of the frame before
     slow = slow_steps_for(settings, scene)
-    slow_keep_after = replace(settings, substeps=slow[0]).subframe_substeps if slow is not None else ()
+    fast = fast_steps_for(settings, scene)
     edge = float(np.median(structural.rest)) if structural.rest.size else 0.0
     speed = float(guard_kernels.guard_figures(state.positions, state.velocities, center)[2])
     last_positions = state.positions.copy()  # the frame before's, to tell a creeping cloth from a still one
     for frame in range(1, settings.frames + 1):
         kept: list[tuple[float, np.ndarray]] = []
         frame_substeps, control.iterations, frame_keep_after = substeps, None, keep_after
-        if slow is not None and moves_slowly(speed, edge, settings.fps, slow[0]):
-            (frame_substeps, control.iterations), frame_keep_after = slow, slow_keep_after
+        if slow is not None or fast is not None:
+            # the fastest vertex expected in the frame: as fast as at the end of the frame before,
+            # plus what the kicks starting or going on in it may add
+            frame_start = start_time + (frame - 1) / settings.fps
+            expected = speed + sum(force.largest_kick(frame_start, frame_start + 1.0 / settings.fps) for force in kicks)
+            if slow is not None and moves_slowly(expected, edge, settings.fps, slow[0]):
+                frame_substeps, control.iterations = slow
+            elif fast is not None:
+                frame_substeps = fast_substeps(expected, edge, settings.fps, substeps, fast)
+            if frame_substeps != substeps:
+                frame_keep_after = replace(settings, substeps=frame_substeps).subframe_substeps
         dt = 1.0 / (settings.fps * frame_substeps)
         if whole_frames:  # in runs of substeps between the states kept: the same bytes
             done = 0
@@ -454,10 +501,15 @@ def simulate(
             t0 = state.time
             # counted in this frame's steps (the bytes of steps counted one by one where every frame has as many)
             t1 = start_time + ((frame - 1) * frame_substeps + substep) * dt
-            if forces:
+            if forces or kicks:
                 accelerations[:] = gravity
                 for force in forces:
-                    force.accumulate(model, state, t0, accelerations)
+                    force.accumulate(model, state, t0, dt, accelerations)
+            if control.kicks is not None:
+                control.kicks[:] = 0.0
+                for force in kicks:
+                    force.accumulate(model, state, t0, dt, control.kicks)
+                accelerations += control.kicks
             if pin_motion is not None:
                 targets = np.asarray(pin_motion(t1), dtype=np.float64)
                 if pin_slot is not None:
@@ -492,6 +544,7 @@ def simulate(
                     accelerations = np.empty_like(state.positions)
                     accelerations[:] = gravity
                     control = Control(accelerations=accelerations, pulled=scene.pulled(model.vertex_count))
+                    control.kicks = np.zeros_like(accelerations) if kicks else None
                     structural = _Structural.of(model)
                     balance = _Balance.of(model)
             if substep in frame_keep_after:

@@ -432,7 +432,6 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
                 every=imp.every,
                 count=imp.count,
                 mask=mask,
-                step=settings.dt,
                 fallback_point=fallback,
             )
         )

@@ -121,7 +121,7 @@ def _run_job(
     from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.live import RunPreview
     from meshdeform.scene.colliders import ContactStats
-    from meshdeform.simulate import Frame, converged, convergence_warning, initial_frame, simulate, slow_steps_for
+    from meshdeform.simulate import Frame, converged, convergence_warning, initial_frame, simulate, steps_vary
     from meshdeform.strain import VertexStrain
     from pipeline import compile_ahead
     from pipeline.build import build_simulation
@@ -156,7 +156,7 @@ def _run_job(
 
     max_stretch: list[float] = []
     max_speed: list[float] = []
-    frame_substeps: list[int] = []  # the steps each frame took (`meshdeform.simulate.slow_steps_for`)
+    frame_substeps: list[int] = []  # the steps each frame took (`meshdeform.simulate.steps_vary`)
     force_residual: list[float] = []
     last_frame = None
     rest_frame: int | None = None
@@ -278,7 +278,7 @@ def _run_job(
             "fps": settings.fps,
             "substeps": settings.substeps,
             "iterations": settings.iterations,
-            **({"frame_substeps": frame_substeps} if slow_steps_for(settings, built.scene) is not None else {}),
+            **({"frame_substeps": frame_substeps} if steps_vary(settings, built.scene) else {}),
             "damping": settings.options.damping,
             "frames": len(max_stretch),
             "start_frame": recipe.simulation.start_frame,

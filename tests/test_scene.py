@@ -9,6 +9,7 @@ from meshdeform.model import SpringModel, State
 from meshdeform.scene import (
     Box,
     Collider,
+    Force,
     Impact,
     NearestPinTethers,
     Plane,
@@ -38,15 +39,15 @@ def test_every_item_with_per_vertex_data_is_remappable_and_listed_once() -> None
 
 
 def test_a_force_written_elsewhere_is_remappable_by_its_method() -> None:
-    class Drift:
-        def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+    class Drift(Force):  # a Force by subclassing, remappable by its method alone
+        def accumulate(self, model: SpringModel, state: State, time: float, dt: float, out: np.ndarray) -> None:
             out[:, 0] += 1.0
 
         def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
             pass
 
-    class Push:
-        def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+    class Push(Force):
+        def accumulate(self, model: SpringModel, state: State, time: float, dt: float, out: np.ndarray) -> None:
             out[:, 1] += 1.0
 
     drift, push = Drift(), Push()

@@ -33,7 +33,7 @@ def test_pressure_pushes_out_when_squeezed_and_in_when_inflated() -> None:
     for factor, sign in ((0.9, 1.0), (1.1, -1.0), (1.0, 0.0)):
         state.positions[:] = model.rest_positions * factor
         out = np.zeros_like(state.positions)
-        pressure.accumulate(model, state, 0.0, out)
+        pressure.accumulate(model, state, 0.0, 0.01, out)
         along = np.einsum("ij,ij->i", out, radial)
         if sign:
             assert np.all(sign * along > 0)
@@ -90,7 +90,7 @@ def test_plastic_rest_copy_creeps_only_past_the_yield_distance() -> None:
     np.testing.assert_allclose(effect.rest[0], model.rest_positions[0])
     np.testing.assert_allclose(effect.rest[1], model.rest_positions[1] + [0, 0, 0.2])
     out = np.zeros_like(state.positions)
-    effect.accumulate(model, state, 0.0, out)
+    effect.accumulate(model, state, 0.0, 0.01, out)
     np.testing.assert_allclose(out[1], [0.0, 0.0, -100.0 * 0.1])
 
 

@@ -22,9 +22,10 @@ def sheet() -> tuple[SpringModel, State]:
     return model, State.at_rest(model)
 
 
-def accel(force, model, state, time: float) -> np.ndarray:
+def accel(force, model, state, time: float, dt: float = 1e-3) -> np.ndarray:
+    """The force's accelerations over the substep [time, time + dt) (s): (W, 3), m/s^2."""
     out = np.zeros_like(state.positions)
-    force.accumulate(model, state, time, out)
+    force.accumulate(model, state, time, dt, out)
     return out
 
 
@@ -66,10 +67,10 @@ def test_smooth_falloff_stops_at_the_radius() -> None:
 def test_impact_velocity_change_does_not_depend_on_the_substep(sheet, substeps: int) -> None:
     model, state = sheet
     dt = 1.0 / (24 * substeps)
-    impact = Impact(time=0.013, radius=0.5, strength=2.0, duration=0.05, point=(0.5, 0.5, 0.1), step=dt)
+    impact = Impact(time=0.013, radius=0.5, strength=2.0, duration=0.05, point=(0.5, 0.5, 0.1))
     total = np.zeros_like(state.positions)
     for k in range(int(0.2 / dt)):
-        total += accel(impact, model, state, k * dt) * dt
+        total += accel(impact, model, state, k * dt, dt) * dt
     d = np.linalg.norm(state.positions - [0.5, 0.5, 0.1], axis=1)
     np.testing.assert_allclose(np.linalg.norm(total, axis=1), 2.0 * falloff(d, 0.5), rtol=1e-9)
 

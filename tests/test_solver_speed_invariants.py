@@ -14,6 +14,7 @@ import pytest
 from factories import TOP_CORNERS, grid_cloth
 
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.base import Force
 from meshdeform.simulate import Scene, Settings, simulate
 from meshdeform.solvers import Control, Solver, solver_class
 from meshdeform.solvers.dispatch import PARALLEL_SUBSTEPS
@@ -168,10 +169,10 @@ def test_whole_frame_calls_match_the_substep_loop(solver: str) -> None:
     assert all(a.tobytes() == b.tobytes() for a, b in zip(whole, stepped, strict=True))
 
 
-class _NoForce:
+class _NoForce(Force):
     """A force that adds nothing: its presence alone makes simulate step substep by substep."""
 
-    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+    def accumulate(self, model: SpringModel, state: State, time: float, dt: float, out: np.ndarray) -> None:
         pass
 
 

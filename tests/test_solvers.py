@@ -11,6 +11,7 @@ from factories import TOP_CORNERS, grid_cloth
 from meshdeform.errors import MeshdeformError
 from meshdeform.mesh import grid_mesh
 from meshdeform.model import SpringModel, State
+from meshdeform.scene.base import Force
 from meshdeform.simulate import Frame, Scene, Settings, rest_frame, simulate
 from meshdeform.solvers import (
     SOLVERS,
@@ -116,10 +117,15 @@ def test_anchor_springs_back_after_a_kick() -> None:
     mesh = grid_mesh(5, 5, plane="xz")
     model = SpringModel.from_mesh(mesh, pinned_input=np.arange(25) == 0)
 
-    class Kick:
-        def accumulate(self, model, state, time, out) -> None:
+    class Kick(Force):
+        kicks = True
+
+        def accumulate(self, model, state, time, dt, out) -> None:
             if time < 1e-9:
-                out[12, 1] += 2.0 * 96.0  # dv = 2 m/s over the first substep (dt = 1/96)
+                out[12, 1] += 2.0 / dt  # dv = 2 m/s over the first substep
+
+        def largest_kick(self, start: float, end: float) -> float:
+            return 2.0 if start < 1e-9 else 0.0
 
     settings = Settings(solver="anchor", frames=24 * 12, substeps=4)
     frames = list(simulate(model, Scene(gravity=(0, 0, 0), forces=[Kick()]), settings))

@@ -1,9 +1,10 @@
 """The scene's contracts: what acts on the model besides its springs, and how the loop drives it.
 
 `simulate` (meshdeform/simulate.py) calls, per substep of length dt (s) ending at time t1:
-every `Force.accumulate(model, state, t0, out)` (t0: the substep's start) into the external
-accelerations, then the solver step, then every `Constraint.project(model, state, t1, dt)` in
-the order of `Scene.constraints`. `Scene.pin_motion(t1)` gives the hard pins' targets.
+every `Force.accumulate(model, state, t0, dt, out)` (t0: the substep's start) into the external
+accelerations (a force that `kicks` into `Control.kicks` as well), then the solver step, then
+every `Constraint.project(model, state, t1, dt)` in the order of `Scene.constraints`.
+`Scene.pin_motion(t1)` gives the hard pins' targets.
 
 Tearing replaces the model by one with more vertices (copies of split vertices appended after
 the old ones). Every force or constraint that holds per-vertex data (W,) must then follow the
@@ -39,9 +40,24 @@ if TYPE_CHECKING:
 
 
 class Force(Protocol):
-    """Adds accelerations (m/s^2) for welded vertices at a time into `out` (W, 3)."""
+    """Adds accelerations (m/s^2) for welded vertices over the substep [time, time + dt) (s) into
+    `out` (W, 3).
 
-    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None: ...
+    kicks: whether its accelerations are short kicks (an impact: a velocity change spread over a
+    few milliseconds) rather than a field that acted before the substep as well; `simulate` hands
+    them to the solver apart too (`Control.kicks`), so that a solver starting a step history from
+    the accelerations (implicit's BDF2) does not take a kick for one that had been acting.
+    """
+
+    kicks: bool = False
+
+    def accumulate(self, model: SpringModel, state: State, time: float, dt: float, out: np.ndarray) -> None: ...
+
+    def largest_kick(self, start: float, end: float) -> float:
+        """The largest velocity change (m/s) it may give a vertex over [start, end) (s): a bound,
+        read before a frame to choose its steps (`meshdeform.simulate.fast_steps_for`); 0 for a
+        force that is no kick (this default)."""
+        return 0.0
 
 
 class Constraint(Protocol):

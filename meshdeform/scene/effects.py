@@ -49,7 +49,7 @@ class Pressure(Force):
         volume = self.orientation * enclosed_volume(positions, triangles)
         return self.stiffness * (self.target - volume) / max(self.rest_volume, 1e-300)
 
-    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+    def accumulate(self, model: SpringModel, state: State, time: float, dt: float, out: np.ndarray) -> None:
         tri = model.triangles
         if tri.shape[0] == 0 or self.rest_volume <= 0:
             return
@@ -77,7 +77,7 @@ class Plasticity(Force, Constraint, Remappable):
         self.rate = float(rate)
         self.damping = float(damping)
 
-    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+    def accumulate(self, model: SpringModel, state: State, time: float, dt: float, out: np.ndarray) -> None:
         out -= self.stiffness * (state.positions - self.rest)
         if self.damping > 0:
             out -= self.damping * state.velocities

@@ -7,6 +7,7 @@ from the up axis).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -155,7 +156,7 @@ class Wind(Force, Remappable):
         """After a tear: masses changed, recompute the inverse masses."""
         self._inv_mass = None
 
-    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
+    def accumulate(self, model: SpringModel, state: State, time: float, dt: float, out: np.ndarray) -> None:
         x = state.positions
         tri = model.triangles
         # air velocity relative to each vertex, once; faces take the mean of their corners
@@ -227,8 +228,11 @@ class Impact(Force, Remappable):
     from the point or ray origin) or a fixed vector. `every` repeats it (`count` times, default
     forever). With `ray` = (origin, direction) the point is where the ray first hits the mesh at
     the moment each impact starts (falling back to `fallback_point` when it misses then).
-    `mask` (W,) limits the vertices it acts on; `step` (s) is the substep, for exact timing.
+    `mask` (W,) limits the vertices it acts on. A substep the impact covers in part gets that
+    part of the acceleration (`accumulate`'s dt), so the impulse is exact at any substep length.
     """
+
+    kicks = True
 
     def __init__(
         self,
@@ -244,7 +248,6 @@ class Impact(Force, Remappable):
         every: float | None = None,
         count: int | None = None,
         mask: np.ndarray | None = None,
-        step: float | None = None,
         fallback_point: Sequence[float] | None = None,
     ) -> None:
         if (point is None) == (ray is None):
@@ -264,12 +267,13 @@ class Impact(Force, Remappable):
         self.every = every
         self.count = count
         self.mask = None if mask is None else np.asarray(mask, dtype=bool)
-        self.step = step
         self.fallback_point = None if fallback_point is None else np.asarray(fallback_point, dtype=np.float64)
         self._current: _Occurrence | None = None
 
-    def _weight(self, time: float) -> tuple[int, float]:
-        """(occurrence index, fraction of the full acceleration for the substep starting at time)."""
+    def _weight(self, time: float, dt: float) -> tuple[int, float]:
+        """(occurrence index, fraction of the full acceleration over the substep [time, time + dt)):
+        the part of the substep the impact lasts, so the substeps' velocity changes add up to
+        `strength` whatever their length."""
         local = time - self.time
         k = 0
         if self.every is not None and local >= 0:
@@ -277,10 +281,23 @@ class Impact(Force, Remappable):
             if self.count is not None and k >= self.count:
                 k = self.count - 1
             local -= k * self.every
-        if self.step:
-            overlap = min(local + self.step, self.duration) - max(local, 0.0)
-            return k, max(overlap, 0.0) / self.step
-        return k, 1.0 if 0.0 <= local < self.duration else 0.0
+        overlap = min(local + dt, self.duration) - max(local, 0.0)
+        return k, max(overlap, 0.0) / dt
+
+    def largest_kick(self, start: float, end: float) -> float:
+        """|strength| (m/s, the falloff is at most 1) where an occurrence overlaps [start, end)."""
+        first = 0
+        last = 0
+        if self.every is not None:
+            first = max(0, math.floor((start - self.time - self.duration) / self.every))
+            last = math.floor((end - self.time) / self.every)
+            if self.count is not None:
+                last = min(last, self.count - 1)
+        for k in range(first, last + 1):
+            begins = self.time + k * (self.every or 0.0)
+            if begins < end and begins + self.duration > start:
+                return abs(self.strength)
+        return 0.0
 
     def _occurrence(self, k: int, model: SpringModel, x: np.ndarray) -> _Occurrence:
         if self._current is not None and self._current.index == k:
@@ -316,8 +333,8 @@ class Impact(Force, Remappable):
         if self.mask is not None:
             self.mask = self.mask[index_map]
 
-    def accumulate(self, model: SpringModel, state: State, time: float, out: np.ndarray) -> None:
-        k, weight = self._weight(time)
+    def accumulate(self, model: SpringModel, state: State, time: float, dt: float, out: np.ndarray) -> None:
+        k, weight = self._weight(time, dt)
         if weight <= 0.0:
             return
         x = state.positions

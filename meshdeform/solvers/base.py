@@ -60,6 +60,10 @@ class Control:
     #: the colliders' contacts after the last substep as planes (set by `simulate` each substep for
     #: a solver that reads them, `Solver.reads_planes`; None before the first or after a tear)
     planes: ContactPlanes | None = None
+    #: (W, 3) or None: the part of `accelerations` from kicks this substep (impacts,
+    #: `Force.kicks`; set by `simulate` each substep where the scene has any): a solver that starts
+    #: a step history from the accelerations leaves it out (a kick had not been acting before)
+    kicks: np.ndarray | None = None
     #: iterations of this step in place of the solver's options (None: the options'); `simulate`
     #: sets it for a frame at the solver's `slow_steps`
     iterations: int | None = None
@@ -84,6 +88,12 @@ class Solver(ABC):
         was given; the frames in which it moves fast keep the defaults (`steps_for`), which an
         impact on an obstacle needs. None: the same steps in every frame. The solver then meets
         steps of two lengths in one run (and `Control.iterations`).
+    fast_step_edges: where something touches the cloth and the substeps were not given, the most
+        median structural rest lengths its fastest vertex may move in a substep: a frame expected
+        faster takes more substeps (`meshdeform.simulate.fast_substeps`). A vertex an obstacle
+        stops within a step leaves its springs stretched by what its neighbours move on: a solver
+        that recovers from a few edges of that only (implicit's few iterations) sets it. None: the
+        same steps however fast the cloth moves.
     options_class: the options it takes (`meshdeform.solvers.options`).
     parallel_kernels: whether its steps launch Numba's parallel builds (xpbd, verlet): those
         must not be launched from two threads at once under Numba's workqueue threading layer,
@@ -105,6 +115,7 @@ class Solver(ABC):
     default_iterations: ClassVar[int] = 0
     calm_steps: ClassVar[tuple[int, int] | None] = None
     slow_steps: ClassVar[tuple[int, int] | None] = None
+    fast_step_edges: ClassVar[float | None] = None
     options_class: ClassVar[type[SolverOptions]]
     parallel_kernels: ClassVar[bool] = False
     holds_contacts: ClassVar[bool] = False

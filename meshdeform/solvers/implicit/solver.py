@@ -82,6 +82,10 @@ on that length's matrix: the factor of the length before is kept aside (`_StepLe
 switching between its contact and its slow steps assembles and factorises each once, and again
 only where the anchored set was renewed in between (one more factor in memory; the drop scene of
 benchmarks/contact.py switched 44 times in 120 frames, 8 % of its time, docs/performance.md).
+A frame expected to move the fastest vertex more than `fast_step_edges` (3) median edges a step
+takes a whole multiple of the 8 steps instead (`meshdeform.simulate.fast_substeps`): a vertex an
+obstacle stops leaves its springs stretched by what its neighbours move on in the step, which a
+few iterations cannot pull back from 7 edges (a sheet shot at 53 m/s onto bumpy ground diverged).
 
 Constraints (colliders, self-collision, tethers) move vertices after the step; BDF2 would
 extrapolate those vertices' former path through the correction (a landed vertex still falling
@@ -144,6 +148,7 @@ class ImplicitSolver(ModelCache, Solver):
     default_iterations: ClassVar[int] = 3
     calm_steps: ClassVar[tuple[int, int] | None] = (2, 3)
     slow_steps: ClassVar[tuple[int, int] | None] = (4, 5)
+    fast_step_edges: ClassVar[float | None] = 3.0
     holds_contacts: ClassVar[bool] = True
 
     @classmethod
@@ -391,11 +396,15 @@ class ImplicitSolver(ModelCache, Solver):
             self._factorise(dt)
         x, v = state.positions, state.velocities
         accel = control.accelerations
+        # a history starts as if the external acceleration had been acting before, but a kick had not
+        # (an impact's velocity change taken into the history carries on as 1.5 times itself)
+        kicks = control.kicks
         key = self._state_key
         if key is None or key[0] != id(state) or abs(key[1] - state.time) > 1e-6 * dt:
             # BDF2 history consistent with constant external acceleration and the air damping (exact free fall)
-            self.x_prev = x - dt * v + 0.5 * dt * dt * accel
-            self.v_prev = self.undamped * v - dt * accel
+            acted = accel if kicks is None else accel - kicks
+            self.x_prev = x - dt * v + 0.5 * dt * dt * acted
+            self.v_prev = self.undamped * v - dt * acted
             self._forget_contacts()
         else:
             # vertices a constraint moved since this solver's last step (a collider, self-
@@ -411,8 +420,9 @@ class ImplicitSolver(ModelCache, Solver):
             if new_length:  # BDF2's history is of steps of another length: every row starts afresh
                 moved[:] = True
             if moved.any():
-                self.x_prev[moved] = x[moved] - dt * v[moved] + 0.5 * dt * dt * accel[moved]
-                self.v_prev[moved] = self.undamped * v[moved] - dt * accel[moved]
+                acted = accel[moved] if kicks is None else accel[moved] - kicks[moved]
+                self.x_prev[moved] = x[moved] - dt * v[moved] + 0.5 * dt * dt * acted
+                self.v_prev[moved] = self.undamped * v[moved] - dt * acted
             pushed_vertices = np.flatnonzero(pushed)
             self.contact_rows = self.free[pushed_vertices].astype(np.int64)
             self.contact_normals = np.ascontiguousarray(self._normal[pushed_vertices])
