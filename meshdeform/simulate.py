@@ -74,7 +74,13 @@ from meshdeform.errors import MeshdeformError, SimulationDiverged
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
-from meshdeform.scene.colliders import contact_planes, hold_contacts_still, pushed_friction, share_company
+from meshdeform.scene.colliders import (
+    contact_planes,
+    hold_contacts_still,
+    largest_surface_speed,
+    pushed_friction,
+    share_company,
+)
 from meshdeform.solvers import guard_kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions
 from meshdeform.solvers.common import spring_constants, structural_mask
@@ -289,7 +295,7 @@ SLIVER_FRACTION = 0.25
 SLOW_STEP_EDGES = 0.35
 #: a frame that takes more substeps for a fast cloth (`fast_substeps`) takes at most this many
 #: times the settings' substeps
-FAST_STEP_FACTOR = 4
+FAST_STEP_FACTOR = 8
 
 
 def _speed_limit(diagonal: float, gravity: np.ndarray, time: float) -> float:
@@ -475,10 +481,12 @@ def simulate(
         kept: list[tuple[float, np.ndarray]] = []
         frame_substeps, control.iterations, frame_keep_after = substeps, None, keep_after
         if slow is not None or fast is not None:
-            # the fastest vertex expected in the frame: as fast as at the end of the frame before,
-            # plus what the kicks starting or going on in it may add
+            # the fastest vertex expected in the frame: as fast as at the end of the frame before or
+            # as a moving collider would carry it, plus what the kicks in the frame may add
             frame_start = start_time + (frame - 1) / settings.fps
-            expected = speed + sum(force.largest_kick(frame_start, frame_start + 1.0 / settings.fps) for force in kicks)
+            frame_end = frame_start + 1.0 / settings.fps
+            carried = largest_surface_speed(constraints, state.positions, frame_start, frame_end)
+            expected = max(speed, carried) + sum(force.largest_kick(frame_start, frame_end) for force in kicks)
             if slow is not None and moves_slowly(expected, edge, settings.fps, slow[0]):
                 frame_substeps, control.iterations = slow
             elif fast is not None:

@@ -19,16 +19,16 @@ and the colliders produced, from the positions x0 the substep started at:
 3. **Fail-safe.** The vertices of flagged pairs form impact zones (Provot 1997; Bridson et al.
    2002): each zone takes one common translation (its mass-weighted mean displacement), which
    keeps all distances inside it, and the check repeats until nothing is flagged. It always
-   ends: at worst all involved vertices share one translation. Zones that fall back to where
-   the substep started are clear of a still collider there, not of a moving one, which has moved
-   on into that start: the moving colliders are projected once more after them, and keep their
-   thickness; at high speeds that can leave layers they squeeze intersecting (a plate rising
-   through a lying sheet: verlet at 20 m/s 2 pairs, xpbd at 60 m/s 63; docs/performance.md,
-   "Self-collision's zones and a moving collider").
+   ends: at worst all involved vertices share one translation. Where colliders take part, the
+   colliders and zones that fall back to where the substep started then run in turns
+   (`FINAL_ROUNDS`) until neither moves what the other left: that start is clear of a still
+   collider; a zone with a member a moving collider pushed moves as the collider carries that
+   start instead (`Collider.carry`), clear of it too (docs/performance.md, "Zones carried by a
+   moving collider").
 
 Because the rest mesh is free of intersections and every substep moves from an
 intersection-free state along paths proven not to touch, no two triangles that share no vertex
-ever intersect after a substep, at any speed (but for that last pass of a moving collider). The
+ever intersect after a substep, at any speed. The
 broad phase is a hashed grid filled by counting sort (`broad_phase`), and all kernels run
 serially in fixed orders, so the result is the same bytes whatever the executor or thread count.
 
@@ -347,11 +347,13 @@ class SelfCollision(Constraint, Remappable):
 
     def _impact_zones(
         self, model: SpringModel, topology: _Topology, x0: np.ndarray, x: np.ndarray, inv_mass: np.ndarray,
-        work: ContactWork, translate: bool, threads: int,
+        work: ContactWork, translate: bool, threads: int, driven: np.ndarray, drive: np.ndarray,
     ) -> bool:
         """The continuous check along x0 -> x (V, 3), and impact zones in x until it flags
         nothing: each zone takes its members' mass-weighted mean displacement (`translate`) or
-        goes back to x0 (unless pinned members move it). Returns whether any zone formed."""
+        goes back to x0, unless pinned members move it, or `driven` (V,) members that a moving
+        collider carries by `drive` (V, 3) (`self_kernels.move_zones`). Returns whether any zone
+        formed."""
         n = x.shape[0]
         parent = np.arange(n, dtype=np.int64)
         in_zone = np.zeros(n, dtype=np.bool_)
@@ -380,7 +382,7 @@ class SelfCollision(Constraint, Remappable):
                 parent[members] = members[0]
             zone_sizes = np.bincount(_roots(parent, in_zone))
             work.largest_zone = max(work.largest_zone, int(zone_sizes.max(initial=0)))
-            self_kernels.move_zones(x, x0, inv_mass, parent, in_zone, translate)
+            self_kernels.move_zones(x, x0, inv_mass, parent, in_zone, translate, driven, drive)
         return zoned
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
@@ -430,27 +432,45 @@ class SelfCollision(Constraint, Remappable):
         x2 = x.copy()
 
         # 2. and 3. the continuous check along x0 -> x, impact zones until nothing is flagged
-        zoned = self._impact_zones(model, topology, x0, x, inv_mass, work, translate=True, threads=threads)
+        driven, drive = np.zeros(n, dtype=np.bool_), np.zeros((n, 3))
+        zoned = self._impact_zones(
+            model, topology, x0, x, inv_mass, work, translate=True, threads=threads, driven=driven, drive=drive
+        )
         _settle(state, x2, dt)
         if zoned and self.colliders:
             # a zone's common translation can carry a vertex a collider held into the collider's
             # thickness (a falling layer caught by one lying on the ground moves it down with
             # it): the colliders again, then the continuous check with zones that stay where the
             # substep started (clear of both, since the last substep ended so)
-            for collider in self.colliders:
-                collider.project(model, state, time, dt)
-            x3 = x.copy()
-            self._impact_zones(model, topology, x0, x, inv_mass, work, translate=False, threads=threads)
-            _settle(state, x3, dt)
-            # where the substep started is clear of a still collider, but a moving one has moved
-            # on into it (a plate rising at 5 m/s through the cloth it carries): the moving ones again
-            for collider in self.colliders:
-                if isinstance(collider, Collider) and collider.moves:
+            for round_ in range(FINAL_ROUNDS):
+                before = x.copy()
+                for collider in self.colliders:
                     collider.project(model, state, time, dt)
+                if round_ and np.array_equal(before, x):
+                    break
+                x3 = x.copy()
+                # a zone with a member a moving collider pushed moves as the collider carries that
+                # start: the start itself is inside a collider that moved on
+                driven[:] = False
+                for collider in self.colliders:
+                    if isinstance(collider, Collider) and collider.moves and collider.pushed is not None:
+                        carried = collider.pushed & ~driven
+                        drive[carried] = collider.carry(x0[carried], time - dt, time) - x0[carried]
+                        driven |= carried
+                if not self._impact_zones(
+                    model, topology, x0, x, inv_mass, work, translate=False, threads=threads, driven=driven, drive=drive
+                ):
+                    break
+                _settle(state, x3, dt)
         self._start = x.copy()
         self.moved = np.any(x != x1, axis=1)
         self.work.add(work)
 
+
+#: rounds of the colliders and zones that stay where the substep started after the first
+#: zones (`_project`): each round's colliders may move a vertex a zone put back, and each round's
+#: zones may put back a vertex a collider moved, until either leaves the other nothing to do
+FINAL_ROUNDS = 8
 
 #: the two sides of a tear are not judged by the continuous check while closer than this fraction
 #: of the thickness (the seam the tear opened, see `self_kernels`)

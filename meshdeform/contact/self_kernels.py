@@ -796,18 +796,28 @@ def merge_zones(
 
 @nb.njit(**JIT)
 def move_zones(
-    x: np.ndarray, x0: np.ndarray, inv_mass: np.ndarray, parent: np.ndarray, in_zone: np.ndarray, translate: bool
+    x: np.ndarray,
+    x0: np.ndarray,
+    inv_mass: np.ndarray,
+    parent: np.ndarray,
+    in_zone: np.ndarray,
+    translate: bool,
+    driven: np.ndarray,
+    drive: np.ndarray,
 ) -> int:
     """Give every impact zone one translation, x = x0 + the mass-weighted mean displacement of its
-    free members (or the mean displacement of its pinned members, which cannot be moved): a
+    free members (or the mean displacement of its pinned members, which cannot be moved, or else
+    of its `driven` (V,) members, `drive` (V, 3): where a moving collider carries them): a
     translation keeps every distance inside the zone, so no pair within it can meet. Without
-    `translate` a zone without pinned members stays at x0 (no displacement at all). Returns the
-    number of vertices in zones."""
+    `translate` a zone without pinned or driven members stays at x0 (no displacement at all).
+    Returns the number of vertices in zones."""
     n = x.shape[0]
     mass = np.zeros(n)
     pinned = np.zeros(n)
     moved = np.zeros((n, 3))
     pinned_moved = np.zeros((n, 3))
+    carried = np.zeros(n)
+    carried_moved = np.zeros((n, 3))
     members = 0
     for i in range(n):
         if not in_zone[i]:
@@ -819,6 +829,10 @@ def move_zones(
             mass[r] += m
             for axis in range(3):
                 moved[r, axis] += m * (x[i, axis] - x0[i, axis])
+            if driven[i]:
+                carried[r] += 1.0
+                for axis in range(3):
+                    carried_moved[r, axis] += drive[i, axis]
         else:
             pinned[r] += 1.0
             for axis in range(3):
@@ -830,6 +844,8 @@ def move_zones(
         for axis in range(3):
             if pinned[r] > 0.0:
                 shift = pinned_moved[r, axis] / pinned[r]
+            elif carried[r] > 0.0:
+                shift = carried_moved[r, axis] / carried[r]
             else:
                 shift = moved[r, axis] / mass[r] if translate else 0.0
             x[i, axis] = x0[i, axis] + shift

@@ -29,7 +29,8 @@ test found what the end positions alone would have missed.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import itertools
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +70,8 @@ PLANE_REACH = 1.5
 PLANE_SLACK = 0.01
 #: Gauss-Seidel sweeps of the contact velocities' sequential impulses (`collider_kernels.respond`)
 RESPONSE_SWEEPS = 4
+#: stretches of a frame over which a moving collider's speed is measured (`Collider.largest_speed`)
+SPEED_SAMPLES = 8
 
 
 def _unit(v: Sequence[float]) -> np.ndarray:
@@ -426,6 +429,29 @@ def pushed_friction(constraints: Sequence[Constraint], vertex_count: int) -> np.
     return friction
 
 
+def fastest_motion(place: Callable[[float], np.ndarray], start: float, end: float) -> float:
+    """The fastest (m/s) any of the points `place(time)` (N, 3) moves over [start, end] (s),
+    measured over `SPEED_SAMPLES` equal stretches; 0 for an empty interval."""
+    if end <= start:
+        return 0.0
+    times = np.linspace(start, end, SPEED_SAMPLES + 1)
+    where = place(start)
+    fastest = 0.0
+    for before, after in itertools.pairwise(times):
+        moved = place(after)
+        step = moved - where
+        fastest = max(fastest, float(np.sqrt(np.einsum("ij,ij->i", step, step).max(initial=0.0))) / (after - before))
+        where = moved
+    return fastest
+
+
+def largest_surface_speed(constraints: Sequence[Constraint], points: np.ndarray, start: float, end: float) -> float:
+    """The fastest (m/s) any collider among `constraints` would carry any of `points` (N, 3) over
+    [start, end] (s) (`Collider.largest_speed`); 0 without a moving one."""
+    speeds = [c.largest_speed(points, start, end) for c in constraints if isinstance(c, Collider) and c.moves]
+    return max(speeds, default=0.0)
+
+
 def contact_planes(constraints: Sequence[Constraint], model: SpringModel, state: State) -> ContactPlanes | None:
     """The contact planes of the colliders among `constraints` after their last `project` for the
     cloth of `model` at `state` (`Collider.planes`, the colliders' rows in list order;
@@ -479,6 +505,21 @@ class Collider(Constraint, Remappable):
     def moves(self) -> bool:
         """Whether its surface moves (animated keys; a deforming body overrides it)."""
         return self.keys is not None
+
+    def carry(self, points: np.ndarray, start: float, end: float) -> np.ndarray:
+        """Where points (N, 3, world) fixed to its surface at `start` are at `end` (s): (N, 3)."""
+        if self.keys is None:
+            return np.array(points, dtype=np.float64)
+        return np.asarray(self._to_world(self._to_local(points, start), end), dtype=np.float64)
+
+    def largest_speed(self, points: np.ndarray, start: float, end: float) -> float:
+        """The fastest (m/s) its surface would carry any of `points` (N, 3, world, at `start`) over
+        [start, end] (s), from `SPEED_SAMPLES` stretches of its motion: what a cloth it meets there
+        may be moved at (`meshdeform.simulate.fast_steps_for`); 0 for a still one."""
+        if self.keys is None or points.shape[0] == 0:
+            return 0.0
+        local = self._to_local(points, start)
+        return fastest_motion(lambda time: self._to_world(local, time), start, end)
 
     @property
     def stats(self) -> ContactStats:

@@ -28,7 +28,7 @@ import numpy as np
 from meshdeform.contact import collider_kernels as ck
 from meshdeform.contact.surface import Surface, closest_triangles, edge_index, moved_surface, surface_motion
 from meshdeform.model import State
-from meshdeform.scene.colliders import Collider, TriangleMesh, surface_query
+from meshdeform.scene.colliders import Collider, TriangleMesh, fastest_motion, surface_query
 
 #: maps a time in seconds (from the simulation's start) to the body's vertex positions (M, 3)
 Track = Callable[[float], np.ndarray]
@@ -96,6 +96,15 @@ class DeformingCollider(Collider):
     def moves(self) -> bool:
         """A deforming body's surface moves."""
         return True
+
+    def carry(self, points: np.ndarray, start: float, end: float) -> np.ndarray:
+        """Points (N, 3) moved as the body's surface nearest them moves from `start` to `end` (s)."""
+        return points + self._surface_velocity(np.asarray(points, dtype=np.float64), end, end - start) * (end - start)
+
+    def largest_speed(self, points: np.ndarray, start: float, end: float) -> float:
+        """The fastest (m/s) any vertex of the body moves over [start, end] (s), from
+        `SPEED_SAMPLES` stretches of its track."""
+        return fastest_motion(self.shape.positions_at, start, end)
 
     def _shape_at(self, time: float) -> ck.ShapeArrays:
         return self.shape.arrays_at(time)

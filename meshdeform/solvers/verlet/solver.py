@@ -69,6 +69,7 @@ class VerletSolver(SweepSolver, Solver):
     options_class: ClassVar[type[VerletOptions]] = VerletOptions
     parallel_kernels: ClassVar[bool] = True
     default_substeps: ClassVar[int] = 18
+    fast_step_edges: ClassVar[float | None] = 1.0
     default_iterations: ClassVar[int] = 2
     tether_kinds: ClassVar[tuple[int, ...]] = TETHER_KINDS
     tether_slack: ClassVar[float] = TETHER_SLACK
