@@ -383,15 +383,17 @@ def slow_steps_for(settings: Settings, scene: Scene) -> tuple[int, int] | None:
 
 def fast_steps_for(settings: Settings, scene: Scene) -> float | None:
     """The solver's `fast_step_edges` for a run at `settings` as `steps_for` resolved them, where the
-    scene is not calm and the substeps were left to the solver; None otherwise (no frame takes
-    more steps for speed).
+    scene is not calm, nothing tears and the substeps were left to the solver; None otherwise (no
+    frame takes more steps for speed). Tearing keeps its steps: a tear is decided substep by
+    substep, and a strip stretched to its breaking point snaps back the harder the more steps the
+    frame after takes (a knit strip torn at 12x its length reached 1275 m/s under xpbd).
 
     Why: where an obstacle stops part of the cloth within a step, the springs to the vertices that
     move on stretch by what those move in the step: a cloth shot at 50 m/s onto bumpy ground
     moved 7 edges a step at implicit's 8 a frame and its few iterations could not pull the
     springs back from that (docs/performance.md, "Fast steps")."""
     edges = solver_class(settings.solver).fast_step_edges
-    if edges is None or calm(scene) or not settings.substeps_defaulted:
+    if edges is None or calm(scene) or scene.tearing is not None or not settings.substeps_defaulted:
         return None
     return edges
 

@@ -129,13 +129,17 @@ def test_in_between_states_change_no_frame_of_a_run_at_slow_steps() -> None:
 def test_fast_steps_only_where_the_cloth_touches_something_and_the_substeps_are_the_solvers() -> None:
     """More steps for a fast frame where a collider touches the cloth and the substeps were left to
     a solver that asks for them (implicit, xpbd, verlet); never in a calm scene, at given substeps,
-    or with a solver that does not (springs: its stable explicit steps)."""
+    where the cloth tears, or with a solver that does not (springs: its stable explicit steps)."""
     touching = Scene(constraints=[_ground(0.0)])
     assert fast_steps_for(steps_for(Settings(solver="implicit"), touching), touching) == ImplicitSolver.fast_step_edges
     assert fast_steps_for(steps_for(Settings(solver="implicit"), Scene()), Scene()) is None
     assert fast_steps_for(steps_for(Settings(solver="implicit", substeps=8), touching), touching) is None
     assert fast_steps_for(Settings(solver="xpbd"), touching) == XPBDSolver.fast_step_edges
     assert fast_steps_for(Settings(solver="springs"), touching) is None
+    mesh, model, _ = grid_cloth(4)
+    cut = Cut.plane(0.1, point=[0, 0.45, 0], normal=[0, 1, 0])
+    tearing = Scene(constraints=[_ground(0.0)], tearing=Tearer(mesh, model, None, [cut]))
+    assert fast_steps_for(Settings(solver="implicit"), tearing) is None
     # whole multiples of the default steps, up to FAST_STEP_FACTOR of them
     edge, fps = 0.05, 24.0
     assert fast_substeps(0.0, edge, fps, 8, 3.0) == 8
