@@ -513,13 +513,25 @@ class Collider(Constraint, Remappable):
         return np.asarray(self._to_world(self._to_local(points, start), end), dtype=np.float64)
 
     def largest_speed(self, points: np.ndarray, start: float, end: float) -> float:
-        """The fastest (m/s) its surface would carry any of `points` (N, 3, world, at `start`) over
-        [start, end] (s), from `SPEED_SAMPLES` stretches of its motion: what a cloth it meets there
-        may be moved at (`meshdeform.simulate.fast_steps_for`); 0 for a still one."""
+        """The fastest (m/s) its surface moves where it may meet any of `points` (N, 3, world, at
+        `start`) over [start, end] (s), from `SPEED_SAMPLES` stretches of its motion: what a cloth
+        it meets may be moved at (`meshdeform.simulate.fast_steps_for`); 0 for a still one or one
+        that reaches none of the points. A bounded shape: the fastest corner of its bounds (no
+        slower than its surface), where a point lies within those bounds grown by its thickness
+        and the farthest a corner moves in the interval; a plane: how fast it would carry the
+        points themselves."""
         if self.keys is None or points.shape[0] == 0:
             return 0.0
-        local = self._to_local(points, start)
-        return fastest_motion(lambda time: self._to_world(local, time), start, end)
+        local = np.asarray(self._to_local(points, start))
+        bounds = self.shape.bounds()
+        if bounds is None:
+            return fastest_motion(lambda time: self._to_world(local, time), start, end)
+        lo, hi = bounds
+        corners = np.where(((np.arange(8)[:, None] >> np.arange(3)) & 1) == 1, hi, lo)
+        fastest = fastest_motion(lambda time: self._to_world(corners, time), start, end)
+        scale = self._scale(start)
+        reach = fastest * (end - start) / scale + self._gaps(scale)[0]
+        return fastest if np.any(np.all((local >= lo - reach) & (local <= hi + reach), axis=1)) else 0.0
 
     @property
     def stats(self) -> ContactStats:
