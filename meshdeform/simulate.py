@@ -463,7 +463,6 @@ def simulate(
         tearing.start(model)
         original_pins = np.flatnonzero(tearing.initial_model.pinned)
     step = solver.step
-    step_count = 0
     resting_since: int | None = None
     # nothing between the substeps (no forces, constraints, pin motion or tearing): the solver
     # runs a whole frame in one call (`Solver.advance`), with the same result as substep by substep
@@ -498,14 +497,13 @@ def simulate(
         dt = 1.0 / (settings.fps * frame_substeps)
         if whole_frames:  # in runs of substeps between the states kept: the same bytes
             done = 0
-            for until in (*keep_after, substeps):
+            for until in (*frame_keep_after, frame_substeps):
                 solver.advance(model, state, dt, control, until - done)
                 if pinned_idx.size:
                     state.positions[pinned_idx] = pinned_rest
-                step_count += until - done
-                state.time = start_time + step_count * dt
+                state.time = start_time + ((frame - 1) * frame_substeps + until) * dt
                 done = until
-                if until < substeps:
+                if until < frame_substeps:
                     kept.append((state.time, model.to_input_layout(state.positions.copy())))
         for substep in range(1, 1 + (0 if whole_frames else frame_substeps)):
             t0 = state.time
