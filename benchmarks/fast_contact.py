@@ -1,0 +1,193 @@
+"""Fast contact through the recipe path: a plate punched through a lying sheet and a sheet shot
+onto bumpy ground, self-collision on, each solver at its defaults.
+
+    PYTHONPATH=. python benchmarks/fast_contact.py [--solvers implicit xpbd verlet] [--speeds 5 20 60]
+
+Scenes (24 fps, recipes built as `meshdeform simulate` builds them: `pipeline.build.build_simulation`,
+then `meshdeform.simulate`):
+- plate: a 0.6 m box plate, 1 cm thick, still until 0.05 s, then rising 3 m at `--speeds` m/s
+  through a 1 m sheet of 25 x 25 vertices (triangles) lying flat 0.5 m above it, no gravity;
+  friction 0.5, thickness 5 mm; frames until 2 after the plate stops;
+- terrain: a 30 x 30 sheet (triangles) kicked down at 53 m/s by an impact (2 ms) from 2.2 m onto
+  an open 17 x 17 grid of height 0.2 + 0.15 sin(6 x) cos(5 z) m, thickness 1 cm, friction 0.5;
+  16 frames.
+
+Printed per scene and solver: the largest count over frames of intersecting triangle pairs that
+share no vertex (tests/intersections.py, decided by ipctk: an oracle meshdeform did not write), the
+smallest clearance of the sheet's surface from the collider (mm; the plate: every triangle
+sampled on a barycentric lattice, its exact box distance; the terrain: every vertex's height
+over the ground's triangle under it), the worst structural stretch, the steps each frame took
+(the fast frames: `meshdeform.simulate.fast_substeps`) and the seconds the frames took, or
+the error where a run stopped. Figures go to docs/performance.md ("Fast steps", "Zones carried
+by a moving collider"). Not run in CI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from meshdeform.errors import MeshdeformError  # noqa: E402
+from meshdeform.mesh import Mesh, grid_mesh  # noqa: E402
+from meshdeform.simulate import simulate  # noqa: E402
+from pipeline.build import build_simulation  # noqa: E402
+from pipeline.recipe import parse_recipe  # noqa: E402
+
+PLATE_LO, PLATE_HI = np.array([-0.3, 0.0, -0.3]), np.array([0.3, 0.01, 0.3])
+GROUND_N, GROUND_SIZE = 17, 1.6
+
+
+def _load_oracle() -> Callable[[np.ndarray, np.ndarray], int]:
+    """tests/intersections.py's `intersecting_pairs`, imported by path (tests/ is no package)."""
+    spec = importlib.util.spec_from_file_location("intersections", REPO / "tests" / "intersections.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.intersecting_pairs
+
+
+def triangulated_sheet(n: int, size: float, height: float) -> Mesh:
+    """An n x n grid of `size` (m) in XZ centred on the Y axis at `height`, each quad split in two."""
+    grid = grid_mesh(n, n, size=(size, size), plane="xz")
+    quads = grid.face_indices.reshape(-1, 4)
+    triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    positions = grid.positions + np.array([-0.5 * size, height, -0.5 * size])
+    return Mesh(
+        positions=positions,
+        face_indices=triangles.ravel(),
+        face_offsets=np.arange(0, triangles.size + 1, 3, dtype=np.int64),
+    )
+
+
+def ground_grid() -> tuple[np.ndarray, np.ndarray]:
+    """The bumpy ground's vertices (N^2, 3) and triangles: (a, b, c), (a, c, d) per cell."""
+    u = np.linspace(-GROUND_SIZE / 2, GROUND_SIZE / 2, GROUND_N)
+    x, z = np.meshgrid(u, u)
+    y = 0.2 + 0.15 * np.sin(6 * x) * np.cos(5 * z)
+    vertices = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    index = np.arange(GROUND_N * GROUND_N).reshape(GROUND_N, GROUND_N)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, 1:].ravel(), index[1:, :-1].ravel()
+    return vertices, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def ground_height(vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The ground's height under each point (x, z), in the grid triangle it lies over."""
+    spacing = GROUND_SIZE / (GROUND_N - 1)
+    u = (points[:, 0] + GROUND_SIZE / 2) / spacing
+    w = (points[:, 2] + GROUND_SIZE / 2) / spacing
+    i = np.clip(np.floor(u).astype(int), 0, GROUND_N - 2)
+    j = np.clip(np.floor(w).astype(int), 0, GROUND_N - 2)
+    fu, fw = u - i, w - j
+    y = vertices[:, 1].reshape(GROUND_N, GROUND_N)
+    ya, yb, yc, yd = y[j, i], y[j, i + 1], y[j + 1, i + 1], y[j + 1, i]
+    return np.where(fu >= fw, ya + fu * (yb - ya) + fw * (yc - yb), ya + fw * (yd - ya) + fu * (yc - yd))
+
+
+def lattice(positions: np.ndarray, triangles: np.ndarray, n: int = 6) -> np.ndarray:
+    """Points of every triangle on a barycentric lattice of n steps per side (edges included)."""
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    u, v = i[keep] / n, j[keep] / n
+    weights = np.stack([1.0 - u - v, u, v], axis=1)
+    return np.einsum("lk,tkd->tld", weights, positions[triangles]).reshape(-1, 3)
+
+
+def box_distance(p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Signed distance to an axis-aligned box (negative inside), by clamping."""
+    q = np.abs(p - 0.5 * (lo + hi)) - 0.5 * (hi - lo)
+    return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+
+
+def run(
+    mesh: Mesh, text: str, clearance: Callable[[np.ndarray, np.ndarray, float], float], pairs_of: Callable
+) -> str:
+    """One scene's line: pairs, clearance (mm), stretch, steps, seconds; or where it stopped."""
+    built = build_simulation(parse_recipe(text), mesh)
+    pairs, gaps, stretch, steps = [], [], [], []
+    seconds = 0.0
+    tick = time.perf_counter()
+    try:
+        for frame in simulate(built.model, built.scene, built.settings):
+            seconds += time.perf_counter() - tick
+            x, triangles = frame.welded_positions, np.asarray(frame.model.triangles)
+            pairs.append(pairs_of(x, triangles))
+            gaps.append(clearance(x, triangles, frame.time))
+            stretch.append(frame.max_stretch)
+            steps.append(frame.substeps)
+            tick = time.perf_counter()
+    except MeshdeformError as error:
+        return f"stopped: {str(error)[:90]}"
+    return (
+        f"{max(pairs):5d} {1000 * min(gaps):9.2f} {max(stretch):7.3f} {seconds:6.2f}  "
+        + " ".join(str(s) for s in steps)
+    )
+
+
+def plate_line(solver: str, speed: float, pairs_of: Callable) -> str:
+    arrive = 0.05 + 3.0 / speed
+    text = (
+        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {round(24 * arrive) + 2}\ngravity = [0, 0, 0]\n\n'
+        "[self_collision]\n\n[[colliders]]\nbox = { min = [-0.3, 0.0, -0.3], max = [0.3, 0.01, 0.3] }\n"
+        "friction = 0.5\nthickness = 0.005\n"
+        "animate = [{ time = 0.0, translate = [0, 0, 0] }, { time = 0.05, translate = [0, 0, 0] }, "
+        f"{{ time = {arrive!r}, translate = [0, 3.0, 0] }}]\n"
+    )
+
+    def clearance(x: np.ndarray, triangles: np.ndarray, t: float) -> float:
+        rise = np.array([0.0, 3.0 * min(max(t - 0.05, 0.0) / (arrive - 0.05), 1.0), 0.0])
+        return float(box_distance(lattice(x, triangles), PLATE_LO + rise, PLATE_HI + rise).min())
+
+    return run(triangulated_sheet(25, 1.0, 0.5), text, clearance, pairs_of)
+
+
+def terrain_line(solver: str, ground: Path, vertices: np.ndarray, pairs_of: Callable) -> str:
+    text = (
+        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = 16\n\n[self_collision]\n\n'
+        f"[[colliders]]\nmesh = {str(ground)!r}\nfriction = 0.5\nthickness = 0.01\n\n"
+        "[[impacts]]\ntime = 0.0\npoint = [0, 100, 0]\nradius = 1000.0\nstrength = 53.0\nduration = 0.002\n"
+        'direction = [0, -1, 0]\nfalloff = "smooth"\n'
+    )
+
+    def clearance(x: np.ndarray, triangles: np.ndarray, t: float) -> float:
+        inside = np.all(np.abs(x[:, [0, 2]]) < GROUND_SIZE / 2, axis=1)
+        return float((x[inside, 1] - ground_height(vertices, x[inside])).min(initial=np.inf))
+
+    return run(triangulated_sheet(30, 1.0, 2.2), text, clearance, pairs_of)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--solvers", nargs="+", default=["implicit", "xpbd", "verlet"])
+    parser.add_argument("--speeds", nargs="+", type=float, default=[5.0, 20.0, 60.0])
+    args = parser.parse_args()
+    pairs_of = _load_oracle()
+    import tempfile
+
+    from meshdeform.io import write_obj
+
+    vertices, triangles = ground_grid()
+    with tempfile.TemporaryDirectory() as folder:
+        ground = Path(folder) / "ground.obj"
+        write_obj(ground, Mesh(
+            positions=vertices,
+            face_indices=triangles.ravel(),
+            face_offsets=np.arange(0, triangles.size + 1, 3, dtype=np.int64),
+        ))  # fmt: skip
+        print(f"{'scene':<22} {'solver':<9} pairs clear mm stretch   secs  steps per frame")
+        for solver in args.solvers:
+            for speed in args.speeds:
+                print(f"{f'plate {speed:g} m/s':<22} {solver:<9} {plate_line(solver, speed, pairs_of)}", flush=True)
+            print(f"{'terrain 53 m/s':<22} {solver:<9} {terrain_line(solver, ground, vertices, pairs_of)}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
