@@ -185,8 +185,9 @@ def test_a_sheet_shot_onto_bumpy_ground_takes_more_steps_and_keeps_its_springs()
     kick = Impact(time=0.0, radius=1e6, strength=53.0, duration=0.002, point=(0, 100, 0), direction=(0, -1, 0))
     scene = Scene(gravity=(0.0, -GRAVITY, 0.0), forces=[kick], constraints=[ground])
     frames = list(simulate(cloth.model, scene, Settings(solver="implicit", frames=6)))
-    assert max(f.substeps for f in frames[:2]) > ImplicitSolver.default_substeps
-    assert frames[-1].substeps == ImplicitSolver.default_substeps  # back to the defaults once it lies
+    impact_steps = max(f.substeps for f in frames[:2])
+    assert impact_steps > ImplicitSolver.default_substeps
+    assert frames[-1].substeps < impact_steps  # fewer once it lies
     assert max(f.max_stretch for f in frames) < 2.5
     for frame in frames:
         x = frame.welded_positions

@@ -82,7 +82,7 @@ on that length's matrix: the factor of the length before is kept aside (`_StepLe
 switching between its contact and its slow steps assembles and factorises each once, and again
 only where the anchored set was renewed in between (one more factor in memory; the drop scene of
 benchmarks/contact.py switched 44 times in 120 frames, 8 % of its time, docs/performance.md).
-A frame expected to move the fastest vertex more than `fast_step_edges` (1) median edge a step
+A frame expected to move the fastest vertex more than `fast_step_edges` (half a) median edge a step
 takes a whole multiple of the 8 steps instead (`meshdeform.simulate.fast_substeps`): a vertex an
 obstacle stops leaves its springs stretched by what its neighbours move on in the step, which a
 few iterations cannot pull back from several edges (a sheet shot at 53 m/s onto bumpy ground and
@@ -149,7 +149,7 @@ class ImplicitSolver(ModelCache, Solver):
     default_iterations: ClassVar[int] = 3
     calm_steps: ClassVar[tuple[int, int] | None] = (2, 3)
     slow_steps: ClassVar[tuple[int, int] | None] = (4, 5)
-    fast_step_edges: ClassVar[float | None] = 1.0
+    fast_step_edges: ClassVar[float | None] = 0.5
     holds_contacts: ClassVar[bool] = True
 
     @classmethod
