@@ -167,7 +167,7 @@ def _run_job(
     colliders = scene_colliders(built.scene)
     collider_seen = ContactStats()
     collider_contact: dict[str, list[int]] = {}  # the colliders' ContactStats summed, frame by frame
-    extra_work: list[int] = []  # frames whose contact needed more than one pass (see docs/contact.md)
+    extra_work: list[int] = []  # frames whose contact needed more than one pass or more steps (docs/recipes.md)
     first_tear_frame: int | None = None
     output_vertices = mesh.vertex_count
     strain_model = model
@@ -247,6 +247,7 @@ def _run_job(
                         if key != "substeps":
                             collider_contact.setdefault(key, []).append(int(value))
                     extra = extra or done.swept > 0 or done.rounds > 0 or done.reverted > 0
+                extra = extra or frame.substeps > settings.substeps  # a fast frame's extra steps
                 if extra:
                     extra_work.append(frame.index)
                 export(frame)
