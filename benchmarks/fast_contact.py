@@ -25,8 +25,8 @@ by a moving collider"). Not run in CI.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -35,9 +35,15 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))  # the tests' helpers and their intersection oracle (no package)
+
+from factories import bumpy_ground, grid_sheet, height_over_grid  # noqa: E402
+from intersections import intersecting_pairs  # noqa: E402
+from test_collider_contact import box_distance, lattice  # noqa: E402
 
 from meshdeform.errors import MeshdeformError  # noqa: E402
-from meshdeform.mesh import Mesh, grid_mesh  # noqa: E402
+from meshdeform.io import write_obj  # noqa: E402
+from meshdeform.mesh import Mesh  # noqa: E402
 from meshdeform.simulate import simulate  # noqa: E402
 from pipeline.build import build_simulation  # noqa: E402
 from pipeline.recipe import parse_recipe  # noqa: E402
@@ -46,65 +52,9 @@ PLATE_LO, PLATE_HI = np.array([-0.3, 0.0, -0.3]), np.array([0.3, 0.01, 0.3])
 GROUND_N, GROUND_SIZE = 17, 1.6
 
 
-def _load_oracle() -> Callable[[np.ndarray, np.ndarray], int]:
-    """tests/intersections.py's `intersecting_pairs`, imported by path (tests/ is no package)."""
-    spec = importlib.util.spec_from_file_location("intersections", REPO / "tests" / "intersections.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.intersecting_pairs
-
-
-def triangulated_sheet(n: int, size: float, height: float) -> Mesh:
-    """An n x n grid of `size` (m) in XZ centred on the Y axis at `height`, each quad split in two."""
-    grid = grid_mesh(n, n, size=(size, size), plane="xz")
-    quads = grid.face_indices.reshape(-1, 4)
-    triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-    positions = grid.positions + np.array([-0.5 * size, height, -0.5 * size])
-    return Mesh(
-        positions=positions,
-        face_indices=triangles.ravel(),
-        face_offsets=np.arange(0, triangles.size + 1, 3, dtype=np.int64),
-    )
-
-
-def ground_grid() -> tuple[np.ndarray, np.ndarray]:
-    """The bumpy ground's vertices (N^2, 3) and triangles: (a, b, c), (a, c, d) per cell."""
-    u = np.linspace(-GROUND_SIZE / 2, GROUND_SIZE / 2, GROUND_N)
-    x, z = np.meshgrid(u, u)
-    y = 0.2 + 0.15 * np.sin(6 * x) * np.cos(5 * z)
-    vertices = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
-    index = np.arange(GROUND_N * GROUND_N).reshape(GROUND_N, GROUND_N)
-    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, 1:].ravel(), index[1:, :-1].ravel()
-    return vertices, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-
-
-def ground_height(vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """The ground's height under each point (x, z), in the grid triangle it lies over."""
-    spacing = GROUND_SIZE / (GROUND_N - 1)
-    u = (points[:, 0] + GROUND_SIZE / 2) / spacing
-    w = (points[:, 2] + GROUND_SIZE / 2) / spacing
-    i = np.clip(np.floor(u).astype(int), 0, GROUND_N - 2)
-    j = np.clip(np.floor(w).astype(int), 0, GROUND_N - 2)
-    fu, fw = u - i, w - j
-    y = vertices[:, 1].reshape(GROUND_N, GROUND_N)
-    ya, yb, yc, yd = y[j, i], y[j, i + 1], y[j + 1, i + 1], y[j + 1, i]
-    return np.where(fu >= fw, ya + fu * (yb - ya) + fw * (yc - yb), ya + fw * (yd - ya) + fu * (yc - yd))
-
-
-def lattice(positions: np.ndarray, triangles: np.ndarray, n: int = 6) -> np.ndarray:
-    """Points of every triangle on a barycentric lattice of n steps per side (edges included)."""
-    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
-    keep = i + j <= n
-    u, v = i[keep] / n, j[keep] / n
-    weights = np.stack([1.0 - u - v, u, v], axis=1)
-    return np.einsum("lk,tkd->tld", weights, positions[triangles]).reshape(-1, 3)
-
-
-def box_distance(p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Signed distance to an axis-aligned box (negative inside), by clamping."""
-    q = np.abs(p - 0.5 * (lo + hi)) - 0.5 * (hi - lo)
-    return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+def sheet(n: int, height: float) -> Mesh:
+    """A 1 m sheet of n x n vertices in XZ, centred on the Y axis at `height` (m), triangulated."""
+    return grid_sheet(n, n, size=1.0, plane="xz", triangles=True, centred=True, offset=(0.0, height, 0.0))
 
 
 def run(
@@ -144,9 +94,9 @@ def plate_line(solver: str, speed: float, pairs_of: Callable) -> str:
 
     def clearance(x: np.ndarray, triangles: np.ndarray, t: float) -> float:
         rise = np.array([0.0, 3.0 * min(max(t - 0.05, 0.0) / (arrive - 0.05), 1.0), 0.0])
-        return float(box_distance(lattice(x, triangles), PLATE_LO + rise, PLATE_HI + rise).min())
+        return float(box_distance(lattice(x, triangles, n=6), PLATE_LO + rise, PLATE_HI + rise).min())
 
-    return run(triangulated_sheet(25, 1.0, 0.5), text, clearance, pairs_of)
+    return run(sheet(25, 0.5), text, clearance, pairs_of)
 
 
 def terrain_line(solver: str, ground: Path, vertices: np.ndarray, pairs_of: Callable) -> str:
@@ -159,9 +109,10 @@ def terrain_line(solver: str, ground: Path, vertices: np.ndarray, pairs_of: Call
 
     def clearance(x: np.ndarray, triangles: np.ndarray, t: float) -> float:
         inside = np.all(np.abs(x[:, [0, 2]]) < GROUND_SIZE / 2, axis=1)
-        return float((x[inside, 1] - ground_height(vertices, x[inside])).min(initial=np.inf))
+        heights = height_over_grid(vertices, GROUND_N, GROUND_SIZE, x[inside])
+        return float((x[inside, 1] - heights).min(initial=np.inf))
 
-    return run(triangulated_sheet(30, 1.0, 2.2), text, clearance, pairs_of)
+    return run(sheet(30, 2.2), text, clearance, pairs_of)
 
 
 def main() -> None:
@@ -169,12 +120,8 @@ def main() -> None:
     parser.add_argument("--solvers", nargs="+", default=["implicit", "xpbd", "verlet"])
     parser.add_argument("--speeds", nargs="+", type=float, default=[5.0, 20.0, 60.0])
     args = parser.parse_args()
-    pairs_of = _load_oracle()
-    import tempfile
-
-    from meshdeform.io import write_obj
-
-    vertices, triangles = ground_grid()
+    pairs_of = intersecting_pairs
+    vertices, triangles = bumpy_ground(GROUND_N, GROUND_SIZE)
     with tempfile.TemporaryDirectory() as folder:
         ground = Path(folder) / "ground.obj"
         write_obj(ground, Mesh(

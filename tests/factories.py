@@ -145,6 +145,33 @@ def grid_cloth(
     return Cloth(mesh, SpringModel.from_mesh(mesh, material, pinned_input=pinned), pinned)
 
 
+def bumpy_ground(n: int = 17, size: float = 1.6) -> tuple[np.ndarray, np.ndarray]:
+    """An open n x n grid of height 0.2 + 0.15 sin(6 x) cos(5 z) (m) over size x size (m), centred on
+    the Y axis: vertices (n^2, 3) and triangles (a, b, c), (a, c, d) per cell (2 (n - 1)^2, 3)."""
+    u = np.linspace(-size / 2, size / 2, n)
+    x, z = np.meshgrid(u, u)
+    y = 0.2 + 0.15 * np.sin(6 * x) * np.cos(5 * z)
+    vertices = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    index = np.arange(n * n).reshape(n, n)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, 1:].ravel(), index[1:, :-1].ravel()
+    return vertices, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def height_over_grid(vertices: np.ndarray, n: int, size: float, points: np.ndarray) -> np.ndarray:
+    """The height (m) of `bumpy_ground`'s grid of n x n vertices over size x size (m) under each point
+    (N, 3) (its x, z), interpolated in the grid's triangle (a, b, c) or (a, c, d) under it: (N,)."""
+    spacing = size / (n - 1)
+    u = (points[:, 0] + size / 2) / spacing
+    w = (points[:, 2] + size / 2) / spacing
+    i = np.clip(np.floor(u).astype(int), 0, n - 2)
+    j = np.clip(np.floor(w).astype(int), 0, n - 2)
+    fu, fw = u - i, w - j
+    y = vertices[:, 1].reshape(n, n)
+    ya, yb, yc, yd = y[j, i], y[j, i + 1], y[j + 1, i + 1], y[j + 1, i]
+    upper = fu >= fw  # triangle (a, b, c): below the diagonal a-c in (u, w)
+    return np.where(upper, ya + fu * (yb - ya) + fw * (yc - yb), ya + fw * (yd - ya) + fu * (yc - yd))
+
+
 def write_grid(path: Path, nx: int, ny: int | None = None, **sheet: object) -> Path:
     """`grid_sheet(nx, ny, **sheet)` written to the OBJ file `path` (its folder made); returns `path`."""
     path.parent.mkdir(parents=True, exist_ok=True)

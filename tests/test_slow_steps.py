@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from factories import grid_cloth, write_grid
+from factories import bumpy_ground, grid_cloth, height_over_grid, write_grid
 
 from meshdeform.scene.colliders import Collider, Plane, TriangleMesh
 from meshdeform.scene.forces import Impact
@@ -147,31 +147,6 @@ def test_fast_steps_only_where_the_cloth_touches_something_and_the_substeps_are_
     assert fast_substeps(1e6, edge, fps, 8, 3.0) == 8 * FAST_STEP_FACTOR
 
 
-def _bumpy_ground(n: int = 17, size: float = 1.6) -> tuple[np.ndarray, np.ndarray]:
-    """An open n x n grid of height 0.2 + 0.15 sin(6 x) cos(5 z) (m) over size x size, centred."""
-    u = np.linspace(-size / 2, size / 2, n)
-    x, z = np.meshgrid(u, u)
-    y = 0.2 + 0.15 * np.sin(6 * x) * np.cos(5 * z)
-    vertices = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
-    index = np.arange(n * n).reshape(n, n)
-    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, 1:].ravel(), index[1:, :-1].ravel()
-    return vertices, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-
-
-def _height_of(vertices: np.ndarray, n: int, size: float, points: np.ndarray) -> np.ndarray:
-    """The grid's height under each point (x, z), interpolated in its triangle (a, b, c) or (a, c, d)."""
-    spacing = size / (n - 1)
-    u = (points[:, 0] + size / 2) / spacing
-    w = (points[:, 2] + size / 2) / spacing
-    i = np.clip(np.floor(u).astype(int), 0, n - 2)
-    j = np.clip(np.floor(w).astype(int), 0, n - 2)
-    fu, fw = u - i, w - j
-    y = vertices[:, 1].reshape(n, n)
-    ya, yb, yc, yd = y[j, i], y[j, i + 1], y[j + 1, i + 1], y[j + 1, i]
-    upper = fu >= fw  # triangle (a, b, c): below the diagonal a-c in (u, w)
-    return np.where(upper, ya + fu * (yb - ya) + fw * (yc - yb), ya + fw * (yd - ya) + fu * (yc - yd))
-
-
 def test_a_sheet_shot_onto_bumpy_ground_takes_more_steps_and_keeps_its_springs() -> None:
     """A 20 x 20 sheet kicked down at 53 m/s onto an open bumpy ground: at implicit's 8 steps a
     frame the fastest vertices moved 7 edges a step, those the ground stopped were left 4.5 times
@@ -179,7 +154,7 @@ def test_a_sheet_shot_onto_bumpy_ground_takes_more_steps_and_keeps_its_springs()
     CLI: 22.7x at frame 1). The frames of the impact now take more steps; every vertex stays above
     the ground (its height under the vertex, interpolated in the grid's triangle) by the thickness."""
     n, size, thickness = 17, 1.6, 0.01
-    vertices, triangles = _bumpy_ground(n, size)
+    vertices, triangles = bumpy_ground(n, size)
     cloth = grid_cloth(20, plane="xz", centred=True, offset=(0.0, 2.2, 0.0))
     ground = Collider(TriangleMesh(vertices, triangles), friction=0.5, thickness=thickness)
     kick = Impact(time=0.0, radius=1e6, strength=53.0, duration=0.002, point=(0, 100, 0), direction=(0, -1, 0))
@@ -191,7 +166,7 @@ def test_a_sheet_shot_onto_bumpy_ground_takes_more_steps_and_keeps_its_springs()
     assert max(f.max_stretch for f in frames) < 2.5
     for frame in frames:
         x = frame.welded_positions
-        clearance = x[:, 1] - _height_of(vertices, n, size, x)
+        clearance = x[:, 1] - height_over_grid(vertices, n, size, x)
         assert clearance.min() > thickness - 1e-3, frame.index
 
 
