@@ -78,6 +78,7 @@ from meshdeform.scene.colliders import (
     contact_planes,
     hold_contacts_still,
     largest_surface_speed,
+    nearest_obstacle,
     pushed_friction,
     share_company,
 )
@@ -402,7 +403,8 @@ def fast_substeps(speed: float, edge: float, fps: float, substeps: int, edges: f
     """The substeps of a frame at `fps` (frames/s) whose fastest vertex is expected at `speed` (m/s)
     on a cloth of median structural rest length `edge` (m): the fewest multiple of `substeps`
     (whole multiples: few step lengths in a run, each one met again) that keeps that vertex
-    within `edges` rest lengths a step, at most `FAST_STEP_FACTOR` times `substeps`."""
+    within `edges` rest lengths a step, at most `FAST_STEP_FACTOR` times `substeps`. (`simulate`
+    keeps the settings' substeps where no collider is within the frame's reach of the cloth.)"""
     if edge <= 0.0 or edges <= 0.0:
         return substeps
     needed = math.ceil(speed / (edges * edge * fps * substeps) - 1e-9)
@@ -487,11 +489,17 @@ def simulate(
             frame_start = start_time + (frame - 1) / settings.fps
             frame_end = frame_start + 1.0 / settings.fps
             carried = largest_surface_speed(constraints, state.positions, frame_start, frame_end)
-            expected = max(speed, carried) + sum(force.largest_kick(frame_start, frame_end) for force in kicks)
+            kicked = sum(force.largest_kick(frame_start, frame_end) for force in kicks)
+            expected = max(speed, carried) + kicked
             if slow is not None and moves_slowly(expected, edge, settings.fps, slow[0]):
                 frame_substeps, control.iterations = slow
             elif fast is not None:
                 frame_substeps = fast_substeps(expected, edge, settings.fps, substeps, fast)
+                # only where the cloth can meet an obstacle within the frame (a sheet falling
+                # from high up keeps its steps until the frame it may land in)
+                reach = (speed + carried + kicked) / settings.fps
+                if frame_substeps > substeps and nearest_obstacle(constraints, state.positions, frame_start) > reach:
+                    frame_substeps = substeps
             if frame_substeps != substeps:
                 frame_keep_after = replace(settings, substeps=frame_substeps).subframe_substeps
         dt = 1.0 / (settings.fps * frame_substeps)

@@ -195,3 +195,20 @@ def test_the_report_lists_the_fast_frames_among_those_that_took_extra_work(tmp_p
     report = run_job(mesh, recipe, tmp_path / "out").report
     fast = [index for index, steps in enumerate(report["frame_substeps"], start=1) if steps > report["substeps"]]
     assert fast and set(fast) <= set(report["contact_extra_work_frames"])
+
+
+def test_a_sheet_falling_from_high_up_takes_more_steps_only_in_the_frames_it_may_land_in() -> None:
+    """A 40 x 40 sheet falling flat from 3 m onto the ground (air damping holds it below 4 m/s)
+    moves more than half an edge a step from 0.4 s on, but takes implicit's default steps until
+    the frame in which it may reach the ground (its fastest vertex's travel in the frame against
+    its distance from the ground's thickness, `meshdeform.scene.colliders.nearest_obstacle`); that
+    frame takes more."""
+    cloth = grid_cloth(40, plane="xz", offset=(0.0, 3.0, 0.0))
+    frames = list(simulate(cloth.model, Scene(constraints=[_ground(0.0)]), Settings(solver="implicit", frames=32)))
+    heights = [cloth.model.rest_positions[:, 1].min()] + [f.welded_positions[:, 1].min() for f in frames]
+    speeds = [0.0] + [f.max_speed for f in frames]
+    for k, frame in enumerate(frames):
+        out_of_reach = heights[k] - 0.01 > (speeds[k] + 0.5) / 24.0  # (0.5 m/s: what gravity adds in a frame)
+        if out_of_reach:
+            assert frame.substeps <= ImplicitSolver.default_substeps, frame.index
+    assert max(f.substeps for f in frames) > ImplicitSolver.default_substeps  # the landing

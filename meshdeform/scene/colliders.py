@@ -452,6 +452,19 @@ def largest_surface_speed(constraints: Sequence[Constraint], points: np.ndarray,
     return max(speeds, default=0.0)
 
 
+def nearest_obstacle(constraints: Sequence[Constraint], points: np.ndarray, time: float) -> float:
+    """The smallest distance (m) of any of `points` (N, 3) from the surface of any collider among
+    `constraints` at `time` (s), less that collider's thickness (negative: within it); infinite
+    without a collider (`meshdeform.simulate`: a fast frame takes more steps only where the cloth
+    can meet an obstacle within it)."""
+    nearest = np.inf
+    for constraint in constraints:
+        if isinstance(constraint, Collider) and points.shape[0]:
+            distance, _ = constraint.signed_distance(points, time)
+            nearest = min(nearest, float(distance.min()) - constraint.thickness)
+    return nearest
+
+
 def contact_planes(constraints: Sequence[Constraint], model: SpringModel, state: State) -> ContactPlanes | None:
     """The contact planes of the colliders among `constraints` after their last `project` for the
     cloth of `model` at `state` (`Collider.planes`, the colliders' rows in list order;
