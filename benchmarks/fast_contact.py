@@ -37,7 +37,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))  # the tests' helpers and their intersection oracle (no package)
 
-from factories import bumpy_ground, grid_sheet, height_over_grid  # noqa: E402
+from factories import bumpy_ground, grid_sheet, height_over_grid, punched_plate  # noqa: E402
 from intersections import intersecting_pairs  # noqa: E402
 from test_collider_contact import box_distance, lattice  # noqa: E402
 
@@ -48,7 +48,6 @@ from meshdeform.simulate import simulate  # noqa: E402
 from pipeline.build import build_simulation  # noqa: E402
 from pipeline.recipe import parse_recipe  # noqa: E402
 
-PLATE_LO, PLATE_HI = np.array([-0.3, 0.0, -0.3]), np.array([0.3, 0.01, 0.3])
 GROUND_N, GROUND_SIZE = 17, 1.6
 
 
@@ -83,20 +82,13 @@ def run(
 
 
 def plate_line(solver: str, speed: float, pairs_of: Callable) -> str:
-    arrive = 0.05 + 3.0 / speed
-    text = (
-        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {round(24 * arrive) + 2}\ngravity = [0, 0, 0]\n\n'
-        "[self_collision]\n\n[[colliders]]\nbox = { min = [-0.3, 0.0, -0.3], max = [0.3, 0.01, 0.3] }\n"
-        "friction = 0.5\nthickness = 0.005\n"
-        "animate = [{ time = 0.0, translate = [0, 0, 0] }, { time = 0.05, translate = [0, 0, 0] }, "
-        f"{{ time = {arrive!r}, translate = [0, 3.0, 0] }}]\n"
-    )
+    plate = punched_plate(solver, speed)
 
     def clearance(x: np.ndarray, triangles: np.ndarray, t: float) -> float:
-        rise = np.array([0.0, 3.0 * min(max(t - 0.05, 0.0) / (arrive - 0.05), 1.0), 0.0])
-        return float(box_distance(lattice(x, triangles, n=6), PLATE_LO + rise, PLATE_HI + rise).min())
+        rise = np.array([0.0, plate.rise(t), 0.0])
+        return float(box_distance(lattice(x, triangles, n=6), plate.lo + rise, plate.hi + rise).min())
 
-    return run(sheet(25, 0.5), text, clearance, pairs_of)
+    return run(plate.mesh, plate.recipe, clearance, pairs_of)
 
 
 def terrain_line(solver: str, ground: Path, vertices: np.ndarray, pairs_of: Callable) -> str:

@@ -145,6 +145,36 @@ def grid_cloth(
     return Cloth(mesh, SpringModel.from_mesh(mesh, material, pinned_input=pinned), pinned)
 
 
+class PunchedPlate(NamedTuple):
+    """A 0.6 m box plate, 1 cm thick (`lo`, `hi`, m), still until 0.05 s and then rising 3 m at a
+    speed through a 1 m sheet (25 x 25, triangles) lying flat 0.5 m above it, no gravity,
+    self-collision on, friction 0.5, thickness 5 mm; frames until 2 after it stops at `arrive` (s)."""
+
+    mesh: Mesh
+    recipe: str
+    arrive: float
+    lo: np.ndarray
+    hi: np.ndarray
+
+    def rise(self, time: float) -> float:
+        """How far (m) the plate has risen at `time` (s)."""
+        return 3.0 * min(max(time - 0.05, 0.0) / (self.arrive - 0.05), 1.0)
+
+
+def punched_plate(solver: str, speed: float) -> PunchedPlate:
+    """The plate scene rising at `speed` (m/s) under `solver` (its recipe text; `PunchedPlate`)."""
+    arrive = 0.05 + 3.0 / speed
+    recipe = (
+        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {round(24 * arrive) + 2}\ngravity = [0, 0, 0]\n\n'
+        "[self_collision]\n\n[[colliders]]\nbox = { min = [-0.3, 0.0, -0.3], max = [0.3, 0.01, 0.3] }\n"
+        "friction = 0.5\nthickness = 0.005\n"
+        "animate = [{ time = 0.0, translate = [0, 0, 0] }, { time = 0.05, translate = [0, 0, 0] }, "
+        f"{{ time = {arrive!r}, translate = [0, 3.0, 0] }}]\n"
+    )
+    mesh = grid_sheet(25, 25, size=1.0, plane="xz", triangles=True, centred=True, offset=(0.0, 0.5, 0.0))
+    return PunchedPlate(mesh, recipe, arrive, np.array([-0.3, 0.0, -0.3]), np.array([0.3, 0.01, 0.3]))
+
+
 def bumpy_ground(n: int = 17, size: float = 1.6) -> tuple[np.ndarray, np.ndarray]:
     """An open n x n grid of height 0.2 + 0.15 sin(6 x) cos(5 z) (m) over size x size (m), centred on
     the Y axis: vertices (n^2, 3) and triangles (a, b, c), (a, c, d) per cell (2 (n - 1)^2, 3)."""

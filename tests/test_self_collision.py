@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factories import KNIT, grid_sheet
+from factories import KNIT, grid_sheet, punched_plate
 from intersections import intersecting_pairs
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
@@ -535,22 +535,13 @@ def test_a_plate_punched_fast_through_a_lying_sheet_stays_out_of_it_and_of_itsel
     and the zones run again until neither moves what the other left. Before: verlet at 20 m/s
     ended with 2 intersecting pairs, xpbd at 60 m/s with 63 (stretched 9x), implicit at 20 m/s
     diverged; the last pass of the moving plate alone, or none, left a face in the plate."""
-    mesh = grid_sheet(25, 25, size=1.0, plane="xz", triangles=True, centred=True, offset=(0.0, 0.5, 0.0))
-    arrive = 0.05 + 3.0 / speed
-    text = (
-        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {round(24 * arrive) + 2}\ngravity = [0, 0, 0]\n\n'
-        "[self_collision]\n\n[[colliders]]\nbox = { min = [-0.3, 0.0, -0.3], max = [0.3, 0.01, 0.3] }\n"
-        "friction = 0.5\nthickness = 0.005\n"
-        "animate = [{ time = 0.0, translate = [0, 0, 0] }, { time = 0.05, translate = [0, 0, 0] }, "
-        f"{{ time = {arrive!r}, translate = [0, 3.0, 0] }}]\n"
-    )
-    built = build_simulation(parse_recipe(text), mesh)
-    lo, hi = np.array([-0.3, 0.0, -0.3]), np.array([0.3, 0.01, 0.3])
+    plate = punched_plate(solver, speed)
+    built = build_simulation(parse_recipe(plate.recipe), plate.mesh)
     frames = []
     for frame in simulate(built.model, built.scene, built.settings):
-        rise = 3.0 * min(max(frame.time - 0.05, 0.0) / (arrive - 0.05), 1.0)
+        rise = np.array([0.0, plate.rise(frame.time), 0.0])
         samples = lattice(frame.welded_positions, np.asarray(frame.model.triangles), n=6)
-        assert box_distance(samples, lo + [0, rise, 0], hi + [0, rise, 0]).min() >= 0.005 - 0.001, frame.index
+        assert box_distance(samples, plate.lo + rise, plate.hi + rise).min() >= 0.005 - 0.001, frame.index
         assert intersecting_pairs(frame.welded_positions, frame.model.triangles) == 0, frame.index
         frames.append(frame)
     assert max(f.substeps for f in frames) > built.settings.substeps

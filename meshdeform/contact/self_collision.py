@@ -28,9 +28,9 @@ and the colliders produced, from the positions x0 the substep started at:
 
 Because the rest mesh is free of intersections and every substep moves from an
 intersection-free state along paths proven not to touch, no two triangles that share no vertex
-ever intersect after a substep, at any speed. The
-broad phase is a hashed grid filled by counting sort (`broad_phase`), and all kernels run
-serially in fixed orders, so the result is the same bytes whatever the executor or thread count.
+ever intersect after a substep, at any speed. The broad phase is a hashed grid filled by
+counting sort (`broad_phase`), and all kernels run serially in fixed orders, so the result is
+the same bytes whatever the executor or thread count.
 
 Tearing: the copies a tear makes start where their original is, touching the triangles of its
 other side. Proximity judges pairs by the rest-mesh vertex each vertex came from (`origin`,
