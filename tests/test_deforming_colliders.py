@@ -118,3 +118,29 @@ def test_a_thin_plate_shot_through_a_curtain_at_20_m_s_carries_it_and_never_tunn
     # swept test relative to the plate's motion it stays behind: the plate passes through it)
     centre = np.linalg.norm(np.asarray(model.rest_positions)[:, :2], axis=1) < 0.1
     assert frame.welded_positions[centre, 2].min() > 0.2
+
+
+def test_a_deforming_bodys_speed_is_read_where_it_can_reach_the_cloth() -> None:
+    """`DeformingCollider.largest_speed`, which sets a frame's fast steps: a body of two boxes, one
+    at the origin rising at 0.1 m/s and one 5 m off swinging along x at 10 m/s, moves at 0.1 m/s
+    for cloth points beside the first box (within its thickness of where it rises to) and at 10 m/s
+    for a point in the second's path (its triangles' swept bounds reach it); for points 100 m off
+    it reaches nothing: 0."""
+    cube = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
+    corners, faces = np.asarray(cube.vertices), np.asarray(cube.faces)
+    rest = np.concatenate([corners, corners + [5.0, 0.0, 0.0]])
+    triangles = np.concatenate([faces, faces + corners.shape[0]])
+    count = corners.shape[0]
+
+    def track(t: float) -> np.ndarray:
+        moved = rest.copy()
+        moved[:count, 1] += 0.1 * t
+        moved[count:, 0] += 10.0 * t
+        return moved
+
+    body = DeformingCollider(DeformingMesh(rest, triangles, track), thickness=THICKNESS)
+    near_slow = np.array([[0.0, 0.15, 0.0], [0.3, 0.2, 0.1]])
+    near_fast = np.array([[6.0, 0.0, 0.0]])
+    assert body.largest_speed(near_slow, 0.0, 0.5) == pytest.approx(0.1)
+    assert body.largest_speed(near_fast, 0.0, 0.5) == pytest.approx(10.0)
+    assert body.largest_speed(np.array([[100.0, 0.0, 0.0]]), 0.0, 0.5) == 0.0

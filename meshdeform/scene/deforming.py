@@ -28,7 +28,7 @@ import numpy as np
 from meshdeform.contact import collider_kernels as ck
 from meshdeform.contact.surface import Surface, closest_triangles, edge_index, moved_surface, surface_motion
 from meshdeform.model import State
-from meshdeform.scene.colliders import Collider, TriangleMesh, fastest_motion, surface_query
+from meshdeform.scene.colliders import MIN_GAP, SPEED_SAMPLES, Collider, TriangleMesh, surface_query
 
 #: maps a time in seconds (from the simulation's start) to the body's vertex positions (M, 3)
 Track = Callable[[float], np.ndarray]
@@ -102,9 +102,23 @@ class DeformingCollider(Collider):
         return points + self._surface_velocity(np.asarray(points, dtype=np.float64), end, end - start) * (end - start)
 
     def largest_speed(self, points: np.ndarray, start: float, end: float) -> float:
-        """The fastest (m/s) any vertex of the body moves over [start, end] (s), from
-        `SPEED_SAMPLES` stretches of its track."""
-        return fastest_motion(self.shape.positions_at, start, end)
+        """The fastest (m/s) the body's surface moves over [start, end] (s) where it may meet any
+        of `points` (N, 3, world, at `start`), from `SPEED_SAMPLES` stretches of its track: the
+        fastest corner of the triangles whose bounds over the interval, grown by the thickness,
+        reach the points' bounds (a triangle's points move no faster than its fastest corner);
+        0 where none does. A walking body's swinging hand does not count for a cape on its back."""
+        if end <= start or points.shape[0] == 0:
+            return 0.0
+        times = np.linspace(start, end, SPEED_SAMPLES + 1)
+        track = np.stack([self.shape.positions_at(float(time)) for time in times])  # (S + 1, M, 3)
+        steps = np.diff(track, axis=0)
+        speeds = (np.sqrt(np.einsum("smi,smi->sm", steps, steps)) / np.diff(times)[:, None]).max(axis=0)  # (M,)
+        corners = self.shape.triangles
+        grow = max(self.thickness, MIN_GAP)
+        low = track.min(axis=0)[corners].min(axis=1) - grow  # (K, 3)
+        high = track.max(axis=0)[corners].max(axis=1) + grow
+        reached = np.all((low <= points.max(axis=0)) & (high >= points.min(axis=0)), axis=1)
+        return float(speeds[corners[reached]].max(initial=0.0))
 
     def _shape_at(self, time: float) -> ck.ShapeArrays:
         return self.shape.arrays_at(time)
