@@ -56,7 +56,7 @@ def grid_sheet(
     *,
     size: float | tuple[float, float] = 1.0,
     plane: Plane = "xy",
-    triangles: bool = False,
+    triangles: bool | Literal["alternate"] = False,
     uvs: bool = True,
     centred: bool = False,
     offset: Sequence[float] | None = None,
@@ -64,7 +64,9 @@ def grid_sheet(
     """A grid of nx x ny vertices (ny defaults to nx) over `size` metres (one number: a square).
 
     triangles: each quad split along its (i, j)-(i+1, j+1) diagonal; the triangles (0, 1, 2) of
-        every quad come first, then the triangles (0, 2, 3), quad order kept in each half.
+        every quad come first, then the triangles (0, 2, 3), quad order kept in each half;
+        "alternate": the quads of odd i + j split along the other diagonal instead, into (0, 1, 3)
+        and (1, 2, 3) (a checkerboard of diagonals, as many modellers triangulate).
     uvs: False drops the UVs (a mesh of positions and polygons only).
     centred: the sheet centred on the origin in its plane (from -size / 2 to size / 2).
     offset: (3,) metres added to every position (the sheet moved, e.g. lifted above a ground).
@@ -74,7 +76,12 @@ def grid_sheet(
     mesh = grid_mesh(nx, ny, size=(float(width), float(height)), plane=plane)
     if triangles:
         quads = mesh.face_indices.reshape(-1, 4)
-        flat = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]).ravel()
+        first, second = quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]
+        if triangles == "alternate":
+            i, j = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1))
+            odd = ((i + j).ravel() % 2 == 1)[:, None]
+            first, second = np.where(odd, quads[:, [0, 1, 3]], first), np.where(odd, quads[:, [1, 2, 3]], second)
+        flat = np.concatenate([first, second]).ravel()
         offsets = np.arange(0, flat.size + 1, 3, dtype=np.int64)
         mesh = Mesh(
             positions=mesh.positions,

@@ -19,12 +19,16 @@ and the colliders produced, from the positions x0 the substep started at:
 3. **Fail-safe.** The vertices of flagged pairs form impact zones (Provot 1997; Bridson et al.
    2002): each zone takes one common translation (its mass-weighted mean displacement), which
    keeps all distances inside it, and the check repeats until nothing is flagged. It always
-   ends: at worst all involved vertices share one translation. Where colliders take part, the
-   colliders and zones that fall back to where the substep started then run in turns
-   (`FINAL_ROUNDS`) until neither moves what the other left: that start is clear of a still
-   collider; a zone with a member a moving collider pushed moves as the collider carries that
-   start instead (`Collider.carry`), clear of it too (docs/performance.md, "Zones carried by a
-   moving collider").
+   ends: at worst all involved vertices share one translation. A zone with pinned members
+   moves as they do: by their translation, or, where they turn as one rigid body (a row of
+   pins twisting a strip), by that turn (`rigid_motion`): every point of the zone then follows
+   one invertible affine map along the substep, so no pair inside it can meet (the check, which
+   cannot prove a close pair apart while it turns, leaves such pairs out: `_inside`). Where
+   colliders take part, the colliders and zones that fall back to where the substep started
+   then run in turns (`FINAL_ROUNDS`) until neither moves what the other left: that start is
+   clear of a still collider; a zone with a member a moving collider pushed moves as the
+   collider carries that start instead (`Collider.carry`), clear of it too (docs/performance.md,
+   "Zones carried by a moving collider").
 
 Because the rest mesh is free of intersections and every substep moves from an
 intersection-free state along paths proven not to touch, no two triangles that share no vertex
@@ -359,6 +363,7 @@ class SelfCollision(Constraint, Remappable):
         in_zone = np.zeros(n, dtype=np.bool_)
         settings = self.settings
         zoned = False
+        whole = np.full(n, -1, dtype=np.int64)  # each vertex's zone where it moved as one (`_whole_zones`)
         for round_ in range(settings.max_rounds + 1):
             pairs = self._pairs(model, topology, x0, x, threads)
             vf, ee = pairs.vf, pairs.ee
@@ -370,6 +375,9 @@ class SelfCollision(Constraint, Remappable):
                 ((vf, pairs.vf_lower), (ee, pairs.ee_lower)),
                 threads,
             )
+            if zoned:  # a pair inside a zone that moved as one cannot meet: its path is one affine map's
+                hit_vf &= ~_inside(whole, vf[:, :1], topology.triangles[vf[:, 1]])
+                hit_ee &= ~_inside(whole, topology.edges[ee[:, 0]], topology.edges[ee[:, 1]])
             flagged = int(hit_vf.sum() + hit_ee.sum())
             if flagged == 0:
                 break
@@ -380,9 +388,14 @@ class SelfCollision(Constraint, Remappable):
             if round_ == settings.max_rounds:  # last resort: every flagged vertex in one zone
                 members = np.flatnonzero(in_zone)
                 parent[members] = members[0]
-            zone_sizes = np.bincount(_roots(parent, in_zone))
+            roots = _roots(parent, in_zone)
+            zone_sizes = np.bincount(roots)
             work.largest_zone = max(work.largest_zone, int(zone_sizes.max(initial=0)))
             self_kernels.move_zones(x, x0, inv_mass, parent, in_zone, translate, driven, drive)
+            members = np.flatnonzero(in_zone)
+            turned = _turn_with_pins(x, x0, inv_mass, members, roots)
+            whole[:] = -1
+            whole[members] = _whole_zones(x, x0, inv_mass, members, roots, turned)
         return zoned
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
@@ -532,6 +545,113 @@ def _settle(state: State, before: np.ndarray, dt: float) -> None:
     if moved.size and dt > 0:
         state.velocities[moved] += (x[moved] - before[moved]) / dt
         state.previous[moved] = x[moved] - state.velocities[moved] * dt
+
+
+def _turn_with_pins(
+    x: np.ndarray, x0: np.ndarray, inv_mass: np.ndarray, members: np.ndarray, roots: np.ndarray
+) -> set[int]:
+    """After `self_kernels.move_zones`, in place on x (V, 3): the free members of each zone whose
+    pinned members (`members` (M,) of the zones, their `roots` (M,)) move from x0 to x as one rigid
+    body that turns (`rigid_motion`) take that motion, x = R x0 + t, instead of the pinned members'
+    mean translation. A zone's points then all follow x0 + s (R x0 + t - x0) along the substep: one
+    invertible affine map for each s (a turn of less than half a revolution a substep), which
+    keeps any two of its triangles apart that were apart at x0; a translation cannot follow a row
+    of pins that turns (a strip twisted by its animated pins: the zone and its pins crossed).
+    Returns the roots of the zones turned."""
+    turned: set[int] = set()
+    pinned = inv_mass[members] <= 0.0
+    if np.count_nonzero(pinned) < 2:
+        return turned
+    for root in np.unique(roots[pinned]):
+        zone = members[roots == root]
+        pins = zone[inv_mass[zone] <= 0.0]
+        if pins.shape[0] < 2:
+            continue
+        motion = rigid_motion(x0[pins], x[pins])
+        if motion is None:
+            continue
+        turn, shift = motion
+        free = zone[inv_mass[zone] > 0.0]
+        x[free] = x0[free] @ turn.T + shift
+        turned.add(int(root))
+    return turned
+
+
+def _whole_zones(
+    x: np.ndarray, x0: np.ndarray, inv_mass: np.ndarray, members: np.ndarray, roots: np.ndarray, turned: set[int]
+) -> np.ndarray:
+    """For the zone `members` (M,) and their `roots` (M,): each one's root where its zone moved as
+    one from x0 to x (V, 3) (every member by the same displacement within `RIGID_TOLERANCE`, or
+    turned with its pins: `_turn_with_pins`), else -1 (pinned members that neither translate
+    alike nor turn as one body pull their zone apart)."""
+    if not members.shape[0]:
+        return np.zeros(0, dtype=np.int64)
+    moved = x[members] - x0[members]
+    zones, first, slot = np.unique(roots, return_index=True, return_inverse=True)
+    spread = np.zeros(zones.shape[0])
+    np.maximum.at(spread, slot, np.abs(moved - moved[first[slot]]).max(axis=1))
+    whole = spread <= RIGID_TOLERANCE
+    if turned:
+        whole |= np.isin(zones, np.fromiter(turned, dtype=np.int64))
+    return np.where(whole[slot], roots, -1)
+
+
+def _inside(whole: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """(P,) bool: the pairs whose vertices (first (P, a), second (P, b) vertex indices) all lie in
+    one zone that moved as one (`whole` (V,): that zone's root, -1 elsewhere)."""
+    zone = whole[first[:, 0]]
+    inside = zone >= 0
+    for column in (*first.T[1:], *second.T):
+        inside &= whole[column] == zone
+    return inside
+
+
+#: pinned members that follow a rigid motion this close (m, at each pin) move their zone with it
+#: (`_turn_with_pins`); keyframed pins are rigid to rounding
+RIGID_TOLERANCE = 1e-12
+
+
+def rigid_motion(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The turn R (3, 3) and shift t (3,) with end = start @ R.T + t for the points start, end
+    (K, 3), K >= 2, where one exists within `RIGID_TOLERANCE` and turns them by less than half a
+    revolution (None otherwise, or where they only translate: the translation is `move_zones`'s).
+    Points on a line fix no turn about it: the least turn that takes the line to its new
+    direction (a row of pins). Kabsch's fit (1976) otherwise."""
+    centre_start, centre_end = start.mean(axis=0), end.mean(axis=0)
+    a, b = start - centre_start, end - centre_end
+    if np.abs(b - a).max() <= RIGID_TOLERANCE:
+        return None
+    u, sigma, vt = np.linalg.svd(a.T @ b)
+    if sigma[0] <= 0.0:
+        return None
+    if sigma[1] <= 1e-12 * sigma[0]:  # collinear: the least turn from the line's direction to its new one
+        farthest = int(np.argmax(np.einsum("ij,ij->i", a, a)))
+        before, after = a[farthest], b[farthest]
+        turn = _least_turn(before / np.linalg.norm(before), after / max(float(np.linalg.norm(after)), 1e-300))
+        if turn is None:
+            return None
+    else:
+        flip = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+        turn = vt.T @ np.diag([1.0, 1.0, flip]) @ u.T
+    if np.trace(turn) <= -1.0 + 1e-9:  # half a revolution or more: no invertible path
+        return None
+    shift = centre_end - centre_start @ turn.T
+    if np.abs(start @ turn.T + shift - end).max() > RIGID_TOLERANCE:
+        return None
+    return turn, shift
+
+
+def _least_turn(before: np.ndarray, after: np.ndarray) -> np.ndarray | None:
+    """The rotation (3, 3) taking the unit vector `before` to the unit vector `after` about their
+    common normal (Rodrigues), the identity where they agree; None where they are opposite (half a
+    revolution, about no axis in particular)."""
+    axis = np.cross(before, after)
+    sine, cosine = float(np.linalg.norm(axis)), float(np.dot(before, after))
+    if sine <= 1e-15:
+        return np.eye(3) if cosine > 0.0 else None
+    k = axis / sine
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + sine * cross + (1.0 - cosine) * (cross @ cross)
 
 
 def _roots(parent: np.ndarray, in_zone: np.ndarray) -> np.ndarray:
