@@ -355,8 +355,10 @@ class SelfCollision(Constraint, Remappable):
     ) -> bool:
         """The continuous check along x0 -> x (V, 3), and impact zones in x until it flags
         nothing: each zone takes its members' mass-weighted mean displacement (`translate`) or
-        goes back to x0, unless pinned members move it, or `driven` (V,) members that a moving
-        collider carries by `drive` (V, 3) (`self_kernels.move_zones`). Returns whether any zone
+        goes back to x0, unless pinned members move it (by their translation, or by their turn
+        where they turn as one rigid body: `_turn_with_pins`), or `driven` (V,) members that a
+        moving collider carries by `drive` (V, 3) (`self_kernels.move_zones`); the pairs inside a
+        zone that moved as one are not checked again (`_inside`). Returns whether any zone
         formed."""
         n = x.shape[0]
         parent = np.arange(n, dtype=np.int64)
