@@ -182,6 +182,22 @@ def punched_plate(solver: str, speed: float) -> PunchedPlate:
     return PunchedPlate(mesh, recipe, arrive, np.array([-0.3, 0.0, -0.3]), np.array([0.3, 0.01, 0.3]))
 
 
+def twisted_strip(solver: str, degrees: float, seconds: float = 2.0) -> tuple[Mesh, str]:
+    """A 0.4 x 1 m strip of 20 x 20 vertices upright in XY (diagonals alternating), its top row
+    pinned still and its bottom row pinned to a turn of `degrees` about the vertical axis while
+    rising 0.3 m over `seconds`, no gravity, self-collision at its defaults, 24 fps until the turn
+    ends, under `solver`: the mesh and its recipe text."""
+    mesh = grid_sheet(20, 20, size=(0.4, 1.0), plane="xy", triangles="alternate", offset=(-0.2, 0.0, 0.0))
+    recipe = (
+        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {round(24 * seconds)}\ngravity = [0, 0, 0]\n\n'
+        "[self_collision]\n\n[[pins]]\nselect = { box = { min = [-1, 0.99, -1], max = [1, 2, 1] } }\n\n"
+        "[[pins]]\nselect = { box = { min = [-1, -1, -1], max = [1, 0.01, 1] } }\npivot = [0, 0, 0]\n"
+        "animate = [{ time = 0.0, rotate = [0, 0, 0], translate = [0, 0, 0] }, "
+        f"{{ time = {seconds!r}, rotate = [0, {degrees!r}, 0], translate = [0, 0.3, 0] }}]\n"
+    )
+    return mesh, recipe
+
+
 def bumpy_ground(n: int = 17, size: float = 1.6) -> tuple[np.ndarray, np.ndarray]:
     """An open n x n grid of height 0.2 + 0.15 sin(6 x) cos(5 z) (m) over size x size (m), centred on
     the Y axis: vertices (n^2, 3) and triangles (a, b, c), (a, c, d) per cell (2 (n - 1)^2, 3)."""

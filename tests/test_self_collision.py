@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factories import KNIT, grid_sheet, punched_plate
+from factories import KNIT, grid_sheet, punched_plate, twisted_strip
 from intersections import intersecting_pairs
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
@@ -550,20 +550,12 @@ def test_a_plate_punched_fast_through_a_lying_sheet_stays_out_of_it_and_of_itsel
 
 @pytest.mark.parametrize(("solver", "degrees"), [("xpbd", 720), ("implicit", 1080)])
 def test_a_strip_twisted_by_turning_pins_never_passes_through_itself(solver: str, degrees: int) -> None:
-    """A 0.4 x 1 m strip of 20 x 20 vertices (diagonals alternating), its top row pinned still and
-    its bottom row pinned to a turn of `degrees` about the vertical axis while rising 0.3 m over
-    2 s, no gravity, self-collision at its defaults, through a recipe: the strip winds into a
-    rope around itself and no two of its triangles that share no vertex intersect in any frame
-    (the ipctk oracle). Impact zones holding pins that turn took the pins' mean translation,
-    which cannot follow a turn: 31 pairs under xpbd at 720 degrees, 220 under implicit at 1080."""
-    mesh = grid_sheet(20, 20, size=(0.4, 1.0), plane="xy", triangles="alternate", offset=(-0.2, 0.0, 0.0))
-    text = (
-        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = 48\ngravity = [0, 0, 0]\n\n[self_collision]\n\n'
-        "[[pins]]\nselect = { box = { min = [-1, 0.99, -1], max = [1, 2, 1] } }\n\n"
-        "[[pins]]\nselect = { box = { min = [-1, -1, -1], max = [1, 0.01, 1] } }\npivot = [0, 0, 0]\n"
-        "animate = [{ time = 0.0, rotate = [0, 0, 0], translate = [0, 0, 0] }, "
-        f"{{ time = 2.0, rotate = [0, {degrees}, 0], translate = [0, 0.3, 0] }}]\n"
-    )
+    """`factories.twisted_strip` (its bottom row of pins turned `degrees` over 2 s, through a
+    recipe): the strip winds into a rope around itself, its pinned row ends turned whole, and no
+    two of its triangles that share no vertex intersect in any frame (the ipctk oracle). Impact
+    zones holding pins that turn took the pins' mean translation, which cannot follow a turn: 31
+    pairs under xpbd at 720 degrees, 220 under implicit at 1080."""
+    mesh, text = twisted_strip(solver, degrees)
     built = build_simulation(parse_recipe(text), mesh)
     frames = list(simulate(built.model, built.scene, built.settings))
     bottom = frames[-1].welded_positions[:20]
