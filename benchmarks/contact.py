@@ -183,7 +183,7 @@ class Side:
     frames_per_second: list[float]
     positions: np.ndarray | None  # (frames, V, 3) Y up
     #: self-collision's work in the first timed run, summed over its frames (report.json's
-    #: `self_collision` lists: pair_builds, projections, flagged_pairs, zone_rounds), the
+    #: `self_collision` lists: pair_builds, projections, flagged_pairs, zone_rounds, unresolved), the
     #: largest zone its largest
     work: dict[str, int] = field(default_factory=dict)
 

@@ -265,6 +265,9 @@ def _run_job(
             preview_seconds += time.perf_counter() - tick
         warning = convergence_warning(last_frame, built.scene) if last_frame is not None else None
         unconverged = [warning] if warning is not None else []
+        unresolved = unresolved_contact_warning(contact.get("unresolved", []))
+        if unresolved is not None:
+            unconverged.append(unresolved)
         relative = sorted({str(Path(p).resolve().relative_to(stage.resolve())) for p in outputs})
         start = recipe.simulation.start_frame
         report = {
@@ -329,6 +332,26 @@ def _run_job(
         }
         write_text_atomic(stage / REPORT_NAME, json.dumps(report, indent=2) + "\n")
     return JobResult(out_dir=Path(out_dir), report=report, outputs=[Path(out_dir) / r for r in report["outputs"]])
+
+
+#: frames a warning lists at most
+LISTED_FRAMES = 10
+
+
+def unresolved_contact_warning(unresolved: list[int]) -> str | None:
+    """The report's sentence where self-collision's impact zones ran out of rounds (`unresolved`,
+    per frame from frame 1: `ContactWork.unresolved`), else None."""
+    frames = [index for index, count in enumerate(unresolved, start=1) if count]
+    if not frames:
+        return None
+    listed = ", ".join(str(index) for index in frames[:LISTED_FRAMES])
+    if len(frames) > LISTED_FRAMES:
+        listed += ", ..."
+    return (
+        f"self_collision: in {len(frames)} frame(s) ({listed}) impact zones ran out of rounds with pairs the "
+        "continuous check could not prove apart, so the cloth may pass through itself there; more substeps "
+        "leave each step fewer contacts to resolve"
+    )
 
 
 def colliders_hash(recipe: Recipe) -> str:

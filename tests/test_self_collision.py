@@ -18,12 +18,14 @@ from test_collider_contact import box_distance, lattice
 from meshdeform.contact import broad_phase, self_kernels
 from meshdeform.contact.broad_phase import overlapping_pairs
 from meshdeform.contact.self_collision import SelfCollision, SelfCollisionSettings, rigid_motion
+from meshdeform.io import load, write_obj
 from meshdeform.mesh import Mesh
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Scene
 from meshdeform.scene.colliders import Collider, Plane
 from meshdeform.simulate import Settings, simulate
 from pipeline.build import build_simulation
+from pipeline.job import run_job
 from pipeline.recipe import parse_recipe
 
 THICKNESS = 0.005
@@ -586,3 +588,32 @@ def test_rigid_motion_is_the_turn_and_shift_of_points_that_move_as_one_body() ->
     assert rigid_motion(points, 1.01 * points) is None
     half = Rotation.from_euler("z", 180.0, degrees=True).as_matrix()
     assert rigid_motion(points, points @ half.T) is None
+
+
+def test_pins_driven_through_the_cloth_are_reported_where_self_collision_cannot_hold(tmp_path) -> None:
+    """The lower of two sheets 5 cm apart pinned whole, the upper one's corners pinned and driven
+    10 cm down through it in 0.4 s (the recipe forces a crossing no contact can undo: pinned
+    vertices go where their animation puts them), through `run_job`: the cloth does cross
+    (the ipctk oracle finds pairs from some frame on), and the report says so no later than the
+    first such frame: `self_collision.unresolved` counts the substeps whose impact zones ran out
+    of rounds, and one warning names the frames."""
+    mesh_path = tmp_path / "sheets.obj"
+    write_obj(mesh_path, _two_sheets(0.05))
+    text = (
+        '[simulation]\nfps = 24\nframes = 12\ngravity = [0, 0, 0]\n\n[self_collision]\nthickness = 0.005\n\n'
+        f"[[pins]]\nselect = {{ indices = {list(range(64))} }}\n\n"
+        "[[pins]]\nselect = { indices = [64, 71, 120, 127] }\n"
+        "animate = [{ time = 0.0, translate = [0, 0, 0] }, { time = 0.4, translate = [0, -0.1, 0] }]\n\n"
+        '[output]\nformats = ["npz"]\n'
+    )
+    report = run_job(mesh_path, parse_recipe(text), tmp_path / "out").report
+    with np.load(tmp_path / "out" / "positions.npz") as data:
+        positions = data["positions"].astype(np.float64)
+    triangles = np.asarray(load(mesh_path).face_indices).reshape(-1, 3)  # `_two_sheets` is triangles
+    crossed = [k for k in range(1, positions.shape[0]) if intersecting_pairs(positions[k], triangles)]
+    assert crossed  # the pins did drive the cloth through itself
+    unresolved = report["self_collision"]["unresolved"]
+    first_reported = next(k for k, count in enumerate(unresolved, start=1) if count)
+    assert first_reported <= crossed[0]
+    (warning,) = [w for w in report["warnings"] if w.startswith("self_collision: in ")]
+    assert f"({first_reported}" in warning

@@ -79,16 +79,20 @@ class SelfCollisionSettings:
 @dataclass
 class ContactWork:
     """What self-collision did in a span of substeps: proximity projections, pairs flagged by the
-    continuous check, impact-zone rounds, the largest zone (vertices) and how often candidate
-    pairs were searched afresh (all of them, or those of the vertices that strayed: `_Pairs`)."""
+    continuous check, impact-zone rounds, the largest zone (vertices), how often candidate
+    pairs were searched afresh (all of them, or those of the vertices that strayed: `_Pairs`), and
+    the substeps whose zones ran out of rounds with pairs the check still could not prove apart
+    (`unresolved`: there the cloth may pass through itself; the job report warns)."""
 
     projections: int = 0
     flagged_pairs: int = 0
     zone_rounds: int = 0
     largest_zone: int = 0
     pair_builds: int = 0
+    unresolved: int = 0
 
     def add(self, other: ContactWork) -> None:
+        self.unresolved += other.unresolved
         self.pair_builds += other.pair_builds
         self.projections += other.projections
         self.flagged_pairs += other.flagged_pairs
@@ -366,7 +370,7 @@ class SelfCollision(Constraint, Remappable):
         settings = self.settings
         zoned = False
         whole = np.full(n, -1, dtype=np.int64)  # each vertex's zone where it moved as one (`_whole_zones`)
-        for round_ in range(settings.max_rounds + 1):
+        for round_ in range(settings.max_rounds + 2):
             pairs = self._pairs(model, topology, x0, x, threads)
             vf, ee = pairs.vf, pairs.ee
             hit_vf, hit_ee = by_rows(
@@ -382,6 +386,9 @@ class SelfCollision(Constraint, Remappable):
                 hit_ee &= ~_inside(whole, topology.edges[ee[:, 0]], topology.edges[ee[:, 1]])
             flagged = int(hit_vf.sum() + hit_ee.sum())
             if flagged == 0:
+                break
+            if round_ > settings.max_rounds:  # the last resort's check: what it could not prove apart
+                work.unresolved += 1
                 break
             zoned = True
             work.flagged_pairs += flagged
