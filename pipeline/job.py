@@ -263,11 +263,15 @@ def _run_job(
             tick = time.perf_counter()
             outputs += render_job_previews(preview, stage)
             preview_seconds += time.perf_counter() - tick
-        warning = convergence_warning(last_frame, built.scene) if last_frame is not None else None
-        unconverged = [warning] if warning is not None else []
-        unresolved = unresolved_contact_warning(contact.get("unresolved", []))
-        if unresolved is not None:
-            unconverged.append(unresolved)
+        # what the run itself found: a shape settled unconverged, contact self-collision could not hold
+        run_warnings = [
+            warning
+            for warning in (
+                convergence_warning(last_frame, built.scene) if last_frame is not None else None,
+                unresolved_contact_warning(contact.get("unresolved", [])),
+            )
+            if warning is not None
+        ]
         relative = sorted({str(Path(p).resolve().relative_to(stage.resolve())) for p in outputs})
         start = recipe.simulation.start_frame
         report = {
@@ -322,7 +326,7 @@ def _run_job(
             **({"contact_extra_work_frames": extra_work} if colliders or built.scene.self_collision else {}),
             "formats": formats,
             "outputs": [*relative, REPORT_NAME],
-            "warnings": [*mesh.warnings, *built.warnings, *unconverged],
+            "warnings": [*mesh.warnings, *built.warnings, *run_warnings],
             "seconds": round(sim_seconds, 4),
             "frames_per_second": round(len(max_stretch) / sim_seconds, 3) if sim_seconds > 0 else None,
             "setup_seconds": round(setup_seconds, 4),
