@@ -353,8 +353,9 @@ def unresolved_contact_warning(unresolved: list[int]) -> str | None:
         listed += ", ..."
     return (
         f"self_collision: in {len(frames)} frame(s) ({listed}) impact zones ran out of rounds with pairs the "
-        "continuous check could not prove apart, so the cloth may pass through itself there; more substeps "
-        "leave each step fewer contacts to resolve"
+        "continuous check could not prove apart, so the cloth may pass through itself there; check that "
+        "animated pins do not drive it through itself (no contact can undo that), else more substeps leave "
+        "each step fewer contacts to resolve"
     )
 
 
