@@ -404,7 +404,7 @@ class SelfCollision(Constraint, Remappable):
             members = np.flatnonzero(in_zone)
             turned = _turn_with_pins(x, x0, inv_mass, members, roots)
             whole[:] = -1
-            whole[members] = _whole_zones(x, x0, inv_mass, members, roots, turned)
+            whole[members] = _whole_zones(x, x0, members, roots, turned)
         return zoned
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
@@ -586,9 +586,7 @@ def _turn_with_pins(
     return turned
 
 
-def _whole_zones(
-    x: np.ndarray, x0: np.ndarray, inv_mass: np.ndarray, members: np.ndarray, roots: np.ndarray, turned: set[int]
-) -> np.ndarray:
+def _whole_zones(x: np.ndarray, x0: np.ndarray, members: np.ndarray, roots: np.ndarray, turned: set[int]) -> np.ndarray:
     """For the zone `members` (M,) and their `roots` (M,): each one's root where its zone moved as
     one from x0 to x (V, 3) (every member by the same displacement within `RIGID_TOLERANCE`, or
     turned with its pins: `_turn_with_pins`), else -1 (pinned members that neither translate
