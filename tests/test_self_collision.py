@@ -6,6 +6,8 @@ computed here with SciPy, never by the code under test.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from factories import KNIT, grid_sheet, punched_plate, twisted_strip
@@ -363,7 +365,7 @@ def test_the_continuous_check_misses_no_crossing() -> None:
         near = _sampled_min_distance(x0, x1) < 0.05 * start
         no_pairs = np.zeros((0, 2), dtype=np.int64)
         hit, _ = self_kernels.colliding_pairs(
-            x0, x1, triangles, edges, np.arange(4), 0.0, pairs, np.zeros(1), no_pairs, np.zeros(0)
+            x0, x1, triangles, edges, pairs, np.zeros(1), no_pairs, np.zeros(0)
         )
         if near:
             crossings += 1
@@ -617,3 +619,27 @@ def test_pins_driven_through_the_cloth_are_reported_where_self_collision_cannot_
     assert first_reported <= crossed[0]
     (warning,) = [w for w in report["warnings"] if w.startswith("self_collision: in ")]
     assert f"({first_reported}" in warning
+
+
+@pytest.mark.parametrize("solver", ["xpbd", "implicit"])
+def test_the_two_sides_of_a_tear_never_pass_through_each_other(tmp_path, solver: str) -> None:
+    """The tear sample (a curtain pulled apart by its side edges until it tears down the middle)
+    with self-collision and a ground, through `run_job`: every frame's OBJ, read back by trimesh
+    (its quads split by trimesh) with the torn topology, has no intersecting pair of triangles
+    that share no vertex (the ipctk oracle). The sides of the tear slide along each other in the
+    cloth's plane as the halves sag; their copies started where their originals were, the pairs
+    across the tear were left unjudged while within 1 mm, and the halves overlapped in that
+    plane (31 pairs under xpbd, 164 under implicit)."""
+    import trimesh
+
+    root = Path(__file__).resolve().parents[1]
+    recipe = (root / "samples" / "recipes" / "tear.toml").read_text()
+    recipe = recipe.replace('solver = "xpbd"', f'solver = "{solver}"').replace('["obj", "vtk"]', '["obj"]')
+    recipe += '\n[self_collision]\n\n[[colliders]]\nground = { height = -0.3 }\n'
+    report = run_job(root / "samples" / "meshes" / "curtain.obj", parse_recipe(recipe), tmp_path / "out").report
+    assert report["solver"] == solver and max(report["pieces"]) > 1  # it did tear
+    frames = sorted((tmp_path / "out" / "frames").glob("frame_*.obj"))
+    assert len(frames) >= report["frames"]  # (and the rest pose)
+    for path in frames:
+        mesh = trimesh.load(path, process=False, maintain_order=True, force="mesh")
+        assert intersecting_pairs(np.asarray(mesh.vertices), np.asarray(mesh.faces)) == 0, path.name

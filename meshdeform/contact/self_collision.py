@@ -37,11 +37,12 @@ counting sort (`broad_phase`), and all kernels run serially in fixed orders, so 
 the same bytes whatever the executor or thread count.
 
 Tearing: the copies a tear makes start where their original is, touching the triangles of its
-other side. Proximity judges pairs by the rest-mesh vertex each vertex came from (`origin`,
-updated by `remap`), so the two sides of a tear are not pushed apart; the continuous check
-takes every pair sharing no vertex, except the two sides of the tear while they are still
-within a seam of `SEAM_FRACTION` of the thickness: once they part beyond it, they can never pass
-through each other, and new boundary edges take part like any other.
+other side, so at the next substep the vertices of each split are parted (`_part_seams`: each
+moves a twentieth of the way into its own triangles, its whole substep with it) and every pair of
+the two sides starts apart. Proximity judges pairs by the rest-mesh vertex each vertex came from
+(`origin`, updated by `remap`), so the two sides are not pushed a thickness apart; the
+continuous check takes every pair sharing no vertex, the two sides of a tear included, so they
+never pass through each other, and new boundary edges take part like any other.
 """
 
 from __future__ import annotations
@@ -194,6 +195,8 @@ class SelfCollision(Constraint, Remappable):
         self._origin: np.ndarray | None = None
         self._rings: tuple[np.ndarray, np.ndarray] | None = None
         self._start: np.ndarray | None = None
+        #: (V,) bool: the vertices of the splits since the last substep, to be parted (`_part_seams`)
+        self._parting: np.ndarray | None = None
         self._held: _Pairs | None = None
         self._substep = 0  # substeps projected so far: the age of the kept pairs
         self._span = 1  # substeps a list of candidate pairs covers at most (`list_substeps`)
@@ -215,11 +218,15 @@ class SelfCollision(Constraint, Remappable):
         return work
 
     def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
-        """After a tear (index_map: new vertex -> old): copies keep their original's origin and start."""
+        """After a tear (index_map: new vertex -> old): copies keep their original's origin and
+        start, and the vertices of each split (the original and its copies) are parted at the
+        next substep (`_part_seams`)."""
         if self._origin is not None and self._origin.shape[0] > int(index_map.max(initial=-1)):
             self._origin = self._origin[index_map]
             if self._start is not None:
                 self._start = self._start[index_map]
+            split = np.bincount(index_map)[index_map] > 1
+            self._parting = split if self._parting is None else self._parting[index_map] | split
 
     def _prepare(self, model: SpringModel) -> _Topology:
         if self._model is model and self._topology is not None:
@@ -231,6 +238,7 @@ class SelfCollision(Constraint, Remappable):
             self._origin = np.arange(n, dtype=np.int64)
             self._rings = _rings(self._topology.edges, n)
             self._start = None
+            self._parting = None
         self._held = None
         # a writable copy: the model's read-only array would make the kernels that read it and
         # the positions compile twice (Numba types a read-only array apart)
@@ -353,6 +361,41 @@ class SelfCollision(Constraint, Remappable):
             vf, vf_near, vf_rest, vf_lower, ee, ee_near, ee_rest, ee_lower, pairs.base, pairs.motion, pairs.built
         )
 
+    def _part_seams(self, model: SpringModel, topology: _Topology, state: State) -> None:
+        """Part the two sides of the tears since the last substep: each free vertex of a split
+        (the original and its copies, `_parting`) moves `PART_FRACTION` of the way from where the
+        substep started (`_start`, else the previous positions) to the mean centroid of its own
+        triangles, at most `PART_HEIGHT_FRACTION` of its least height over their opposite edges
+        (no triangle of its own turns over), and its whole substep moves with it (start,
+        previous and current positions alike, so its velocity is kept). The copies a tear makes
+        start where their original is, touching the other side; parted, every pair of the two
+        sides starts apart, and the continuous check keeps it so (two sides touching cannot be
+        proven apart, and sliding along each other in one plane they overlapped)."""
+        triangles = topology.triangles
+        start = self._start if self._start is not None else state.previous
+        members = self._parting & (np.asarray(model.inv_mass) > 0.0)
+        if not members.any() or triangles.shape[0] == 0:
+            return
+        n = start.shape[0]
+        corners = start[triangles]  # (T, 3, 3)
+        centroid_sum = np.zeros((n, 3))
+        np.add.at(centroid_sum, triangles.ravel(), np.repeat(corners.mean(axis=1), 3, axis=0))
+        count = np.bincount(triangles.ravel(), minlength=n)
+        # each corner's height over its opposite edge: twice the area over that edge's length
+        double_area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        opposite = np.linalg.norm(corners[:, [2, 0, 1]] - corners[:, [1, 2, 0]], axis=2)  # (T, 3)
+        height = np.full(n, np.inf)
+        np.minimum.at(height, triangles.ravel(), (double_area[:, None] / np.maximum(opposite, 1e-300)).ravel())
+        members &= count > 0
+        rows = np.flatnonzero(members)
+        toward = centroid_sum[rows] / count[rows, None] - start[rows]
+        length = np.linalg.norm(toward, axis=1)
+        move = np.minimum(PART_FRACTION * length, PART_HEIGHT_FRACTION * height[rows])
+        offset = toward * (move / np.maximum(length, 1e-300))[:, None]
+        for positions in (state.positions, state.previous, self._start):
+            if positions is not None:
+                positions[rows] += offset
+
     def _impact_zones(
         self, model: SpringModel, topology: _Topology, x0: np.ndarray, x: np.ndarray, inv_mass: np.ndarray,
         work: ContactWork, translate: bool, threads: int, driven: np.ndarray, drive: np.ndarray,
@@ -375,8 +418,7 @@ class SelfCollision(Constraint, Remappable):
             vf, ee = pairs.vf, pairs.ee
             hit_vf, hit_ee = by_rows(
                 functools.partial(
-                    self_kernels.colliding_pairs, x0, x, topology.triangles, topology.edges, self._origin,
-                    SEAM_FRACTION * self.thickness,
+                    self_kernels.colliding_pairs, x0, x, topology.triangles, topology.edges,
                 ),
                 ((vf, pairs.vf_lower), (ee, pairs.ee_lower)),
                 threads,
@@ -425,7 +467,13 @@ class SelfCollision(Constraint, Remappable):
             self._span, self._held = span, None
         x = state.positions
         n = x.shape[0]
-        x0 = self._start if self._start is not None and self._start.shape[0] == n else state.previous.copy()
+        if self._start is not None and self._start.shape[0] != n:
+            self._start = None
+        if self._parting is not None:
+            if self._parting.shape[0] == n:
+                self._part_seams(model, topology, state)
+            self._parting = None
+        x0 = self._start if self._start is not None else state.previous.copy()
         x1 = x.copy()
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         settings = self.settings
@@ -494,9 +542,11 @@ class SelfCollision(Constraint, Remappable):
 #: zones may put back a vertex a collider moved, until either leaves the other nothing to do
 FINAL_ROUNDS = 8
 
-#: the two sides of a tear are not judged by the continuous check while closer than this fraction
-#: of the thickness (the seam the tear opened, see `self_kernels`)
-SEAM_FRACTION = 0.2
+#: the vertices of a split move this fraction of the way to the mean centroid of their own
+#: triangles (`_part_seams`): the sides of a tear start apart
+PART_FRACTION = 0.05
+#: ... but at most this fraction of their least height over their triangles' opposite edges
+PART_HEIGHT_FRACTION = 0.25
 #: the candidate pairs' margin: this fraction of the median rest edge length (see `_Pairs`: pairs
 #: hold until some vertex moves half of it, so a larger margin means fewer searches but more pairs)
 MARGIN_FRACTION = 0.25

@@ -4,9 +4,9 @@ continuous check and impact zones (see `self_collision` for the method and why i
 Pairs come in two kinds, each an (P, 2) int64 array from the broad phase:
 - vertex-triangle (VF): (vertex, triangle), the vertex not a corner of the triangle;
 - edge-edge (EE): (edge, edge), the edges sharing no vertex.
-The continuous check leaves out a pair of the two sides of a tear (sharing an origin vertex)
-while it is closer than a seam width: a tear splits a vertex into copies at one place, where
-the sides touch; once they part beyond the seam they are guarded like any other pair.
+The continuous check judges every pair but one that touches where the substep starts (none
+does: the substeps keep the pairs apart, and the sides of a tear start parted,
+`SelfCollision._part_seams`).
 Positions are (V, 3) float64 metres; x0 the start of the substep (intersection free), x the
 end. `origin` (V,) maps each vertex to the vertex of the untorn rest mesh it came from, so the
 copies a tear makes still count as the same vertex (they start where their original is).
@@ -648,15 +648,13 @@ def _advance(
     ids: np.ndarray,
     is_vf: bool,
     buf: np.ndarray,
-    origin: np.ndarray,
-    seam: float,
     bound: float,
 ) -> tuple[bool, float]:
     """Conservative advancement of one pair (its four vertices `ids`, VF: vertex then triangle;
     EE: edge then edge) from x0 to x1: True when its distance may fall below SEPARATION times
     its start value within the substep (a collision), False when it provably stays above.
-    A pair sharing an origin vertex (the two sides of a tear) closer than `seam` (m) is not
-    judged: it is still at the seam the tear opened.
+    A pair that touches at x0 (distance 0) is not judged: no advancement can prove it apart
+    (none does where the substeps keep the pairs apart and the sides of a tear start parted).
 
     `bound`: the pair's `_relative_travel`. Returns the verdict and a lower bound of the
     distance at x1 (the start distance less the travel)."""
@@ -669,17 +667,8 @@ def _advance(
     after = max(start - bound, 0.0)
     if bound <= 0.0:  # moving as one
         return False, after
-    if start < seam:
-        if is_vf:  # the vertex's origin is a corner's
-            vertex = origin[ids[0]]
-            torn = vertex == origin[ids[1]] or vertex == origin[ids[2]] or vertex == origin[ids[3]]
-        else:  # an end's origin is an end's of the other edge
-            torn = (
-                origin[ids[0]] == origin[ids[2]] or origin[ids[0]] == origin[ids[3]]
-                or origin[ids[1]] == origin[ids[2]] or origin[ids[1]] == origin[ids[3]]
-            )
-        if torn or start <= 0.0:
-            return False, 0.0
+    if start <= 0.0:
+        return False, 0.0
     floor = SEPARATION * start
     t = 0.0
     dist = start
@@ -703,8 +692,6 @@ def colliding_pairs(
     x1: np.ndarray,
     triangles: np.ndarray,
     edges: np.ndarray,
-    origin: np.ndarray,
-    seam: float,
     vf: np.ndarray,
     vf_lower: np.ndarray,
     ee: np.ndarray,
@@ -728,7 +715,7 @@ def colliding_pairs(
         if bound <= (1.0 - SEPARATION) * vf_lower[k]:  # provably safe: it cannot close the known gap
             vf_lower[k] -= bound
         else:
-            hit_vf[k], vf_lower[k] = _advance(x0, x1, ids, is_vf, buf, origin, seam, bound)
+            hit_vf[k], vf_lower[k] = _advance(x0, x1, ids, is_vf, buf, bound)
     hit_ee = np.zeros(ee.shape[0], dtype=np.bool_)
     for k in range(ee.shape[0]):
         ids[0] = edges[ee[k, 0], 0]
@@ -739,7 +726,7 @@ def colliding_pairs(
         if bound <= (1.0 - SEPARATION) * ee_lower[k]:
             ee_lower[k] -= bound
         else:
-            hit_ee[k], ee_lower[k] = _advance(x0, x1, ids, is_ee, buf, origin, seam, bound)
+            hit_ee[k], ee_lower[k] = _advance(x0, x1, ids, is_ee, buf, bound)
     return hit_vf, hit_ee
 
 
