@@ -554,6 +554,8 @@ def simulate(
                     model = event.model
                     for item in remappable:
                         item.remap(model, event.index_map)
+                    if self_collision is not None:  # the sides of the tear start apart
+                        self_collision.part_seams(model, state)
                     pinned_idx = np.flatnonzero(model.pinned)
                     pinned_rest = np.array(model.rest_positions[pinned_idx])
                     pin_slot = np.searchsorted(original_pins, tearing.origin[pinned_idx])

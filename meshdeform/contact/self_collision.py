@@ -37,7 +37,7 @@ counting sort (`broad_phase`), and all kernels run serially in fixed orders, so 
 the same bytes whatever the executor or thread count.
 
 Tearing: the copies a tear makes start where their original is, touching the triangles of its
-other side, so at the next substep the vertices of each split are parted (`_part_seams`: each
+other side, so right after a tear the vertices of each split are parted (`part_seams`: each
 moves a twentieth of the way into its own triangles, its whole substep with it) and every pair of
 the two sides starts apart. Proximity judges pairs by the rest-mesh vertex each vertex came from
 (`origin`, updated by `remap`), so the two sides are not pushed a thickness apart; the
@@ -195,7 +195,7 @@ class SelfCollision(Constraint, Remappable):
         self._origin: np.ndarray | None = None
         self._rings: tuple[np.ndarray, np.ndarray] | None = None
         self._start: np.ndarray | None = None
-        #: (V,) bool: the vertices of the splits since the last substep, to be parted (`_part_seams`)
+        #: (V,) bool: the vertices of the last tear's splits, to be parted (`part_seams`)
         self._parting: np.ndarray | None = None
         self._held: _Pairs | None = None
         self._substep = 0  # substeps projected so far: the age of the kept pairs
@@ -219,8 +219,8 @@ class SelfCollision(Constraint, Remappable):
 
     def remap(self, model: SpringModel, index_map: np.ndarray) -> None:
         """After a tear (index_map: new vertex -> old): copies keep their original's origin and
-        start, and the vertices of each split (the original and its copies) are parted at the
-        next substep (`_part_seams`)."""
+        start, and the vertices of each split (the original and its copies) are marked to be parted
+        (`part_seams`)."""
         if self._origin is not None and self._origin.shape[0] > int(index_map.max(initial=-1)):
             self._origin = self._origin[index_map]
             if self._start is not None:
@@ -361,22 +361,28 @@ class SelfCollision(Constraint, Remappable):
             vf, vf_near, vf_rest, vf_lower, ee, ee_near, ee_rest, ee_lower, pairs.base, pairs.motion, pairs.built
         )
 
-    def _part_seams(self, model: SpringModel, topology: _Topology, state: State) -> None:
-        """Part the two sides of the tears since the last substep: each free vertex of a split
-        (the original and its copies, `_parting`) moves `PART_FRACTION` of the way from where the
-        substep started (`_start`, else the previous positions) to the mean centroid of its own
-        triangles, at most `PART_HEIGHT_FRACTION` of its least height over their opposite edges
-        (no triangle of its own turns over), and its whole substep moves with it (start,
-        previous and current positions alike, so its velocity is kept). The copies a tear makes
-        start where their original is, touching the other side; parted, every pair of the two
-        sides starts apart, and the continuous check keeps it so (two sides touching cannot be
-        proven apart, and sliding along each other in one plane they overlapped)."""
-        triangles = topology.triangles
+    def part_seams(self, model: SpringModel, state: State) -> None:
+        """Part the two sides of a tear, right after it (`meshdeform.simulate` calls it after the
+        `remap` of a tear): each free vertex of a split (the original and its copies, marked by
+        `remap`) moves `PART_FRACTION` of the way from where the next substep starts (`_start`,
+        else the previous positions) to the mean centroid of its own triangles, at most
+        `PART_HEIGHT_FRACTION` of its least height over their opposite edges (no triangle of its
+        own turns over), and its whole substep moves with it (start, previous and current
+        positions alike, so its velocity is kept). The copies a tear makes start where their
+        original is, touching the other side; parted, every pair of the two sides starts apart,
+        and the continuous check keeps it so (two sides touching cannot be proven apart, and
+        sliding along each other in one plane they overlapped)."""
+        parting, self._parting = self._parting, None
+        if parting is None or parting.shape[0] != model.vertex_count:
+            return
+        triangles = self._prepare(model).triangles
+        n = model.vertex_count
+        if self._start is not None and self._start.shape[0] != n:
+            self._start = None
         start = self._start if self._start is not None else state.previous
-        members = self._parting & (np.asarray(model.inv_mass) > 0.0)
+        members = parting & (np.asarray(model.inv_mass) > 0.0)
         if not members.any() or triangles.shape[0] == 0:
             return
-        n = start.shape[0]
         corners = start[triangles]  # (T, 3, 3)
         centroid_sum = np.zeros((n, 3))
         np.add.at(centroid_sum, triangles.ravel(), np.repeat(corners.mean(axis=1), 3, axis=0))
@@ -467,13 +473,7 @@ class SelfCollision(Constraint, Remappable):
             self._span, self._held = span, None
         x = state.positions
         n = x.shape[0]
-        if self._start is not None and self._start.shape[0] != n:
-            self._start = None
-        if self._parting is not None:
-            if self._parting.shape[0] == n:
-                self._part_seams(model, topology, state)
-            self._parting = None
-        x0 = self._start if self._start is not None else state.previous.copy()
+        x0 = self._start if self._start is not None and self._start.shape[0] == n else state.previous.copy()
         x1 = x.copy()
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         settings = self.settings
@@ -543,7 +543,7 @@ class SelfCollision(Constraint, Remappable):
 FINAL_ROUNDS = 8
 
 #: the vertices of a split move this fraction of the way to the mean centroid of their own
-#: triangles (`_part_seams`): the sides of a tear start apart
+#: triangles (`part_seams`): the sides of a tear start apart
 PART_FRACTION = 0.05
 #: ... but at most this fraction of their least height over their triangles' opposite edges
 PART_HEIGHT_FRACTION = 0.25

@@ -6,7 +6,7 @@ Pairs come in two kinds, each an (P, 2) int64 array from the broad phase:
 - edge-edge (EE): (edge, edge), the edges sharing no vertex.
 The continuous check judges every pair but one that touches where the substep starts (none
 does: the substeps keep the pairs apart, and the sides of a tear start parted,
-`SelfCollision._part_seams`).
+`SelfCollision.part_seams`).
 Positions are (V, 3) float64 metres; x0 the start of the substep (intersection free), x the
 end. `origin` (V,) maps each vertex to the vertex of the untorn rest mesh it came from, so the
 copies a tear makes still count as the same vertex (they start where their original is).
