@@ -4,8 +4,8 @@ continuous check and impact zones (see `self_collision` for the method and why i
 Pairs come in two kinds, each an (P, 2) int64 array from the broad phase:
 - vertex-triangle (VF): (vertex, triangle), the vertex not a corner of the triangle;
 - edge-edge (EE): (edge, edge), the edges sharing no vertex.
-The continuous check judges every pair but one that touches where the substep starts (none
-does: the substeps keep the pairs apart, and the sides of a tear start parted,
+The continuous check judges every pair but one that touches where the substep starts (within
+`TOUCHING`; none does: the substeps keep the pairs apart, and the sides of a tear start parted,
 `SelfCollision.part_seams`).
 Positions are (V, 3) float64 metres; x0 the start of the substep (intersection free), x the
 end. `origin` (V,) maps each vertex to the vertex of the untorn rest mesh it came from, so the
@@ -27,6 +27,9 @@ from meshdeform.solvers.jit import JIT, opaque
 SEPARATION = 0.1
 #: advancement steps per pair before it counts as colliding (conservative: a zone, never a miss)
 MAX_ADVANCE_STEPS = 64
+#: a pair closer than this (m) where the substep starts touches: it is not judged (two copies of
+#: a vertex a tear made lie at one place, their distances rounded to a few 1e-17 m)
+TOUCHING = 1e-12
 
 
 @nb.njit(**JIT)
@@ -653,8 +656,9 @@ def _advance(
     """Conservative advancement of one pair (its four vertices `ids`, VF: vertex then triangle;
     EE: edge then edge) from x0 to x1: True when its distance may fall below SEPARATION times
     its start value within the substep (a collision), False when it provably stays above.
-    A pair that touches at x0 (distance 0) is not judged: no advancement can prove it apart
-    (none does where the substeps keep the pairs apart and the sides of a tear start parted).
+    A pair that touches at x0 (within `TOUCHING`) is not judged: no advancement can prove it
+    apart (none does where the substeps keep the pairs apart and the sides of a tear start
+    parted).
 
     `bound`: the pair's `_relative_travel`. Returns the verdict and a lower bound of the
     distance at x1 (the start distance less the travel)."""
@@ -667,7 +671,7 @@ def _advance(
     after = max(start - bound, 0.0)
     if bound <= 0.0:  # moving as one
         return False, after
-    if start <= 0.0:
+    if start <= TOUCHING:
         return False, 0.0
     floor = SEPARATION * start
     t = 0.0
