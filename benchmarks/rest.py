@@ -14,7 +14,9 @@ Scenes (recipes at their defaults, air damping 0.9, built as `meshdeform simulat
 - sheet laid on ball: a 12 x 12 sheet of 0.4 m, flat, 2 cm above a ball of radius 0.45 m, friction
   0.5, no ground (its edges lie at 26 degrees: friction holds it);
 - slope: a 12 x 12 sheet of 1 m lying on a plane tilted 20 degrees, friction 0.5 (more than
-  tan 20 = 0.36: static friction should hold it).
+  tan 20 = 0.36: static friction should hold it);
+- crumpled sheet: a 24 x 24 sheet of 1 m lying on the ground (friction 0.5), self-collision on,
+  two opposite edges pinned and pushed 0.3 m each towards the other over 1.5 s, then held.
 
 Prints per solver and scene the reported rest frame (`Frame.rest_frame` of the last frame, the
 report's `rest_frame`) and its time, the largest distance a vertex covers between two frames from
@@ -23,7 +25,7 @@ for the ball the largest distance of a vertex from its rest position at the end,
 and that of its centre of mass; for the box the highest the lowest vertex rose after it first came
 within 2 cm of the ground (m); for the sheets on balls the highest vertex at the end (m: on the ball,
 or slid off onto the ground, or fallen below it without one); for the slope how far the sheet's
-centre moved along the slope (m).
+centre moved along the slope (m); for the crumpled sheet its highest vertex at the end (m).
 Figures go to docs/recipes.md ("Coming to rest") and docs/performance.md.
 """
 
@@ -131,6 +133,17 @@ def tilted_sheet(n: int, degrees: float, gap: float) -> Mesh:
 LAID_BALL = "\n[[colliders]]\nsphere = { center = [0, 0.45, 0], radius = 0.45 }\nfriction = 0.5\n"
 
 
+#: a sheet lying on the ground, self-collision on, two opposite edges pushed 30 cm towards each
+#: other over 1.5 s and then held: it buckles into folds that should come to rest
+CRUMPLE = (
+    "\n[self_collision]\n\n[[colliders]]\nground = { height = 0.0 }\nfriction = 0.5\n"
+    "\n[[pins]]\nselect = { box = { min = [-0.51, -1, -1], max = [-0.49, 1, 1] } }\n"
+    "animate = [{ time = 0.0, translate = [0, 0, 0] }, { time = 1.5, translate = [0.3, 0, 0] }]\n"
+    "\n[[pins]]\nselect = { box = { min = [0.49, -1, -1], max = [0.51, 1, 1] } }\n"
+    "animate = [{ time = 0.0, translate = [0, 0, 0] }, { time = 1.5, translate = [-0.3, 0, 0] }]\n"
+)
+
+
 def ball_on_ground(radius: float) -> str:
     """The colliders of a ball of `radius` (m) lying on the ground, friction 0.3."""
     return (
@@ -166,6 +179,7 @@ def scenes() -> dict[str, Callable[[str], list[tuple[str, Mesh, str, Figure | No
         "sheet laid on ball": lambda head: [
             ("sheet laid on ball", sheet(12, 0.92, size=0.4), head + LAID_BALL, top_figure)
         ],
+        "crumpled sheet": lambda head: [("crumpled sheet", sheet(24, 0.02), head + CRUMPLE, top_figure)],
         "slope": lambda head: [("slope", tilted_sheet(12, 20.0, 0.0101), head +
                                 f"\n[[colliders]]\nplane = {{ point = [0, 0, 0], normal = {tilt} }}\nfriction = 0.5\n",
                                 slide_figure)],
