@@ -616,7 +616,7 @@ def _side_steps(members: np.ndarray, split: np.ndarray, edges: np.ndarray) -> np
     Members joined by an edge lie on one side of the tear (the edges across it are gone), so
     each connected run of them (scipy's connected components) takes one step, and the members
     of one split take different ones: +1, -1, +2, -2, ... in the order of the splits and their
-    members. Both sides of a seam then move apart along it, and its edges do not cross."""
+    members. Both sides of a seam then move apart along its normal, and its edges do not cross."""
     slot = np.full(int(max(members.max(initial=-1), edges.max(initial=-1))) + 1, -1, dtype=np.int64)
     slot[members] = np.arange(members.shape[0])
     a, b = slot[edges[:, 0]], slot[edges[:, 1]]
