@@ -59,6 +59,7 @@ from scipy.sparse.csgraph import connected_components
 from meshdeform.contact import self_kernels
 from meshdeform.contact.broad_phase import SCAN_QUERIES, grid_for, scan_grid, strays, swept_boxes
 from meshdeform.contact.parts import by_rows, search_in_parts
+from meshdeform.geometry import scatter_triangles, triangle_area_vectors
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
 from meshdeform.scene.colliders import Collider
@@ -198,10 +199,9 @@ class SelfCollision(Constraint, Remappable):
         self._origin: np.ndarray | None = None
         self._rings: tuple[np.ndarray, np.ndarray] | None = None
         self._start: np.ndarray | None = None
-        #: (V,) bool: the vertices of the last tear's splits, to be parted (`part_seams`), and
-        #: (V,) int64 the vertex before the tear each came from (the tear's index map)
-        self._parting: np.ndarray | None = None
-        self._parting_group: np.ndarray | None = None
+        #: (V,) int64: the last tear's index map (each vertex's vertex before it), whose splits
+        #: `part_seams` parts; None once parted
+        self._tear_map: np.ndarray | None = None
         self._held: _Pairs | None = None
         self._substep = 0  # substeps projected so far: the age of the kept pairs
         self._span = 1  # substeps a list of candidate pairs covers at most (`list_substeps`)
@@ -230,8 +230,7 @@ class SelfCollision(Constraint, Remappable):
             self._origin = self._origin[index_map]
             if self._start is not None:
                 self._start = self._start[index_map]
-            self._parting = np.bincount(index_map)[index_map] > 1
-            self._parting_group = np.asarray(index_map, dtype=np.int64)
+            self._tear_map = np.asarray(index_map, dtype=np.int64)
 
     def _prepare(self, model: SpringModel) -> _Topology:
         if self._model is model and self._topology is not None:
@@ -243,7 +242,7 @@ class SelfCollision(Constraint, Remappable):
             self._origin = np.arange(n, dtype=np.int64)
             self._rings = _rings(self._topology.edges, n)
             self._start = None
-            self._parting = self._parting_group = None
+            self._tear_map = None
         self._held = None
         # a writable copy: the model's read-only array would make the kernels that read it and
         # the positions compile twice (Numba types a read-only array apart)
@@ -381,10 +380,10 @@ class SelfCollision(Constraint, Remappable):
         (`PART_INWARD`). The sides then start apart, and the continuous check keeps them so
         (two sides touching cannot be proven apart, and sliding along each other in one plane
         they overlapped)."""
-        parting, self._parting = self._parting, None
-        group, self._parting_group = self._parting_group, None
-        if parting is None or group is None or parting.shape[0] != model.vertex_count:
+        group, self._tear_map = self._tear_map, None
+        if group is None or group.shape[0] != model.vertex_count:
             return
+        parting = np.bincount(group)[group] > 1  # the vertices of a split: an old vertex more than one came from
         topology = self._prepare(model)
         triangles = topology.triangles
         n = model.vertex_count
@@ -394,10 +393,7 @@ class SelfCollision(Constraint, Remappable):
         rows = np.flatnonzero(parting & (np.asarray(model.inv_mass) > 0.0))
         if rows.shape[0] == 0 or triangles.shape[0] == 0:
             return
-        corners = start[triangles]  # (T, 3, 3)
-        area_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])  # twice the area
-        vertex_normals = np.zeros((n, 3))
-        np.add.at(vertex_normals, triangles.ravel(), np.repeat(area_normals, 3, axis=0))
+        vertex_normals = scatter_triangles(triangles, triangle_area_vectors(start, triangles), n)
         # each split's normal: the sum over its members, by the old vertex they came from
         old = group[rows]
         split_normals = np.zeros((int(old.max()) + 1, 3))
@@ -405,10 +401,10 @@ class SelfCollision(Constraint, Remappable):
         lengths = np.linalg.norm(split_normals, axis=1)
         unit = split_normals / np.maximum(lengths, 1e-300)[:, None]
         steps = _side_steps(rows, old, topology.edges)
-        centroid_sum = np.zeros((n, 3))
-        np.add.at(centroid_sum, triangles.ravel(), np.repeat(corners.mean(axis=1), 3, axis=0))
+        # towards the mean centroid of its own triangles (a third of each centroid per corner)
+        centroid_thirds = scatter_triangles(triangles, start[triangles].mean(axis=1), n)[rows]
         count = np.maximum(np.bincount(triangles.ravel(), minlength=n)[rows], 1)
-        inward = centroid_sum[rows] / count[:, None] - start[rows]
+        inward = 3.0 * centroid_thirds / count[:, None] - start[rows]
         inward /= np.maximum(np.linalg.norm(inward, axis=1), 1e-300)[:, None]
         offset = PART_FRACTION * self.thickness * (steps[:, None] * unit[old] + PART_INWARD * inward)
         for positions in (state.positions, state.previous, self._start):
