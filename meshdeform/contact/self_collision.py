@@ -7,10 +7,13 @@ and the colliders produced, from the positions x0 the substep started at:
 1. **Proximity.** Vertex-triangle and edge-edge pairs of the cloth closer than the thickness are
    pushed apart to it (Gauss-Seidel in a fixed pair order, inverse-mass and barycentric
    weighted), along the side each pair had at the start of the substep, so a pair that crossed
-   within one substep is pulled back rather than pushed further through. Pairs that are rest
-   neighbours (a vertex and a triangle of its one-ring, edges with neighbouring ends) are left
-   out of this step, and a pair already closer than the thickness in the rest mesh keeps its
-   rest distance instead, so a fine mesh is not inflated.
+   within one substep is pulled back rather than pushed further through. Every pair that shares
+   no vertex takes part, rest neighbours too (a vertex and the triangles of its one-ring's
+   vertices meet in a crease): left to the springs, such pairs lay a fraction of a millimetre
+   apart in a crumpled cloth's creases, where the continuous check could not prove them apart
+   and zoned them in every substep, which held the crease still against its springs (a
+   crumpled sheet never came to rest under implicit). A pair already closer than the thickness
+   in the rest mesh keeps its rest distance instead, so a fine mesh is not inflated.
 2. **Guarantee.** Every pair that shares no vertex is checked along its straight path from x0
    to x by conservative advancement (Li et al. 2021, "additive CCD"): the pair's distance can
    shrink at most by a bound on its vertices' relative travel, so stepping by a fraction of the
@@ -59,6 +62,7 @@ from scipy.sparse.csgraph import connected_components
 from meshdeform.contact import self_kernels
 from meshdeform.contact.broad_phase import SCAN_QUERIES, grid_for, scan_grid, strays, swept_boxes
 from meshdeform.contact.parts import by_rows, search_in_parts
+from meshdeform.contact.triangle_distance import triangles_cross
 from meshdeform.geometry import scatter_triangles, triangle_area_vectors
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
@@ -68,7 +72,7 @@ from meshdeform.solvers.threads import ThreadPicker, split_threads
 
 @dataclass(frozen=True)
 class SelfCollisionSettings:
-    """thickness: metres kept between parts of the cloth that are not rest neighbours.
+    """thickness: metres kept between parts of the cloth that share no vertex (or their rest distance where less).
     friction: Coulomb coefficient between touching parts (0: slide freely).
     sweeps: proximity Gauss-Seidel sweeps per substep.
     max_rounds: impact-zone rounds per substep before all flagged vertices take one shared
@@ -118,16 +122,6 @@ class _Topology:
         pairs = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
         edges = np.unique(pairs, axis=0) if pairs.size else np.zeros((0, 2), dtype=np.int64)
         return cls(triangles, np.ascontiguousarray(edges, dtype=np.int64))
-
-
-def _rings(edges: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Vertex adjacency as CSR (start (n + 1,), sorted neighbours) from edges (E, 2)."""
-    both = np.concatenate([edges, edges[:, ::-1]]) if edges.size else np.zeros((0, 2), dtype=np.int64)
-    order = np.lexsort((both[:, 1], both[:, 0]))
-    both = both[order]
-    start = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(start, both[:, 0] + 1, 1)
-    return np.cumsum(start), np.ascontiguousarray(both[:, 1], dtype=np.int64)
 
 
 @dataclass
@@ -197,7 +191,6 @@ class SelfCollision(Constraint, Remappable):
         self._model: SpringModel | None = None
         self._topology: _Topology | None = None
         self._origin: np.ndarray | None = None
-        self._rings: tuple[np.ndarray, np.ndarray] | None = None
         self._start: np.ndarray | None = None
         #: (V,) int64: the last tear's index map (each vertex's vertex before it), whose splits
         #: `part_seams` parts; None once parted
@@ -240,7 +233,6 @@ class SelfCollision(Constraint, Remappable):
         self._topology = _Topology.of(model)
         if self._origin is None or self._origin.shape[0] != n:  # a first (untorn) model
             self._origin = np.arange(n, dtype=np.int64)
-            self._rings = _rings(self._topology.edges, n)
             self._start = None
             self._tear_map = None
         self._held = None
@@ -308,9 +300,8 @@ class SelfCollision(Constraint, Remappable):
         corners, ends = stale[topology.triangles], stale[topology.edges]  # (or-ed by column: any(axis=1) is 5x slower)
         triangle_fresh = corners[:, 0] | corners[:, 1] | corners[:, 2]
         edge_fresh = ends[:, 0] | ends[:, 1]
-        ring_start, ring = self._rings
         rest = self._rest
-        shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, self._span, reach)
+        shared = (topology.triangles, self._origin, pairs.motion, self._span, reach)
         everyone = fresh.shape[0] == x0.shape[0]
         capacity = self._capacity if everyone else (0, 0)
         # a partial search keeps the cells of the last whole one (`grid_for`), and where it has only
@@ -377,7 +368,10 @@ class SelfCollision(Constraint, Remappable):
         their own triangles (towards their mean centroid), which parts the sides where the
         split's normal does not (a seam folded shut: its sides' normals cancel). Across the
         cloth a move changes the springs' lengths only to second order, within it to first
-        (`PART_INWARD`). The sides then start apart, and the continuous check keeps them so
+        (`PART_INWARD`). Where the triangles around a split's members lay folded over each
+        other, that parting would make them cross (nothing guards it: they touch where the split
+        was): such a split parts by half as much, and so on, at last not at all
+        (`_parting_scales`). The sides then start apart, and the continuous check keeps them so
         (two sides touching cannot be proven apart, and sliding along each other in one plane
         they overlapped)."""
         group, self._tear_map = self._tear_map, None
@@ -407,6 +401,7 @@ class SelfCollision(Constraint, Remappable):
         inward = 3.0 * centroid_thirds / count[:, None] - start[rows]
         inward /= np.maximum(np.linalg.norm(inward, axis=1), 1e-300)[:, None]
         offset = PART_FRACTION * self.thickness * (steps[:, None] * unit[old] + PART_INWARD * inward)
+        offset *= _parting_scales(triangles, state.positions, group, parting, rows, offset)[:, None]
         for positions in (state.positions, state.previous, self._start):
             if positions is not None:
                 positions[rows] += offset
@@ -558,6 +553,8 @@ PART_FRACTION = 0.1
 #: springs' lengths to first order (5 % of the way to its triangles' centroid, 2.5 mm on a 10 cm
 #: grid, set a cut sheet lying still moving at 0.8 m/s; 0.25 mm, this fraction of 5 mm, at 1 mm/s)
 PART_INWARD = 0.5
+#: halvings of a split's parting before it is left unparted (`_parting_scales`)
+PART_TRIES = 4
 #: the candidate pairs' margin: this fraction of the median rest edge length (see `_Pairs`: pairs
 #: hold until some vertex moves half of it, so a larger margin means fewer searches but more pairs)
 MARGIN_FRACTION = 0.25
@@ -633,6 +630,54 @@ def _side_steps(members: np.ndarray, split: np.ndarray, edges: np.ndarray) -> np
                 step_of_run[r] = next((c for c in candidates if c not in taken), 0.0)
                 taken.add(step_of_run[r])
     return np.array([step_of_run[r] for r in run.tolist()])
+
+
+def _parting_scales(
+    triangles: np.ndarray, x: np.ndarray, group: np.ndarray, parting: np.ndarray, rows: np.ndarray,
+    offset: np.ndarray,
+) -> np.ndarray:
+    """The share of its parting `offset` (R, 3) each moving member `rows` (R,) of a split takes
+    (R,): 1, halved up to `PART_TRIES` times for every member of a split where, parted, a triangle
+    around one of its members (`group` (V,): the vertex each came from; `parting` (V,) bool: the
+    members of every split, pinned ones too) crosses one around another (the sides of a seam that
+    lay folded over each other; the check `triangle_distance.triangles_cross`), then 0: unparted,
+    such a split's sides touch where they came apart, as the tear left them, and cross nothing."""
+    members = np.flatnonzero(parting)
+    corners = triangles.ravel()
+    order = np.argsort(corners, kind="stable")
+    first = np.searchsorted(corners[order], members, side="left")
+    last = np.searchsorted(corners[order], members, side="right")
+    fans = {int(v): order[lo:hi] // 3 for v, lo, hi in zip(members, first, last, strict=True)}
+    by_split: dict[int, list[int]] = {}
+    for v in members.tolist():
+        by_split.setdefault(int(group[v]), []).append(v)
+    splits = sorted(by_split)
+    split_of = {old: k for k, old in enumerate(splits)}
+    pairs, owner = [], []
+    for old in splits:
+        vertices = by_split[old]
+        for i, u in enumerate(vertices):
+            for w in vertices[i + 1 :]:
+                near, far = np.meshgrid(fans[u], fans[w], indexing="ij")
+                candidate = np.stack([near.ravel(), far.ravel()], axis=1)
+                one, other = triangles[candidate[:, 0]], triangles[candidate[:, 1]]
+                apart = ~(one[:, :, None] == other[:, None, :]).any(axis=(1, 2))  # pairs sharing no vertex
+                pairs.append(candidate[apart])
+                owner.append(np.full(int(np.count_nonzero(apart)), split_of[old]))
+    row_split = np.array([split_of[int(group[v])] for v in rows.tolist()], dtype=np.int64)
+    scale = np.ones(len(splits))
+    if not pairs:
+        return scale[row_split]
+    pairs_array = np.ascontiguousarray(np.concatenate(pairs), dtype=np.int64)
+    pair_split = np.concatenate(owner)
+    trial = x.copy()
+    for attempt in range(PART_TRIES + 1):
+        trial[rows] = x[rows] + scale[row_split][:, None] * offset
+        crossing = pair_split[triangles_cross(trial, triangles, pairs_array)]
+        if crossing.size == 0:
+            break
+        scale[np.unique(crossing)] = 0.0 if attempt == PART_TRIES else 0.5 * scale[np.unique(crossing)]
+    return scale[row_split]
 
 
 def _settle(state: State, before: np.ndarray, dt: float) -> None:

@@ -10,7 +10,6 @@ The continuous check judges every pair but one that touches where the substep st
 Positions are (V, 3) float64 metres; x0 the start of the substep (intersection free), x the
 end. `origin` (V,) maps each vertex to the vertex of the untorn rest mesh it came from, so the
 copies a tear makes still count as the same vertex (they start where their original is).
-`ring_start`, `ring` are the rest mesh's vertex adjacency (CSR, sorted neighbours, on origins).
 """
 
 from __future__ import annotations
@@ -30,22 +29,6 @@ MAX_ADVANCE_STEPS = 64
 #: a pair closer than this (m) where the substep starts touches: it is not judged (two copies of
 #: a vertex a tear made lie at one place, their distances rounded to a few 1e-17 m)
 TOUCHING = 1e-12
-
-
-@nb.njit(**JIT)
-def _adjacent(ring_start: np.ndarray, ring: np.ndarray, a: int, b: int) -> bool:
-    """Whether origin vertices a and b are equal or neighbours in the rest mesh (binary search)."""
-    if a == b:
-        return True
-    lo = ring_start[a]
-    hi = ring_start[a + 1]
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if ring[mid] < b:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo < ring_start[a + 1] and ring[lo] == b
 
 
 @nb.njit(**JIT)
@@ -169,7 +152,7 @@ def vf_candidates(
     x: np.ndarray, rest: np.ndarray, queries: np.ndarray, skip: np.ndarray,
     qlo: np.ndarray, qhi: np.ndarray, tlo: np.ndarray, thi: np.ndarray, by_triangle: bool,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
-    triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
+    triangles: np.ndarray, origin: np.ndarray,
     motion: np.ndarray, span: float, reach: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The VF pairs to keep for the coming substeps, straight from a grid (`broad_phase.grid_for`)
@@ -180,7 +163,7 @@ def vf_candidates(
     `reach` (m) plus `span` substeps of the vertex's motion relative to the triangle's corners
     (`motion` (V, 3), m per substep: how much closer the pair may come while the list holds).
     Returns the pairs (P, 2) (vertex, triangle) by query, then in the grid's order; whether each
-    takes proximity repulsion (its origin neither a corner's origin nor a rest neighbour of one),
+    takes proximity repulsion (its origin no corner's origin),
     (P,) bool; and its distance (m) in the rest positions (P,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
@@ -208,10 +191,7 @@ def vf_candidates(
             ov = origin[v]
             pairs[count, 0] = v
             pairs[count, 1] = t
-            near[count] = not (
-                _adjacent(ring_start, ring, ov, origin[a]) or _adjacent(ring_start, ring, ov, origin[b])
-                or _adjacent(ring_start, ring, ov, origin[c])
-            )
+            near[count] = ov != origin[a] and ov != origin[b] and ov != origin[c]
             rest_gap[count] = _vf_gap(rest, v, a, b, c)[0]
             count += 1
     return pairs[:count], near[:count], rest_gap[:count]
@@ -221,7 +201,7 @@ def vf_candidates(
 def ee_candidates(
     x: np.ndarray, rest: np.ndarray, queries: np.ndarray, fresh: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
-    edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
+    edges: np.ndarray, origin: np.ndarray,
     motion: np.ndarray, span: float, reach: float, every: bool, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The EE pairs to keep, from the grid of edge boxes elo, ehi (E, 3) asked by each edge of
@@ -230,7 +210,7 @@ def ee_candidates(
     query asks for each: the grid then reports the higher edges only). Kept when the edges share no vertex
     and their distance in x is within `reach` plus `span` substeps of the ends' relative motion
     (as `vf_candidates`). Returns the pairs (Q, 2), whether each takes proximity repulsion (no
-    end's origin equal to or a rest neighbour of an end's origin of the other), (Q,) bool, and
+    end's origin equal to an end's origin of the other), (Q,) bool, and
     the distance (m) in the rest positions (Q,)."""
     pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
@@ -260,10 +240,7 @@ def ee_candidates(
             pairs[count, 0] = min(e, f)
             pairs[count, 1] = max(e, f)
             a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
-            near[count] = not (
-                _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
-                or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
-            )
+            near[count] = a != c and a != d and b != c and b != d
             rest_gap[count] = _ee_gap(rest, p0, p1, q0, q1)[0]
             count += 1
     return pairs[:count], near[:count], rest_gap[:count]
@@ -273,7 +250,7 @@ def ee_candidates(
 def ee_candidates_in_cells(
     x: np.ndarray, rest: np.ndarray, buckets: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
-    edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
+    edges: np.ndarray, origin: np.ndarray,
     motion: np.ndarray, span: float, reach: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The EE pairs to keep among all edges, as `ee_candidates` with every edge fresh finds them
@@ -354,10 +331,7 @@ def ee_candidates_in_cells(
                 pairs[count, 0] = min(e, f)
                 pairs[count, 1] = max(e, f)
                 a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
-                near[count] = not (
-                    _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
-                    or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
-                )
+                near[count] = a != c and a != d and b != c and b != d
                 rest_gap[count] = _ee_gap(rest, p0, p1, q0, q1)[0]
                 count += 1
     return pairs[:count], near[:count], rest_gap[:count]
@@ -471,7 +445,7 @@ def proximity_sides(
     ee_lower: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which pairs `project_proximity` treats, and the side each keeps: a pair flagged `near`
-    (the others are rest neighbours) whose distance may come within twice its gap (m) (the
+    (the others' vertices are copies of one vertex, torn apart) whose distance may come within twice its gap (m) (the
     lower bound at x0, `vf_lower`/`ee_lower` as `colliding_pairs` keeps them, less the pair's
     relative travel to x); the unit direction from the triangle to the vertex, or from the
     second edge to the first, at x0. Returns active_vf (P,) bool, side_vf (P, 3), active_ee
