@@ -697,3 +697,28 @@ def test_triangles_cross_agrees_with_the_ipctk_oracle_on_random_pairs() -> None:
         theirs[k] = intersecting_pairs(vertices[6 * k : 6 * k + 6], triangles[:2]) == 1
     assert 0.2 * count < theirs.sum() < 0.8 * count
     assert (mine == theirs).all()
+
+
+def test_a_split_whose_fans_lie_folded_over_each_other_is_parted_without_a_crossing() -> None:
+    """Two triangles that a tear left touching at one point (a vertex and its copy), the second
+    (narrower) folded down over the first at 0.6 degrees: parted along the split's normal, the first's
+    corner one way and the second's the other (`PART_FRACTION` of a 5 mm thickness), they would
+    cross (the ipctk oracle says so); `_parting` takes another way, and the oracle finds them
+    apart."""
+    from meshdeform.contact.self_collision import _parting
+
+    x = np.array([[0, 0, 0], [1, -0.5, 0], [1, 0.5, 0], [0, 0, 0], [1, -0.3, 0.01], [1, 0.3, 0.01]], dtype=float)
+    triangles = np.array([[0, 1, 2], [3, 4, 5]], dtype=np.int64)
+    group = np.array([0, 1, 2, 0, 4, 5])  # vertex 3 is a copy of vertex 0
+    rows = np.array([0, 3])
+    step = 0.1 * THICKNESS
+    across = np.array([[0.0, 0.0, step], [0.0, 0.0, -step]])  # the first side up, the other down
+    inward = np.array([[step, 0.0, 0.0], [step, 0.0, 0.0]])
+    naive = x.copy()
+    naive[rows] += across + inward
+    assert intersecting_pairs(naive, triangles) == 1
+    offset = _parting(triangles, x, group, rows, across, inward)
+    parted = x.copy()
+    parted[rows] += offset
+    assert intersecting_pairs(parted, triangles) == 0
+    assert np.linalg.norm(parted[0] - parted[3]) > 0.5 * step  # parted, not left touching

@@ -60,7 +60,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from meshdeform.contact import self_kernels
-from meshdeform.contact.broad_phase import SCAN_QUERIES, grid_for, scan_grid, strays, swept_boxes
+from meshdeform.contact.broad_phase import SCAN_QUERIES, grid_for, overlapping_pairs, scan_grid, strays, swept_boxes
 from meshdeform.contact.parts import by_rows, search_in_parts
 from meshdeform.contact.triangle_distance import triangles_cross
 from meshdeform.geometry import scatter_triangles, triangle_area_vectors
@@ -370,8 +370,8 @@ class SelfCollision(Constraint, Remappable):
         cloth a move changes the springs' lengths only to second order, within it to first
         (`PART_INWARD`). Where the triangles around a split's members lay folded over each
         other, that parting would make them cross (nothing guards it: they touch where the split
-        was): such a split parts by half as much, and so on, at last not at all
-        (`_parting_scales`). The sides then start apart, and the continuous check keeps them so
+        was): such a split tries others in turn (`PARTINGS`: the way across reversed, either part
+        alone, shorter), at last none (`_parting`). The sides then start apart, and the continuous check keeps them so
         (two sides touching cannot be proven apart, and sliding along each other in one plane
         they overlapped)."""
         group, self._tear_map = self._tear_map, None
@@ -400,8 +400,10 @@ class SelfCollision(Constraint, Remappable):
         count = np.maximum(np.bincount(triangles.ravel(), minlength=n)[rows], 1)
         inward = 3.0 * centroid_thirds / count[:, None] - start[rows]
         inward /= np.maximum(np.linalg.norm(inward, axis=1), 1e-300)[:, None]
-        offset = PART_FRACTION * self.thickness * (steps[:, None] * unit[old] + PART_INWARD * inward)
-        offset *= _parting_scales(triangles, state.positions, group, parting, rows, offset)[:, None]
+        scale = PART_FRACTION * self.thickness
+        offset = _parting(
+            triangles, state.positions, group, rows, scale * steps[:, None] * unit[old], scale * PART_INWARD * inward
+        )
         for positions in (state.positions, state.previous, self._start):
             if positions is not None:
                 positions[rows] += offset
@@ -553,8 +555,12 @@ PART_FRACTION = 0.1
 #: springs' lengths to first order (5 % of the way to its triangles' centroid, 2.5 mm on a 10 cm
 #: grid, set a cut sheet lying still moving at 0.8 m/s; 0.25 mm, this fraction of 5 mm, at 1 mm/s)
 PART_INWARD = 0.5
-#: halvings of a split's parting before it is left unparted (`_parting_scales`)
-PART_TRIES = 4
+#: the partings a split tries in turn, as (share of the way across the cloth, share of the way
+#: into its own triangles), until one makes no triangles cross (`_parting`)
+PARTINGS = (
+    (1.0, 1.0), (-1.0, 1.0), (0.0, 1.0), (1.0, 0.0), (-1.0, 0.0),
+    (0.25, 0.25), (-0.25, 0.25), (0.0, 0.25), (0.0625, 0.0625), (-0.0625, 0.0625), (0.0, 0.0625),
+)  # fmt: skip
 #: the candidate pairs' margin: this fraction of the median rest edge length (see `_Pairs`: pairs
 #: hold until some vertex moves half of it, so a larger margin means fewer searches but more pairs)
 MARGIN_FRACTION = 0.25
@@ -632,52 +638,52 @@ def _side_steps(members: np.ndarray, split: np.ndarray, edges: np.ndarray) -> np
     return np.array([step_of_run[r] for r in run.tolist()])
 
 
-def _parting_scales(
-    triangles: np.ndarray, x: np.ndarray, group: np.ndarray, parting: np.ndarray, rows: np.ndarray,
-    offset: np.ndarray,
+def _parting(
+    triangles: np.ndarray, x: np.ndarray, group: np.ndarray, rows: np.ndarray, across: np.ndarray,
+    inward: np.ndarray,
 ) -> np.ndarray:
-    """The share of its parting `offset` (R, 3) each moving member `rows` (R,) of a split takes
-    (R,): 1, halved up to `PART_TRIES` times for every member of a split where, parted, a triangle
-    around one of its members (`group` (V,): the vertex each came from; `parting` (V,) bool: the
-    members of every split, pinned ones too) crosses one around another (the sides of a seam that
-    lay folded over each other; the check `triangle_distance.triangles_cross`), then 0: unparted,
-    such a split's sides touch where they came apart, as the tear left them, and cross nothing."""
-    members = np.flatnonzero(parting)
-    corners = triangles.ravel()
-    order = np.argsort(corners, kind="stable")
-    first = np.searchsorted(corners[order], members, side="left")
-    last = np.searchsorted(corners[order], members, side="right")
-    fans = {int(v): order[lo:hi] // 3 for v, lo, hi in zip(members, first, last, strict=True)}
-    by_split: dict[int, list[int]] = {}
-    for v in members.tolist():
-        by_split.setdefault(int(group[v]), []).append(v)
-    splits = sorted(by_split)
-    split_of = {old: k for k, old in enumerate(splits)}
-    pairs, owner = [], []
-    for old in splits:
-        vertices = by_split[old]
-        for i, u in enumerate(vertices):
-            for w in vertices[i + 1 :]:
-                near, far = np.meshgrid(fans[u], fans[w], indexing="ij")
-                candidate = np.stack([near.ravel(), far.ravel()], axis=1)
-                one, other = triangles[candidate[:, 0]], triangles[candidate[:, 1]]
-                apart = ~(one[:, :, None] == other[:, None, :]).any(axis=(1, 2))  # pairs sharing no vertex
-                pairs.append(candidate[apart])
-                owner.append(np.full(int(np.count_nonzero(apart)), split_of[old]))
-    row_split = np.array([split_of[int(group[v])] for v in rows.tolist()], dtype=np.int64)
-    scale = np.ones(len(splits))
-    if not pairs:
-        return scale[row_split]
-    pairs_array = np.ascontiguousarray(np.concatenate(pairs), dtype=np.int64)
-    pair_split = np.concatenate(owner)
+    """The parting (R, 3, m) of the moving members `rows` (R,) of the splits (`group` (V,): the
+    vertex each came from), from its part across the cloth `across` and into the member's own
+    triangles `inward` (R, 3 each): both, for every split whose parting makes no pair of triangles
+    cross; a split with a member in a pair that it makes cross (the sides of a seam that lay
+    folded over each other) takes the next of `PARTINGS` (the way across reversed, either part
+    alone, shorter), and none at last: such a split's sides touch where they came apart, as
+    the tear left them. The check (`triangle_distance.triangles_cross`) takes the pairs sharing
+    no vertex of a triangle around a moving member and any triangle whose box, before or after
+    the parting, overlaps its own. A crossing whose splits all take none is the touching itself
+    (the check counts a corner on a corner), and ends the search."""
+    n = x.shape[0]
+    splits, row_split = np.unique(group[rows], return_inverse=True)
+    split_of_vertex = np.full(n, -1, dtype=np.int64)
+    split_of_vertex[rows] = row_split
+    reach = np.abs(across).sum(axis=1) + np.abs(inward).sum(axis=1)  # every parting stays within it
+    moving = np.flatnonzero((split_of_vertex[triangles] >= 0).any(axis=1))
+    grown = np.zeros(n)
+    grown[rows] = reach
+    lo = x[triangles].min(axis=1) - grown[triangles].max(axis=1)[:, None]
+    hi = x[triangles].max(axis=1) + grown[triangles].max(axis=1)[:, None]
+    candidates = overlapping_pairs(lo[moving], hi[moving], lo, hi)
+    pairs = np.stack([moving[candidates[:, 0]], candidates[:, 1]], axis=1)
+    # each pair once (a moving triangle against one that moves too: the lower first), sharing no vertex
+    pairs = pairs[(pairs[:, 0] < pairs[:, 1]) | (split_of_vertex[triangles[pairs[:, 1]]] < 0).all(axis=1)]
+    one, other = triangles[pairs[:, 0]], triangles[pairs[:, 1]]
+    pairs = np.ascontiguousarray(pairs[~(one[:, :, None] == other[:, None, :]).any(axis=(1, 2))], dtype=np.int64)
+    choice = np.zeros(splits.shape[0], dtype=np.int64)
+    ways = np.array([*PARTINGS, (0.0, 0.0)])
     trial = x.copy()
-    for attempt in range(PART_TRIES + 1):
-        trial[rows] = x[rows] + scale[row_split][:, None] * offset
-        crossing = pair_split[triangles_cross(trial, triangles, pairs_array)]
-        if crossing.size == 0:
-            break
-        scale[np.unique(crossing)] = 0.0 if attempt == PART_TRIES else 0.5 * scale[np.unique(crossing)]
-    return scale[row_split]
+    while True:
+        way = ways[choice[row_split]]
+        offset = way[:, :1] * across + way[:, 1:] * inward
+        trial[rows] = x[rows] + offset
+        if not pairs.shape[0]:
+            return offset
+        crossing = pairs[triangles_cross(trial, triangles, pairs)]
+        involved = split_of_vertex[triangles[crossing].ravel()]
+        involved = np.unique(involved[involved >= 0])
+        involved = involved[choice[involved] < len(PARTINGS)]
+        if involved.shape[0] == 0:
+            return offset
+        choice[involved] += 1
 
 
 def _settle(state: State, before: np.ndarray, dt: float) -> None:
