@@ -42,11 +42,14 @@ the same bytes whatever the executor or thread count.
 Tearing: the copies a tear makes start where their original is, touching the triangles of its
 other side, so right after a tear the vertices of each split are parted (`part_seams`: along the
 split's normal, a tenth of the thickness one way and the other, and a little into their own
-triangles, their whole substep with them) and every pair of the two sides starts apart.
-Proximity judges pairs by the rest-mesh vertex each vertex came from (`origin`, updated by
-`remap`), so the two sides are not pushed a thickness apart; the continuous check takes every
-pair sharing no vertex, the two sides of a tear included, so they never pass through each
-other, and new boundary edges take part like any other.
+triangles, their whole substep with them; another way, or none, where that would make the
+triangles around the split cross: `_parting`) and every pair of the two sides starts apart.
+Proximity keeps a pair whose vertices came from one rest vertex (`origin`, updated by `remap`)
+the parting's distance apart, not the thickness (they were one vertex at rest: a tear opens as
+it would without self-collision), so they never close to within `self_kernels.TOUCHING`, where
+the continuous check no longer judges them; that check takes every pair sharing no vertex, the
+two sides of a tear included, so they never pass through each other, and new boundary edges
+take part like any other.
 """
 
 from __future__ import annotations
@@ -127,8 +130,9 @@ class _Topology:
 @dataclass
 class _Pairs:
     """Candidate pairs kept over several substeps (a Verlet list): VF (P, 2) and EE (Q, 2), each
-    pair's proximity flag, rest distance (m) and a lower bound (m) of its current distance that
-    the continuous check keeps up to date (`self_kernels.colliding_pairs`).
+    pair's flag that its vertices came from distinct rest vertices (`origin`), rest distance (m)
+    and a lower bound (m) of its current distance that the continuous check keeps up to date
+    (`self_kernels.colliding_pairs`).
 
     Each vertex has a carried-on path: after substep `built` (V,) it is at `base` (V, 3) and
     moves on by `motion` (V, 3, m) a substep. The list covers a vertex for `span` substeps
@@ -144,11 +148,11 @@ class _Pairs:
     """
 
     vf: np.ndarray
-    vf_near: np.ndarray
+    vf_distinct: np.ndarray
     vf_rest: np.ndarray
     vf_lower: np.ndarray
     ee: np.ndarray
-    ee_near: np.ndarray
+    ee_distinct: np.ndarray
     ee_rest: np.ndarray
     ee_lower: np.ndarray
     base: np.ndarray
@@ -344,16 +348,17 @@ class SelfCollision(Constraint, Remappable):
             self._cells = (vf_grid[0], ee_grid[0])
         new_vf = found_vf[0] if len(found_vf) == 1 else tuple(np.concatenate(p) for p in zip(*found_vf, strict=True))
         # the kept pairs (those touching no stale vertex), in order, then the new ones
-        vf, vf_near, vf_rest, vf_lower = self_kernels.merge_kept(
-            pairs.vf, pairs.vf_near, pairs.vf_rest, pairs.vf_lower,
+        vf, vf_distinct, vf_rest, vf_lower = self_kernels.merge_kept(
+            pairs.vf, pairs.vf_distinct, pairs.vf_rest, pairs.vf_lower,
             self_kernels.vf_dropped(pairs.vf, stale, triangle_fresh), *new_vf,
         )  # fmt: skip
-        ee, ee_near, ee_rest, ee_lower = self_kernels.merge_kept(
-            pairs.ee, pairs.ee_near, pairs.ee_rest, pairs.ee_lower,
+        ee, ee_distinct, ee_rest, ee_lower = self_kernels.merge_kept(
+            pairs.ee, pairs.ee_distinct, pairs.ee_rest, pairs.ee_lower,
             self_kernels.ee_dropped(pairs.ee, edge_fresh), *found_ee,
         )  # fmt: skip
         return _Pairs(
-            vf, vf_near, vf_rest, vf_lower, ee, ee_near, ee_rest, ee_lower, pairs.base, pairs.motion, pairs.built
+            vf, vf_distinct, vf_rest, vf_lower, ee, ee_distinct, ee_rest, ee_lower,
+            pairs.base, pairs.motion, pairs.built,
         )
 
     def part_seams(self, model: SpringModel, state: State) -> None:
@@ -487,11 +492,12 @@ class SelfCollision(Constraint, Remappable):
 
         # 1. proximity: pairs within the thickness, pushed apart along their start side
         pairs = self._pairs(model, topology, x0, x1, threads)
-        vf_gap = np.minimum(self.thickness, pairs.vf_rest)
-        ee_gap = np.minimum(self.thickness, pairs.ee_rest)
+        seam = PART_FRACTION * self.thickness
+        vf_gap = np.where(pairs.vf_distinct, np.minimum(self.thickness, pairs.vf_rest), seam)
+        ee_gap = np.where(pairs.ee_distinct, np.minimum(self.thickness, pairs.ee_rest), seam)
         active_vf, side_vf, active_ee, side_ee = by_rows(
             functools.partial(self_kernels.proximity_sides, x, x0, topology.triangles, topology.edges),
-            ((pairs.vf, pairs.vf_near, vf_gap, pairs.vf_lower), (pairs.ee, pairs.ee_near, ee_gap, pairs.ee_lower)),
+            ((pairs.vf, vf_gap, pairs.vf_lower), (pairs.ee, ee_gap, pairs.ee_lower)),
             threads,
         )
         work.projections = self_kernels.project_proximity(

@@ -133,18 +133,18 @@ def _pair_buffers(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @nb.njit(**JIT)
 def _grow(
-    pairs: np.ndarray, near: np.ndarray, rest: np.ndarray, count: int
+    pairs: np.ndarray, distinct: np.ndarray, rest: np.ndarray, count: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The first `count` rows of the three output arrays, in arrays twice as long. Copied element
     by element: a slice assignment compiles Numba's shape-mismatch message (docs/performance.md,
     "Start-up with an empty compile cache")."""
-    grown_pairs, grown_near, grown_rest = _pair_buffers(2 * max(count, 16))
+    grown_pairs, grown_distinct, grown_rest = _pair_buffers(2 * max(count, 16))
     for k in range(count):
         grown_pairs[k, 0] = pairs[k, 0]
         grown_pairs[k, 1] = pairs[k, 1]
-        grown_near[k] = near[k]
+        grown_distinct[k] = distinct[k]
         grown_rest[k] = rest[k]
-    return grown_pairs, grown_near, grown_rest
+    return grown_pairs, grown_distinct, grown_rest
 
 
 @nb.njit(**JIT)
@@ -162,10 +162,10 @@ def vf_candidates(
     is kept when the vertex is no corner of the triangle and their distance in x (V, 3) is within
     `reach` (m) plus `span` substeps of the vertex's motion relative to the triangle's corners
     (`motion` (V, 3), m per substep: how much closer the pair may come while the list holds).
-    Returns the pairs (P, 2) (vertex, triangle) by query, then in the grid's order; whether each
-    takes proximity repulsion (its origin no corner's origin),
-    (P,) bool; and its distance (m) in the rest positions (P,)."""
-    pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
+    Returns the pairs (P, 2) (vertex, triangle) by query, then in the grid's order; whether its
+    vertices came from distinct rest vertices (its origin no corner's origin; False: copies of
+    one vertex that a tear split), (P,) bool; and its distance (m) in the rest positions (P,)."""
+    pairs, distinct, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = opaque(0)  # constants through `opaque`: the callees compile once, for runtime values
     anyone = opaque(-1)
@@ -187,14 +187,14 @@ def vf_candidates(
             if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
                 continue
             if count == pairs.shape[0]:
-                pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
+                pairs, distinct, rest_gap = _grow(pairs, distinct, rest_gap, count)
             ov = origin[v]
             pairs[count, 0] = v
             pairs[count, 1] = t
-            near[count] = ov != origin[a] and ov != origin[b] and ov != origin[c]
+            distinct[count] = ov != origin[a] and ov != origin[b] and ov != origin[c]
             rest_gap[count] = _vf_gap(rest, v, a, b, c)[0]
             count += 1
-    return pairs[:count], near[:count], rest_gap[:count]
+    return pairs[:count], distinct[:count], rest_gap[:count]
 
 
 @nb.njit(**JIT)
@@ -209,10 +209,10 @@ def ee_candidates(
     among the queries) pairs only with the lower of the two. `every`: every edge is fresh (some
     query asks for each: the grid then reports the higher edges only). Kept when the edges share no vertex
     and their distance in x is within `reach` plus `span` substeps of the ends' relative motion
-    (as `vf_candidates`). Returns the pairs (Q, 2), whether each takes proximity repulsion (no
-    end's origin equal to an end's origin of the other), (Q,) bool, and
+    (as `vf_candidates`). Returns the pairs (Q, 2), whether their ends came from distinct rest
+    vertices (no end's origin equal to an end's origin of the other), (Q,) bool, and
     the distance (m) in the rest positions (Q,)."""
-    pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
+    pairs, distinct, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = opaque(0)  # a runtime value: `_grow` compiles once (`opaque`)
     for k in range(queries.shape[0]):
@@ -236,14 +236,14 @@ def ee_candidates(
             if _ee_far(x, p0, p1, q0, q1, limit) or _ee_gap(x, p0, p1, q0, q1)[0] > limit:
                 continue
             if count == pairs.shape[0]:
-                pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
+                pairs, distinct, rest_gap = _grow(pairs, distinct, rest_gap, count)
             pairs[count, 0] = min(e, f)
             pairs[count, 1] = max(e, f)
             a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
-            near[count] = a != c and a != d and b != c and b != d
+            distinct[count] = a != c and a != d and b != c and b != d
             rest_gap[count] = _ee_gap(rest, p0, p1, q0, q1)[0]
             count += 1
-    return pairs[:count], near[:count], rest_gap[:count]
+    return pairs[:count], distinct[:count], rest_gap[:count]
 
 
 @nb.njit(**JIT)
@@ -263,8 +263,8 @@ def ee_candidates_in_cells(
     ends, the cell of the box's lower corner), so that the pairs of a cell, 200 000 a search on
     those sheets for a few hundred kept, read consecutive memory (1.2x faster).
     Returns the pairs (Q, 2) (lower edge first) by bucket, then by the entries' order, whether
-    each takes proximity repulsion, (Q,) bool, and its distance (m) in the rest positions (Q,)."""
-    pairs, near, rest_gap = _pair_buffers(max(capacity, 16))
+    their ends came from distinct rest vertices, (Q,) bool, and its distance (m) in the rest positions (Q,)."""
+    pairs, distinct, rest_gap = _pair_buffers(max(capacity, 16))
     count = opaque(0)  # a runtime value: `_grow` compiles once (`opaque`)
     dense = box[3] > 0
     # the entries of these buckets, in order: box (lo, hi), ends and the lower corner's cell
@@ -327,28 +327,28 @@ def ee_candidates_in_cells(
                 if _ee_far(x, p0, p1, q0, q1, limit) or _ee_gap(x, p0, p1, q0, q1)[0] > limit:
                     continue
                 if count == pairs.shape[0]:
-                    pairs, near, rest_gap = _grow(pairs, near, rest_gap, count)
+                    pairs, distinct, rest_gap = _grow(pairs, distinct, rest_gap, count)
                 pairs[count, 0] = min(e, f)
                 pairs[count, 1] = max(e, f)
                 a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
-                near[count] = a != c and a != d and b != c and b != d
+                distinct[count] = a != c and a != d and b != c and b != d
                 rest_gap[count] = _ee_gap(rest, p0, p1, q0, q1)[0]
                 count += 1
-    return pairs[:count], near[:count], rest_gap[:count]
+    return pairs[:count], distinct[:count], rest_gap[:count]
 
 
 @nb.njit(**JIT)
 def merge_kept(
     pairs: np.ndarray,
-    near: np.ndarray,
+    distinct: np.ndarray,
     rest: np.ndarray,
     lower: np.ndarray,
     dropped: np.ndarray,
     new_pairs: np.ndarray,
-    new_near: np.ndarray,
+    new_distinct: np.ndarray,
     new_rest: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A kept list joined with newly searched pairs in one pass: the rows of pairs (P, 2), near,
+    """A kept list joined with newly searched pairs in one pass: the rows of pairs (P, 2), distinct,
     rest and lower (P,) not flagged in `dropped` (P,) (`vf_dropped`, `ee_dropped`: their pairs
     were searched again), in order, then the new rows (N, 2), (N,), (N,) with a lower bound of
     0 (unknown). Returns the four joined arrays (the copies NumPy's masks and concatenations
@@ -359,7 +359,7 @@ def merge_kept(
             count += 1
     total = count + new_pairs.shape[0]
     out_pairs = np.empty((total, 2), dtype=np.int64)
-    out_near = np.empty(total, dtype=np.bool_)
+    out_distinct = np.empty(total, dtype=np.bool_)
     out_rest = np.empty(total)
     out_lower = np.zeros(total)
     row = 0
@@ -368,17 +368,17 @@ def merge_kept(
             continue
         out_pairs[row, 0] = pairs[k, 0]
         out_pairs[row, 1] = pairs[k, 1]
-        out_near[row] = near[k]
+        out_distinct[row] = distinct[k]
         out_rest[row] = rest[k]
         out_lower[row] = lower[k]
         row += 1
     for k in range(new_pairs.shape[0]):
         out_pairs[row, 0] = new_pairs[k, 0]
         out_pairs[row, 1] = new_pairs[k, 1]
-        out_near[row] = new_near[k]
+        out_distinct[row] = new_distinct[k]
         out_rest[row] = new_rest[k]
         row += 1
-    return out_pairs, out_near, out_rest, out_lower
+    return out_pairs, out_distinct, out_rest, out_lower
 
 
 @nb.njit(**JIT)
@@ -436,27 +436,23 @@ def proximity_sides(
     triangles: np.ndarray,
     edges: np.ndarray,
     vf: np.ndarray,
-    vf_near: np.ndarray,
     vf_gap: np.ndarray,
     vf_lower: np.ndarray,
     ee: np.ndarray,
-    ee_near: np.ndarray,
     ee_gap: np.ndarray,
     ee_lower: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Which pairs `project_proximity` treats, and the side each keeps: a pair flagged `near`
-    (the others' vertices are copies of one vertex, torn apart) whose distance may come within twice its gap (m) (the
-    lower bound at x0, `vf_lower`/`ee_lower` as `colliding_pairs` keeps them, less the pair's
-    relative travel to x); the unit direction from the triangle to the vertex, or from the
-    second edge to the first, at x0. Returns active_vf (P,) bool, side_vf (P, 3), active_ee
-    (Q,), side_ee (Q, 3) (sides of inactive pairs undefined). Row by row: `parts.by_rows`."""
+    """Which pairs `project_proximity` treats, and the side each keeps: a pair whose distance may
+    come within twice its gap (m) (the lower bound at x0, `vf_lower`/`ee_lower` as
+    `colliding_pairs` keeps them, less the pair's relative travel to x); the unit direction from
+    the triangle to the vertex, or from the second edge to the first, at x0. Returns active_vf
+    (P,) bool, side_vf (P, 3), active_ee (Q,), side_ee (Q, 3) (sides of inactive pairs
+    undefined). Row by row: `parts.by_rows`."""
     ids = np.empty(4, dtype=np.int64)
     active_vf = np.zeros(vf.shape[0], dtype=np.bool_)
     side_vf = np.empty((vf.shape[0], 3))
     is_vf, is_ee = opaque(True), opaque(False)  # one compile of `_relative_travel`
     for k in range(vf.shape[0]):
-        if not vf_near[k]:
-            continue
         t = vf[k, 1]
         ids[0], ids[1], ids[2], ids[3] = vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2]
         if vf_lower[k] - _relative_travel(x0, x, ids, is_vf) > 2.0 * vf_gap[k]:
@@ -467,8 +463,6 @@ def proximity_sides(
     active_ee = np.zeros(ee.shape[0], dtype=np.bool_)
     side_ee = np.empty((ee.shape[0], 3))
     for k in range(ee.shape[0]):
-        if not ee_near[k]:
-            continue
         e, f = ee[k, 0], ee[k, 1]
         ids[0], ids[1], ids[2], ids[3] = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
         if ee_lower[k] - _relative_travel(x0, x, ids, is_ee) > 2.0 * ee_gap[k]:
