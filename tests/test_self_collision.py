@@ -297,7 +297,7 @@ def test_edge_pairs_found_cell_by_cell_are_every_close_pair_and_the_queries_own(
     import ipctk
 
     from meshdeform.contact.broad_phase import grid_for, swept_boxes
-    from meshdeform.contact.self_collision import _Topology
+    from meshdeform.contact.self_collision import _rings, _Topology
 
     rng = np.random.default_rng(11)
     model = SpringModel.from_mesh(grid_sheet(12, 12))
@@ -309,7 +309,8 @@ def test_edge_pairs_found_cell_by_cell_are_every_close_pair_and_the_queries_own(
     lo, hi = swept_boxes(x, x, edges, 0.5 * reach)
     inv_cell, start, element, cell, box = grid_for(lo, hi, lo, hi, dense_factor=dense_factor)
     rest = np.array(model.rest_positions, dtype=np.float64)
-    shared = (np.arange(n), np.zeros((n, 3)), 1.0, reach)
+    ring_start, ring = _rings(edges, n)
+    shared = (np.arange(n), ring_start, ring, np.zeros((n, 3)), 1.0, reach)
     in_cells = self_kernels.ee_candidates_in_cells(
         x, rest, np.arange(start.shape[0] - 1), lo, hi, inv_cell, start, element, cell, box, edges, *shared, 0
     )
@@ -514,7 +515,7 @@ def test_a_plate_carrying_the_cloth_through_self_collision_zones_stays_out_of_it
     moving collider is projected once more after them: the sheet's faces keep the plate's
     thickness less 1 mm (4 mm into it when this was written; today the clearance holds without
     that pass too) and never pass through themselves. (With the proximity sweeps no zone forms
-    there any more: the rest neighbours around the folds are kept a thickness apart.)"""
+    there any more: the rest neighbours around the folds are kept a tenth of the thickness apart.)"""
     mesh = grid_sheet(25, 25, size=1.0, plane="xz", triangles=True, centred=True, offset=(0.0, 0.5, 0.0))
     text = (
         '[simulation]\nsolver = "implicit"\nfps = 24\nframes = 8\ngravity = [0, 0, 0]\n\n[self_collision]\n\n'

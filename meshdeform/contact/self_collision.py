@@ -7,13 +7,15 @@ and the colliders produced, from the positions x0 the substep started at:
 1. **Proximity.** Vertex-triangle and edge-edge pairs of the cloth closer than the thickness are
    pushed apart to it (Gauss-Seidel in a fixed pair order, inverse-mass and barycentric
    weighted), along the side each pair had at the start of the substep, so a pair that crossed
-   within one substep is pulled back rather than pushed further through. Every pair that shares
-   no vertex takes part, rest neighbours too (a vertex and the triangles of its one-ring's
-   vertices meet in a crease): left to the springs, such pairs lay a fraction of a millimetre
-   apart in a crumpled cloth's creases, where the continuous check could not prove them apart
-   and zoned them in every substep, which held the crease still against its springs (a
-   crumpled sheet never came to rest under implicit). A pair already closer than the thickness
-   in the rest mesh keeps its rest distance instead, so a fine mesh is not inflated.
+   within one substep is pulled back rather than pushed further through. A pair already closer
+   than the thickness in the rest mesh keeps its rest distance instead, so a fine mesh is not
+   inflated. Rest neighbours (a vertex and a triangle of its one-ring, edges with neighbouring
+   ends) and the copies of one vertex that a tear made are kept only a tenth of the thickness
+   apart (`PART_FRACTION`, the parting's distance): the springs keep rest neighbours apart
+   (held a thickness apart, a fine cloth compressed in its plane was pushed apart too), but left
+   to them entirely they lay a hundredth of a millimetre apart in a crumpled cloth's creases,
+   where the continuous check could not prove them apart and zoned them in every substep; and
+   two copies of one vertex closed on each other until they touched, where no pair is judged.
 2. **Guarantee.** Every pair that shares no vertex is checked along its straight path from x0
    to x by conservative advancement (Li et al. 2021, "additive CCD"): the pair's distance can
    shrink at most by a bound on its vertices' relative travel, so stepping by a fraction of the
@@ -44,12 +46,12 @@ other side, so right after a tear the vertices of each split are parted (`part_s
 split's normal, a tenth of the thickness one way and the other, and a little into their own
 triangles, their whole substep with them; another way, or none, where that would make the
 triangles around the split cross: `_parting`) and every pair of the two sides starts apart.
-Proximity keeps a pair whose vertices came from one rest vertex (`origin`, updated by `remap`)
-the parting's distance apart, not the thickness (they were one vertex at rest: a tear opens as
-it would without self-collision), so they never close to within `self_kernels.TOUCHING`, where
-the continuous check no longer judges them; that check takes every pair sharing no vertex, the
-two sides of a tear included, so they never pass through each other, and new boundary edges
-take part like any other.
+Proximity keeps a pair whose vertices came from one rest vertex, or neighbours (`origin`,
+updated by `remap`), the parting's distance apart, not the thickness (they were one vertex at
+rest: a tear opens as it would without self-collision), so they never close to within
+`self_kernels.TOUCHING`, where the continuous check no longer judges them; that check takes
+every pair sharing no vertex, the two sides of a tear included, so they never pass through each
+other, and new boundary edges take part like any other.
 """
 
 from __future__ import annotations
@@ -127,10 +129,20 @@ class _Topology:
         return cls(triangles, np.ascontiguousarray(edges, dtype=np.int64))
 
 
+def _rings(edges: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex adjacency as CSR (start (n + 1,), sorted neighbours) from edges (E, 2)."""
+    both = np.concatenate([edges, edges[:, ::-1]]) if edges.size else np.zeros((0, 2), dtype=np.int64)
+    order = np.lexsort((both[:, 1], both[:, 0]))
+    both = both[order]
+    start = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(start, both[:, 0] + 1, 1)
+    return np.cumsum(start), np.ascontiguousarray(both[:, 1], dtype=np.int64)
+
+
 @dataclass
 class _Pairs:
     """Candidate pairs kept over several substeps (a Verlet list): VF (P, 2) and EE (Q, 2), each
-    pair's flag that its vertices came from distinct rest vertices (`origin`), rest distance (m)
+    pair's flag that it is apart in the rest mesh (`origin`s neither equal nor neighbours), rest distance (m)
     and a lower bound (m) of its current distance that the continuous check keeps up to date
     (`self_kernels.colliding_pairs`).
 
@@ -148,11 +160,11 @@ class _Pairs:
     """
 
     vf: np.ndarray
-    vf_distinct: np.ndarray
+    vf_apart: np.ndarray
     vf_rest: np.ndarray
     vf_lower: np.ndarray
     ee: np.ndarray
-    ee_distinct: np.ndarray
+    ee_apart: np.ndarray
     ee_rest: np.ndarray
     ee_lower: np.ndarray
     base: np.ndarray
@@ -195,6 +207,7 @@ class SelfCollision(Constraint, Remappable):
         self._model: SpringModel | None = None
         self._topology: _Topology | None = None
         self._origin: np.ndarray | None = None
+        self._rings: tuple[np.ndarray, np.ndarray] | None = None
         self._start: np.ndarray | None = None
         #: (V,) int64: the last tear's index map (each vertex's vertex before it), whose splits
         #: `part_seams` parts; None once parted
@@ -237,6 +250,7 @@ class SelfCollision(Constraint, Remappable):
         self._topology = _Topology.of(model)
         if self._origin is None or self._origin.shape[0] != n:  # a first (untorn) model
             self._origin = np.arange(n, dtype=np.int64)
+            self._rings = _rings(self._topology.edges, n)
             self._start = None
             self._tear_map = None
         self._held = None
@@ -304,8 +318,9 @@ class SelfCollision(Constraint, Remappable):
         corners, ends = stale[topology.triangles], stale[topology.edges]  # (or-ed by column: any(axis=1) is 5x slower)
         triangle_fresh = corners[:, 0] | corners[:, 1] | corners[:, 2]
         edge_fresh = ends[:, 0] | ends[:, 1]
+        ring_start, ring = self._rings
         rest = self._rest
-        shared = (topology.triangles, self._origin, pairs.motion, self._span, reach)
+        shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, self._span, reach)
         everyone = fresh.shape[0] == x0.shape[0]
         capacity = self._capacity if everyone else (0, 0)
         # a partial search keeps the cells of the last whole one (`grid_for`), and where it has only
@@ -348,16 +363,16 @@ class SelfCollision(Constraint, Remappable):
             self._cells = (vf_grid[0], ee_grid[0])
         new_vf = found_vf[0] if len(found_vf) == 1 else tuple(np.concatenate(p) for p in zip(*found_vf, strict=True))
         # the kept pairs (those touching no stale vertex), in order, then the new ones
-        vf, vf_distinct, vf_rest, vf_lower = self_kernels.merge_kept(
-            pairs.vf, pairs.vf_distinct, pairs.vf_rest, pairs.vf_lower,
+        vf, vf_apart, vf_rest, vf_lower = self_kernels.merge_kept(
+            pairs.vf, pairs.vf_apart, pairs.vf_rest, pairs.vf_lower,
             self_kernels.vf_dropped(pairs.vf, stale, triangle_fresh), *new_vf,
         )  # fmt: skip
-        ee, ee_distinct, ee_rest, ee_lower = self_kernels.merge_kept(
-            pairs.ee, pairs.ee_distinct, pairs.ee_rest, pairs.ee_lower,
+        ee, ee_apart, ee_rest, ee_lower = self_kernels.merge_kept(
+            pairs.ee, pairs.ee_apart, pairs.ee_rest, pairs.ee_lower,
             self_kernels.ee_dropped(pairs.ee, edge_fresh), *found_ee,
         )  # fmt: skip
         return _Pairs(
-            vf, vf_distinct, vf_rest, vf_lower, ee, ee_distinct, ee_rest, ee_lower,
+            vf, vf_apart, vf_rest, vf_lower, ee, ee_apart, ee_rest, ee_lower,
             pairs.base, pairs.motion, pairs.built,
         )
 
@@ -492,9 +507,12 @@ class SelfCollision(Constraint, Remappable):
 
         # 1. proximity: pairs within the thickness, pushed apart along their start side
         pairs = self._pairs(model, topology, x0, x1, threads)
-        seam = PART_FRACTION * self.thickness
-        vf_gap = np.where(pairs.vf_distinct, np.minimum(self.thickness, pairs.vf_rest), seam)
-        ee_gap = np.where(pairs.ee_distinct, np.minimum(self.thickness, pairs.ee_rest), seam)
+        # rest neighbours and the copies of one vertex: the parting's distance, so that they never
+        # close to within `self_kernels.TOUCHING` nor lie so close that the continuous check
+        # cannot prove them apart (module docstring)
+        close = PART_FRACTION * self.thickness
+        vf_gap = np.where(pairs.vf_apart, np.minimum(self.thickness, pairs.vf_rest), close)
+        ee_gap = np.where(pairs.ee_apart, np.minimum(self.thickness, pairs.ee_rest), close)
         active_vf, side_vf, active_ee, side_ee = by_rows(
             functools.partial(self_kernels.proximity_sides, x, x0, topology.triangles, topology.edges),
             ((pairs.vf, vf_gap, pairs.vf_lower), (pairs.ee, ee_gap, pairs.ee_lower)),

@@ -10,6 +10,7 @@ The continuous check judges every pair but one that touches where the substep st
 Positions are (V, 3) float64 metres; x0 the start of the substep (intersection free), x the
 end. `origin` (V,) maps each vertex to the vertex of the untorn rest mesh it came from, so the
 copies a tear makes still count as the same vertex (they start where their original is).
+`ring_start`, `ring` are the rest mesh's vertex adjacency (CSR, sorted neighbours, on origins).
 """
 
 from __future__ import annotations
@@ -29,6 +30,22 @@ MAX_ADVANCE_STEPS = 64
 #: a pair closer than this (m) where the substep starts touches: it is not judged (two copies of
 #: a vertex a tear made lie at one place, their distances rounded to a few 1e-17 m)
 TOUCHING = 1e-12
+
+
+@nb.njit(**JIT)
+def _adjacent(ring_start: np.ndarray, ring: np.ndarray, a: int, b: int) -> bool:
+    """Whether origin vertices a and b are equal or neighbours in the rest mesh (binary search)."""
+    if a == b:
+        return True
+    lo = ring_start[a]
+    hi = ring_start[a + 1]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if ring[mid] < b:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo < ring_start[a + 1] and ring[lo] == b
 
 
 @nb.njit(**JIT)
@@ -133,18 +150,18 @@ def _pair_buffers(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @nb.njit(**JIT)
 def _grow(
-    pairs: np.ndarray, distinct: np.ndarray, rest: np.ndarray, count: int
+    pairs: np.ndarray, apart: np.ndarray, rest: np.ndarray, count: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The first `count` rows of the three output arrays, in arrays twice as long. Copied element
     by element: a slice assignment compiles Numba's shape-mismatch message (docs/performance.md,
     "Start-up with an empty compile cache")."""
-    grown_pairs, grown_distinct, grown_rest = _pair_buffers(2 * max(count, 16))
+    grown_pairs, grown_apart, grown_rest = _pair_buffers(2 * max(count, 16))
     for k in range(count):
         grown_pairs[k, 0] = pairs[k, 0]
         grown_pairs[k, 1] = pairs[k, 1]
-        grown_distinct[k] = distinct[k]
+        grown_apart[k] = apart[k]
         grown_rest[k] = rest[k]
-    return grown_pairs, grown_distinct, grown_rest
+    return grown_pairs, grown_apart, grown_rest
 
 
 @nb.njit(**JIT)
@@ -152,7 +169,7 @@ def vf_candidates(
     x: np.ndarray, rest: np.ndarray, queries: np.ndarray, skip: np.ndarray,
     qlo: np.ndarray, qhi: np.ndarray, tlo: np.ndarray, thi: np.ndarray, by_triangle: bool,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
-    triangles: np.ndarray, origin: np.ndarray,
+    triangles: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
     motion: np.ndarray, span: float, reach: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The VF pairs to keep for the coming substeps, straight from a grid (`broad_phase.grid_for`)
@@ -162,10 +179,11 @@ def vf_candidates(
     is kept when the vertex is no corner of the triangle and their distance in x (V, 3) is within
     `reach` (m) plus `span` substeps of the vertex's motion relative to the triangle's corners
     (`motion` (V, 3), m per substep: how much closer the pair may come while the list holds).
-    Returns the pairs (P, 2) (vertex, triangle) by query, then in the grid's order; whether its
-    vertices came from distinct rest vertices (its origin no corner's origin; False: copies of
-    one vertex that a tear split), (P,) bool; and its distance (m) in the rest positions (P,)."""
-    pairs, distinct, rest_gap = _pair_buffers(max(capacity, 16))
+    Returns the pairs (P, 2) (vertex, triangle) by query, then in the grid's order; whether it is
+    apart in the rest mesh (its origin neither a corner's origin nor a rest neighbour of one;
+    False: rest neighbours, or copies of one vertex that a tear split), (P,) bool; and its
+    distance (m) in the rest positions (P,)."""
+    pairs, apart, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = opaque(0)  # constants through `opaque`: the callees compile once, for runtime values
     anyone = opaque(-1)
@@ -187,21 +205,24 @@ def vf_candidates(
             if _vf_far(x, v, a, b, c, limit) or _vf_gap(x, v, a, b, c)[0] > limit:
                 continue
             if count == pairs.shape[0]:
-                pairs, distinct, rest_gap = _grow(pairs, distinct, rest_gap, count)
+                pairs, apart, rest_gap = _grow(pairs, apart, rest_gap, count)
             ov = origin[v]
             pairs[count, 0] = v
             pairs[count, 1] = t
-            distinct[count] = ov != origin[a] and ov != origin[b] and ov != origin[c]
+            apart[count] = not (
+                _adjacent(ring_start, ring, ov, origin[a]) or _adjacent(ring_start, ring, ov, origin[b])
+                or _adjacent(ring_start, ring, ov, origin[c])
+            )
             rest_gap[count] = _vf_gap(rest, v, a, b, c)[0]
             count += 1
-    return pairs[:count], distinct[:count], rest_gap[:count]
+    return pairs[:count], apart[:count], rest_gap[:count]
 
 
 @nb.njit(**JIT)
 def ee_candidates(
     x: np.ndarray, rest: np.ndarray, queries: np.ndarray, fresh: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
-    edges: np.ndarray, origin: np.ndarray,
+    edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
     motion: np.ndarray, span: float, reach: float, every: bool, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The EE pairs to keep, from the grid of edge boxes elo, ehi (E, 3) asked by each edge of
@@ -209,10 +230,10 @@ def ee_candidates(
     among the queries) pairs only with the lower of the two. `every`: every edge is fresh (some
     query asks for each: the grid then reports the higher edges only). Kept when the edges share no vertex
     and their distance in x is within `reach` plus `span` substeps of the ends' relative motion
-    (as `vf_candidates`). Returns the pairs (Q, 2), whether their ends came from distinct rest
-    vertices (no end's origin equal to an end's origin of the other), (Q,) bool, and
+    (as `vf_candidates`). Returns the pairs (Q, 2), whether they are apart in the rest mesh
+    (no end's origin equal to or a rest neighbour of an end's origin of the other), (Q,) bool, and
     the distance (m) in the rest positions (Q,)."""
-    pairs, distinct, rest_gap = _pair_buffers(max(capacity, 16))
+    pairs, apart, rest_gap = _pair_buffers(max(capacity, 16))
     found = np.empty(64, dtype=np.int64)
     count = opaque(0)  # a runtime value: `_grow` compiles once (`opaque`)
     for k in range(queries.shape[0]):
@@ -236,21 +257,24 @@ def ee_candidates(
             if _ee_far(x, p0, p1, q0, q1, limit) or _ee_gap(x, p0, p1, q0, q1)[0] > limit:
                 continue
             if count == pairs.shape[0]:
-                pairs, distinct, rest_gap = _grow(pairs, distinct, rest_gap, count)
+                pairs, apart, rest_gap = _grow(pairs, apart, rest_gap, count)
             pairs[count, 0] = min(e, f)
             pairs[count, 1] = max(e, f)
             a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
-            distinct[count] = a != c and a != d and b != c and b != d
+            apart[count] = not (
+                _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
+                or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
+            )
             rest_gap[count] = _ee_gap(rest, p0, p1, q0, q1)[0]
             count += 1
-    return pairs[:count], distinct[:count], rest_gap[:count]
+    return pairs[:count], apart[:count], rest_gap[:count]
 
 
 @nb.njit(**JIT)
 def ee_candidates_in_cells(
     x: np.ndarray, rest: np.ndarray, buckets: np.ndarray, elo: np.ndarray, ehi: np.ndarray,
     inv_cell: float, start: np.ndarray, element: np.ndarray, cell: np.ndarray, box: np.ndarray,
-    edges: np.ndarray, origin: np.ndarray,
+    edges: np.ndarray, origin: np.ndarray, ring_start: np.ndarray, ring: np.ndarray,
     motion: np.ndarray, span: float, reach: float, capacity: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The EE pairs to keep among all edges, as `ee_candidates` with every edge fresh finds them
@@ -263,8 +287,8 @@ def ee_candidates_in_cells(
     ends, the cell of the box's lower corner), so that the pairs of a cell, 200 000 a search on
     those sheets for a few hundred kept, read consecutive memory (1.2x faster).
     Returns the pairs (Q, 2) (lower edge first) by bucket, then by the entries' order, whether
-    their ends came from distinct rest vertices, (Q,) bool, and its distance (m) in the rest positions (Q,)."""
-    pairs, distinct, rest_gap = _pair_buffers(max(capacity, 16))
+    they are apart in the rest mesh, (Q,) bool, and its distance (m) in the rest positions (Q,)."""
+    pairs, apart, rest_gap = _pair_buffers(max(capacity, 16))
     count = opaque(0)  # a runtime value: `_grow` compiles once (`opaque`)
     dense = box[3] > 0
     # the entries of these buckets, in order: box (lo, hi), ends and the lower corner's cell
@@ -327,28 +351,31 @@ def ee_candidates_in_cells(
                 if _ee_far(x, p0, p1, q0, q1, limit) or _ee_gap(x, p0, p1, q0, q1)[0] > limit:
                     continue
                 if count == pairs.shape[0]:
-                    pairs, distinct, rest_gap = _grow(pairs, distinct, rest_gap, count)
+                    pairs, apart, rest_gap = _grow(pairs, apart, rest_gap, count)
                 pairs[count, 0] = min(e, f)
                 pairs[count, 1] = max(e, f)
                 a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
-                distinct[count] = a != c and a != d and b != c and b != d
+                apart[count] = not (
+                _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
+                or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
+            )
                 rest_gap[count] = _ee_gap(rest, p0, p1, q0, q1)[0]
                 count += 1
-    return pairs[:count], distinct[:count], rest_gap[:count]
+    return pairs[:count], apart[:count], rest_gap[:count]
 
 
 @nb.njit(**JIT)
 def merge_kept(
     pairs: np.ndarray,
-    distinct: np.ndarray,
+    apart: np.ndarray,
     rest: np.ndarray,
     lower: np.ndarray,
     dropped: np.ndarray,
     new_pairs: np.ndarray,
-    new_distinct: np.ndarray,
+    new_apart: np.ndarray,
     new_rest: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A kept list joined with newly searched pairs in one pass: the rows of pairs (P, 2), distinct,
+    """A kept list joined with newly searched pairs in one pass: the rows of pairs (P, 2), apart,
     rest and lower (P,) not flagged in `dropped` (P,) (`vf_dropped`, `ee_dropped`: their pairs
     were searched again), in order, then the new rows (N, 2), (N,), (N,) with a lower bound of
     0 (unknown). Returns the four joined arrays (the copies NumPy's masks and concatenations
@@ -359,7 +386,7 @@ def merge_kept(
             count += 1
     total = count + new_pairs.shape[0]
     out_pairs = np.empty((total, 2), dtype=np.int64)
-    out_distinct = np.empty(total, dtype=np.bool_)
+    out_apart = np.empty(total, dtype=np.bool_)
     out_rest = np.empty(total)
     out_lower = np.zeros(total)
     row = 0
@@ -368,17 +395,17 @@ def merge_kept(
             continue
         out_pairs[row, 0] = pairs[k, 0]
         out_pairs[row, 1] = pairs[k, 1]
-        out_distinct[row] = distinct[k]
+        out_apart[row] = apart[k]
         out_rest[row] = rest[k]
         out_lower[row] = lower[k]
         row += 1
     for k in range(new_pairs.shape[0]):
         out_pairs[row, 0] = new_pairs[k, 0]
         out_pairs[row, 1] = new_pairs[k, 1]
-        out_distinct[row] = new_distinct[k]
+        out_apart[row] = new_apart[k]
         out_rest[row] = new_rest[k]
         row += 1
-    return out_pairs, out_distinct, out_rest, out_lower
+    return out_pairs, out_apart, out_rest, out_lower
 
 
 @nb.njit(**JIT)
