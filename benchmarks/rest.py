@@ -16,7 +16,9 @@ Scenes (recipes at their defaults, air damping 0.9, built as `meshdeform simulat
 - slope: a 12 x 12 sheet of 1 m lying on a plane tilted 20 degrees, friction 0.5 (more than
   tan 20 = 0.36: static friction should hold it);
 - crumpled sheet: a 24 x 24 sheet of 1 m lying on the ground (friction 0.5), self-collision on,
-  two opposite edges pinned and pushed 0.3 m each towards the other over 1.5 s, then held.
+  two opposite edges pinned and pushed 0.3 m each towards the other over 1.5 s, then held;
+- corner landing: one triangle of 3.45 cm legs (a shredded sheet's piece) dropped from 0.3 m onto
+  the ground (friction 0.3), one corner 2 cm and another 1 cm higher than the lowest.
 
 Prints per solver and scene the reported rest frame (`Frame.rest_frame` of the last frame, the
 report's `rest_frame`) and its time, the largest distance a vertex covers between two frames from
@@ -25,7 +27,8 @@ for the ball the largest distance of a vertex from its rest position at the end,
 and that of its centre of mass; for the box the highest the lowest vertex rose after it first came
 within 2 cm of the ground (m); for the sheets on balls the highest vertex at the end (m: on the ball,
 or slid off onto the ground, or fallen below it without one); for the slope how far the sheet's
-centre moved along the slope (m); for the crumpled sheet its highest vertex at the end (m).
+centre moved along the slope (m); for the crumpled sheet its highest vertex at the end (m); for the
+corner landing the highest any corner rose in the last second (m: 0.005, its thickness, at rest).
 Figures go to docs/recipes.md ("Coming to rest") and docs/performance.md.
 """
 
@@ -119,6 +122,18 @@ def sheet(n: int, height: float, size: float = 1.0) -> Mesh:
     return replace(grid, positions=points)
 
 
+def corner_triangle(edge: float, height: float, tilt: float) -> Mesh:
+    """One triangle with legs of `edge` (m) along X and Z, its corner at the origin `height` (m)
+    up, the corner along X `tilt` (m) higher and the one along Z half that."""
+    points = np.array([[0.0, height, 0.0], [edge, height + tilt, 0.0], [0.0, height + 0.5 * tilt, edge]])
+    return Mesh(positions=points, face_indices=np.array([0, 1, 2]), face_offsets=np.array([0, 3]))
+
+
+def late_top_figure(positions: np.ndarray, built: BuiltSimulation) -> str:
+    """The highest any vertex rose over the last second of the run (m)."""
+    return f"top {positions[-FPS:, :, 1].max():.3f} m in the last second"
+
+
 def tilted_sheet(n: int, degrees: float, gap: float) -> Mesh:
     """An n x n grid of 1 m lying `gap` (m) above the plane through the origin tilted `degrees` about Z."""
     grid = sheet(n, 0.0)
@@ -180,6 +195,9 @@ def scenes() -> dict[str, Callable[[str], list[tuple[str, Mesh, str, Figure | No
             ("sheet laid on ball", sheet(12, 0.92, size=0.4), head + LAID_BALL, top_figure)
         ],
         "crumpled sheet": lambda head: [("crumpled sheet", sheet(24, 0.02), head + CRUMPLE, top_figure)],
+        "corner landing": lambda head: [("corner landing", corner_triangle(0.0345, 0.3, 0.02), head +
+                                         "\n[[colliders]]\nground = { height = 0.0 }\nfriction = 0.3\n",
+                                         late_top_figure)],
         "slope": lambda head: [("slope", tilted_sheet(12, 20.0, 0.0101), head +
                                 f"\n[[colliders]]\nplane = {{ point = [0, 0, 0], normal = {tilt} }}\nfriction = 0.5\n",
                                 slide_figure)],
