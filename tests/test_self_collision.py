@@ -308,8 +308,8 @@ def test_edge_pairs_found_cell_by_cell_are_every_close_pair_and_the_queries_own(
     reach = 0.03
     lo, hi = swept_boxes(x, x, edges, 0.5 * reach)
     inv_cell, start, element, cell, box = grid_for(lo, hi, lo, hi, dense_factor=dense_factor)
-    rest = np.array(model.rest_positions, dtype=np.float64)
     ring_start, ring = _rings(edges, n)
+    rest = np.array(model.rest_positions, dtype=np.float64)
     shared = (np.arange(n), ring_start, ring, np.zeros((n, 3)), 1.0, reach)
     in_cells = self_kernels.ee_candidates_in_cells(
         x, rest, np.arange(start.shape[0] - 1), lo, hi, inv_cell, start, element, cell, box, edges, *shared, 0
@@ -676,7 +676,6 @@ def test_a_cut_at_the_end_of_a_frame_leaves_its_sides_apart_in_that_frame(tmp_pa
         assert intersecting_pairs(np.asarray(mesh.vertices), np.asarray(mesh.faces)) == 0, path.name
         originals = cKDTree(np.asarray(rest.vertices)).query(np.asarray(mesh.vertices))[0]
         assert originals.max() <= 0.1 / 20  # the grid's edge is 0.1 m
-
 
 
 def test_triangles_cross_agrees_with_the_ipctk_oracle_on_random_pairs() -> None:

@@ -77,7 +77,8 @@ from meshdeform.solvers.threads import ThreadPicker, split_threads
 
 @dataclass(frozen=True)
 class SelfCollisionSettings:
-    """thickness: metres kept between parts of the cloth that share no vertex (or their rest distance where less).
+    """thickness: metres kept between parts of the cloth that are not rest neighbours (their rest
+        distance where less; rest neighbours and a tear's copies of one vertex: a tenth of it).
     friction: Coulomb coefficient between touching parts (0: slide freely).
     sweeps: proximity Gauss-Seidel sweeps per substep.
     max_rounds: impact-zone rounds per substep before all flagged vertices take one shared
@@ -391,9 +392,9 @@ class SelfCollision(Constraint, Remappable):
         (`PART_INWARD`). Where the triangles around a split's members lay folded over each
         other, that parting would make them cross (nothing guards it: they touch where the split
         was): such a split tries others in turn (`PARTINGS`: the way across reversed, either part
-        alone, shorter), at last none (`_parting`). The sides then start apart, and the continuous check keeps them so
-        (two sides touching cannot be proven apart, and sliding along each other in one plane
-        they overlapped)."""
+        alone, shorter), at last none (`_parting`). The sides then start apart, and the
+        continuous check keeps them so (two sides touching cannot be proven apart, and sliding
+        along each other in one plane they overlapped)."""
         group, self._tear_map = self._tear_map, None
         if group is None or group.shape[0] != model.vertex_count:
             return
@@ -692,6 +693,8 @@ def _parting(
     pairs = pairs[(pairs[:, 0] < pairs[:, 1]) | (split_of_vertex[triangles[pairs[:, 1]]] < 0).all(axis=1)]
     one, other = triangles[pairs[:, 0]], triangles[pairs[:, 1]]
     pairs = np.ascontiguousarray(pairs[~(one[:, :, None] == other[:, None, :]).any(axis=(1, 2))], dtype=np.int64)
+    if not pairs.shape[0]:
+        return across + inward
     choice = np.zeros(splits.shape[0], dtype=np.int64)
     ways = np.array([*PARTINGS, (0.0, 0.0)])
     trial = x.copy()
@@ -699,8 +702,6 @@ def _parting(
         way = ways[choice[row_split]]
         offset = way[:, :1] * across + way[:, 1:] * inward
         trial[rows] = x[rows] + offset
-        if not pairs.shape[0]:
-            return offset
         crossing = pairs[triangles_cross(trial, triangles, pairs)]
         involved = split_of_vertex[triangles[crossing].ravel()]
         involved = np.unique(involved[involved >= 0])

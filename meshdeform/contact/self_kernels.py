@@ -356,9 +356,9 @@ def ee_candidates_in_cells(
                 pairs[count, 1] = max(e, f)
                 a, b, c, d = origin[p0], origin[p1], origin[q0], origin[q1]
                 apart[count] = not (
-                _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
-                or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
-            )
+                    _adjacent(ring_start, ring, a, c) or _adjacent(ring_start, ring, a, d)
+                    or _adjacent(ring_start, ring, b, c) or _adjacent(ring_start, ring, b, d)
+                )
                 rest_gap[count] = _ee_gap(rest, p0, p1, q0, q1)[0]
                 count += 1
     return pairs[:count], apart[:count], rest_gap[:count]

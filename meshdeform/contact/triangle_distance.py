@@ -250,7 +250,7 @@ def triangle_triangle_closest(
 @numba.njit(**_JIT)
 def triangles_cross(x: np.ndarray, triangles: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     """(K,) bool: whether the triangles of each pair (K, 2) (rows of `triangles` (T, 3), corners in
-    x (V, 3)) intersect, an edge of one piercing the other (`segment_pierces_triangle`); a
+    x (V, 3)) intersect: an edge of either piercing the other (`segment_pierces_triangle`); a
     coplanar overlap is not seen (it needs exactly coplanar triangles)."""
     crossing = np.zeros(pairs.shape[0], dtype=np.bool_)
     for k in range(pairs.shape[0]):
@@ -258,7 +258,6 @@ def triangles_cross(x: np.ndarray, triangles: np.ndarray, pairs: np.ndarray) -> 
             a, b, c = triangles[second, 0], triangles[second, 1], triangles[second, 2]
             for j in range(3):
                 s0, s1 = triangles[first, j], triangles[first, (j + 1) % 3]
-                if segment_pierces_triangle(x, s0, s1, x, a, b, c)[0]:
+                if not crossing[k] and segment_pierces_triangle(x, s0, s1, x, a, b, c)[0]:
                     crossing[k] = True
-        # (both orders: two triangles cross where an edge of either pierces the other)
     return crossing
