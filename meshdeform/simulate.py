@@ -79,8 +79,8 @@ from meshdeform.scene.colliders import (
     hold_contacts_still,
     largest_surface_speed,
     nearest_obstacle,
-    pushed_friction,
     share_company,
+    still_pushes,
 )
 from meshdeform.solvers import guard_kernels
 from meshdeform.solvers.base import Control, Solver, SolverOptions
@@ -536,7 +536,7 @@ def simulate(
             for constraint in constraints:
                 constraint.project(model, state, t1, dt)
             if solver.holds_contacts and constraints:
-                control.friction = pushed_friction(constraints, model.vertex_count)
+                control.still_contact, control.friction = still_pushes(constraints, model.vertex_count)
             if self_collision is not None:
                 self_collision.project(model, state, t1, dt)
                 control.self_contact = self_collision.moved

@@ -416,17 +416,21 @@ def hold_contacts_still(constraints: Sequence[Constraint], hold: bool) -> None:
             constraint.holds_still = hold
 
 
-def pushed_friction(constraints: Sequence[Constraint], vertex_count: int) -> np.ndarray:
-    """(V,) the friction coefficient of the still collider that moved each vertex in its last
-    `project` (the largest where several did; 0 where none did): `Control.friction`. A moving
-    collider's static friction would hold the vertex to its moving surface, which the solver
-    does not know: its contacts keep the velocity friction alone."""
+def still_pushes(constraints: Sequence[Constraint], vertex_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Which vertices a still collider moved in its last `project` (V,) bool
+    (`Control.still_contact`), and the friction coefficient of that collider (V,) (the largest
+    where several did; 0 where none did: `Control.friction`). A moving collider's contacts are
+    left out of both: its static friction would hold a vertex to its moving surface, which the
+    solver does not know (they keep the velocity friction alone), and a hold along the push of
+    its moving, turning surface is no hold on it."""
+    pushed = np.zeros(vertex_count, dtype=np.bool_)
     friction = np.zeros(vertex_count)
     for constraint in constraints:
-        pushed = constraint.pushed if isinstance(constraint, Collider) and not constraint.moves else None
-        if pushed is not None and pushed.shape[0] == vertex_count:
-            np.maximum(friction, np.where(pushed, constraint.friction, 0.0), out=friction)
-    return friction
+        moved = constraint.pushed if isinstance(constraint, Collider) and not constraint.moves else None
+        if moved is not None and moved.shape[0] == vertex_count:
+            pushed |= moved
+            np.maximum(friction, np.where(moved, constraint.friction, 0.0), out=friction)
+    return pushed, friction
 
 
 def fastest_motion(place: Callable[[float], np.ndarray], start: float, end: float) -> float:

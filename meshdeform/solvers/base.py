@@ -57,6 +57,11 @@ class Control:
     #: holds contacts, `Solver.holds_contacts`): implicit holds a pushed vertex whose forces lie
     #: within that friction's cone where it is (static friction)
     friction: np.ndarray | None = None
+    #: (W,) bool or None: the vertices a still collider pushed out after the last substep (set
+    #: with `friction`): implicit keeps these contacts, and self-collision's, exactly in its
+    #: preconditioner's solves, not those of a moving collider (a hold along the push of its
+    #: moving, turning surface caught a cloth wrapping around a rising plate's rim)
+    still_contact: np.ndarray | None = None
     #: the colliders' contacts after the last substep as planes (set by `simulate` each substep for
     #: a solver that reads them, `Solver.reads_planes`; None before the first or after a tear)
     planes: ContactPlanes | None = None

@@ -100,7 +100,11 @@ active set; `local_global` does not): a vertex the last constraints pushed is he
 push (the contact normal) while the forces press it into the obstacle (after an impact on a
 collider, a push deeper than a resting vertex sinks in a step, `IMPACT_SINKS`: while its own
 momentum does, so that the compression of a stiff body landing is not held and returned as a
-bounce), in every iteration (self-collision's in all but the last); after them each held,
+bounce), in every iteration (self-collision's in all but the last), and the preconditioner's
+solve in each iteration is the matrix's inverse on the motions that keep them (`held`: without
+it the matrix answers springs compressed against a stopped vertex by moving that vertex into the
+obstacle and its neighbours away, and the filter keeps the second half: a triangle landing on a
+corner was lifted by its own springs and bounced for seconds); after them each held,
 pressed obstacle contact is sunk into its obstacle by what its pressing force would move it
 alone (`_sink_pressed`, at most `SINK_FRACTION` of an edge), so the collider's push after the
 step carries the contact's normal impulse and friction; and each iteration
@@ -108,7 +112,8 @@ moves no vertex further than a quarter of an edge while there is contact (`TRUST
 a cloth stopped by a thin bar within a long step is not pulled through it or slung across it
 (it hooked around the bar at 4 to 7x stretch). The vertices held in recent steps whose springs
 pressed them into the obstacle, and on a closed surface those of an impact, are tied down in the
-prefactored matrix (`anchors`): a matrix that knows nothing of the contact sends their free
+prefactored matrix (`anchors`; `held` treats at most `held.MAX_CONSTRAINTS` contacts exactly): a
+matrix that knows nothing of the contact sends their free
 neighbours into the obstacle, so a stiff cloth lying on it stalls stretched and a small stiff solid
 landing is driven in whole and stopped at its contacts alone, compressed, then thrown back up; a
 contact that its weight alone presses is not, as the tie would hold it against sliding too
@@ -130,6 +135,7 @@ from meshdeform.solvers.base import Control, LargeKernels, Solver, velocity_rete
 from meshdeform.solvers.common import ModelCache, spring_constants
 from meshdeform.solvers.implicit import cholesky, coarse, kernels
 from meshdeform.solvers.implicit.anchors import ContactAnchors
+from meshdeform.solvers.implicit.held import HeldContacts
 from meshdeform.solvers.layout import vertex_slabs
 from meshdeform.solvers.options import CALM_COARSE, ImplicitOptions
 from meshdeform.solvers.threads import ThreadPicker, beside, helper_pool, split_threads
@@ -260,6 +266,9 @@ class ImplicitSolver(ModelCache, Solver):
         self.anchors = (
             ContactAnchors(self.free_vertices.shape[0], self.solid) if self.options.method == "lbfgs" else None
         )
+        #: the held contacts' correction of the preconditioner's solves (L-BFGS only), its columns
+        #: of the factor's inverse kept while the factor is
+        self.held = HeldContacts(self.free_vertices.shape[0]) if self.options.method == "lbfgs" else None
         self.coarse_space: coarse.CoarseSpace | None = None
         self._coarse_building: Future[coarse.CoarseSpace | None] | None = None
         if self.options.method == "lbfgs":
@@ -301,6 +310,8 @@ class ImplicitSolver(ModelCache, Solver):
         """The step-length quantities and the factor for steps of dt (s): the last length's, kept
         aside (`_StepLength`), where dt is that one (refactorised where the anchored set was renewed
         since); otherwise assembled and factorised, and the current length's kept aside in turn."""
+        if self.held is not None:
+            self.held.forget()  # its columns are of the last length's factor
         current = self._current_length() if self._dt > 0.0 else None
         other, self._other_length = self._other_length, current
         if other is not None and other.dt == dt:
@@ -371,6 +382,8 @@ class ImplicitSolver(ModelCache, Solver):
         """Factorise the matrix `_factorise` assembled, the anchored rows' diagonal raised
         (`anchors` module docstring)."""
         self._factored_version = self._anchors_version()
+        if self.held is not None:
+            self.held.forget()
         indptr, indices, data = self._matrix
         if self.anchors is not None and self.anchors.anchored.any():
             data = data.copy()
@@ -441,6 +454,9 @@ class ImplicitSolver(ModelCache, Solver):
             self.contact_friction = np.zeros(pushed_vertices.shape[0])
             if control.friction is not None and control.friction.shape[0] == x.shape[0]:
                 self.contact_friction = control.friction[pushed_vertices]
+            self.contact_still = np.zeros(pushed_vertices.shape[0], dtype=np.bool_)
+            if control.still_contact is not None and control.still_contact.shape[0] == x.shape[0]:
+                self.contact_still = control.still_contact[pushed_vertices]
             if control.self_contact is not None and control.self_contact.shape[0] == x.shape[0]:
                 self.contact_self = control.self_contact[pushed_vertices]
                 self.contact_impacts &= ~self.contact_self
@@ -530,13 +546,15 @@ class ImplicitSolver(ModelCache, Solver):
 
     def _forget_contacts(self) -> None:
         """No vertex held: the free rows (K,) of F a constraint pushed before this step and the unit
-        push of each (K, 3) are empty together, with whether each is an impact and whether
-        self-collision pushed it (K,) bool each."""
+        push of each (K, 3) are empty together, with whether each is an impact, whether
+        self-collision pushed it and whether a still collider did (K,) bool each, and that
+        collider's friction (K,)."""
         self.contact_rows = np.zeros(0, dtype=np.int64)
         self.contact_normals = np.zeros((0, 3))
         self.contact_impacts = np.zeros(0, dtype=np.bool_)
         self.contact_self = np.zeros(0, dtype=np.bool_)
         self.contact_friction = np.zeros(0)
+        self.contact_still = np.zeros(0, dtype=np.bool_)
 
     def _local_global(self, x: np.ndarray, y: np.ndarray, iterations: int) -> None:
         """Liu et al.'s `iterations`: project every spring, solve the prefactored system, repeat."""
@@ -608,6 +626,23 @@ class ImplicitSolver(ModelCache, Solver):
             self.grad, self.trial_grad = self.trial_grad, self.grad
         return energy
 
+    def _two_loop(
+        self, grad: np.ndarray, held_contacts: tuple[np.ndarray, ...], order: np.ndarray,
+        history: tuple[np.ndarray, ...],
+    ) -> float:
+        """L-BFGS's two-loop recursion: `self.direction` (F, 3) = H grad, H0 the prefactored
+        matrix's inverse on the motions that keep the held contacts (`held`); returns the slope
+        of the step -direction. held_contacts: the rows (K,) and unit directions (K, 3) the
+        filters take out (a row per normal, three per fixed row), the rows held along their
+        normal alone and their normals, and the rows held along every axis; order: the history
+        slots, newest first; history: (rho, step history, gradient history, alpha)."""
+        rows, normals, along, along_normals, fixed = held_contacts
+        kernels.lbfgs_first_loop(grad, rows, normals, order, *history, self.residual)
+        self.factor.solve(self.residual, self.direction)
+        if rows.shape[0]:
+            self.held.project(self.factor, self.direction, along, along_normals, fixed)
+        return kernels.lbfgs_second_loop(self.direction, rows, normals, order, *history, grad)
+
     def _quasi_newton(self, x: np.ndarray, y: np.ndarray, iterations: int, start: np.ndarray) -> np.ndarray:
         """`iterations` of L-BFGS on the step's energy from x (= y on the free vertices), in place; returns the
         energy's gradient (F, 3) at the x it leaves (one of the solver's buffers). start (V, 3): where
@@ -652,25 +687,26 @@ class ImplicitSolver(ModelCache, Solver):
                 held = self._pressed(grad, x, y)
                 if iteration + 1 == iterations:
                     held &= ~self.contact_self
-                rows, normals = self.contact_rows[held], self.contact_normals[held]
+                along, along_normals = self.contact_rows[held], self.contact_normals[held]
+                rows, normals, fixed = along, along_normals, no_rows
+                # a still collider's and the cloth's own layers': the preconditioner keeps them exactly
+                exact = held & (self.contact_still | self.contact_self)
+                along, along_normals = self.contact_rows[exact], self.contact_normals[exact]
                 if stuck is not None and (stuck & held).any():  # held along every axis: static friction
                     fixed = self.contact_rows[stuck & held]
                     rows = np.concatenate([rows, np.repeat(fixed, 3)])
                     normals = np.concatenate([normals, np.tile(_AXES, (fixed.shape[0], 1))])
             else:
                 rows, normals = no_rows, no_normals
+                along, along_normals, fixed = no_rows, no_normals, no_rows
             # two-loop recursion: direction = H grad, H0 = matrix^-1 (the step is -direction)
             order = np.array(slots, dtype=np.int64)
             history = (self.rho, self.step_history, self.gradient_history, alpha)
-            kernels.lbfgs_first_loop(grad, rows, normals, order, *history, self.residual)
-            self.factor.solve(self.residual, direction)
-            slope = kernels.lbfgs_second_loop(direction, rows, normals, order, *history, grad)
+            held_contacts = (rows, normals, along, along_normals, fixed)
+            slope = self._two_loop(grad, held_contacts, order, history)
             if not slope < 0.0 and slots:  # the history spoilt the direction: start it afresh
                 slots.clear()
-                order = order[:0]
-                kernels.lbfgs_first_loop(grad, rows, normals, order, *history, self.residual)
-                self.factor.solve(self.residual, direction)
-                slope = kernels.lbfgs_second_loop(direction, rows, normals, order, *history, grad)
+                slope = self._two_loop(grad, held_contacts, order[:0], history)
             if not slope < 0.0:  # a stationary point
                 return grad
             kernels.gather_rows(x, fv, base)
