@@ -208,6 +208,37 @@ def test_an_impact_zone_does_not_carry_a_layer_into_the_ground() -> None:
     assert x[top, 1].mean() > x[~top, 1].mean()
 
 
+def test_a_layer_pressed_onto_a_sheet_lying_on_the_ground_is_pushed_off_it_by_the_thickness() -> None:
+    """Two sheets 1 cm apart in the rest mesh (so they keep the full thickness), the lower one lying
+    on the ground at the ground's thickness, the upper one moved down to 1 mm above it within a
+    substep: after the substep (the ground, then self-collision, as `simulate` runs them) the
+    layers are at least the thickness less 1 mm apart (the planes' heights: both sheets stay flat)
+    and the lower one still lies on the ground. The proximity step moves both layers half of the
+    4 mm they lack; the ground pushed the lower one back and the pair was left 2 mm short."""
+    lower = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.0, 0.01, 0.0))
+    upper = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.01, 0.02, 0.013))
+    count = lower.positions.shape[0]
+    mesh = Mesh(
+        positions=np.concatenate([lower.positions, upper.positions]),
+        face_indices=np.concatenate([lower.face_indices, upper.face_indices + count]),
+        face_offsets=np.concatenate([lower.face_offsets, upper.face_offsets[1:] + lower.face_indices.shape[0]]),
+    )
+    model = SpringModel.from_mesh(mesh)
+    top = np.arange(model.vertex_count) >= count
+    state = State.at_rest(model)
+    dt = 1.0 / 240.0
+    ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 0.3, 0.01)
+    contact = SelfCollision(SelfCollisionSettings(thickness=THICKNESS), [ground])
+    contact.project(model, state, dt, dt)  # a substep at rest: where the next one starts
+    state.positions[top, 1] = 0.011
+    state.velocities[top, 1] = -0.009 / dt
+    ground.project(model, state, 2 * dt, dt)
+    contact.project(model, state, 2 * dt, dt)
+    x = state.positions
+    assert float(x[top, 1].min() - x[~top, 1].max()) >= THICKNESS - 0.001
+    assert float(x[~top, 1].min()) >= 0.01 - 1e-6
+
+
 def test_runs_are_byte_identical() -> None:
     model = SpringModel.from_mesh(_collapsing_sheet(12))
     first = _run(model, True, 8)
