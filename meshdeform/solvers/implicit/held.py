@@ -73,6 +73,9 @@ class HeldContacts:
         self._unit = np.zeros((rows, 3))
         self._solved = np.zeros((rows, 3))
         self._push = np.zeros((self.cached, 3))
+        #: (F + 1,) all False between calls: rows marked for a membership test (index -1, an
+        #: empty slot's row, is the extra one, never marked)
+        self._marked = np.zeros(rows + 1, dtype=np.bool_)
         #: the last system's constraints (rows, unit directions) and its Cholesky factor
         self._system: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
@@ -99,8 +102,12 @@ class HeldContacts:
         if not rows.shape[0] and not fixed.shape[0]:
             return
         # one entry a row: fixed rows along the axes, the others along their normal
-        alone = ~np.isin(rows, fixed)
-        along, along_normals = rows[alone], normals[alone]
+        along, along_normals = rows, normals
+        if fixed.shape[0]:
+            self._marked[fixed] = True
+            alone = ~self._marked[rows]
+            self._marked[fixed] = False
+            along, along_normals = rows[alone], normals[alone]
         if along.shape[0] + 3 * fixed.shape[0] > self.capacity:
             along, along_normals, fixed = self._chosen(direction, along, along_normals, fixed)
         constraint_rows = np.concatenate([along, np.repeat(fixed, 3)]).astype(np.int64)
@@ -148,7 +155,9 @@ class HeldContacts:
         if missing.shape[0]:
             # never used first, then the least recently used, none whose row is held now
             order = np.argsort(self._used_at, kind="stable")
-            order = order[~np.isin(self._row_of_slot[order], rows)][: missing.shape[0]]
+            self._marked[rows] = True
+            order = order[~self._marked[self._row_of_slot[order]]][: missing.shape[0]]
+            self._marked[rows] = False
             evicted = self._row_of_slot[order]
             self._slot_of_row[evicted[evicted >= 0]] = -1
             for start in range(0, missing.shape[0], 3):
