@@ -488,14 +488,13 @@ class SelfCollision(Constraint, Remappable):
         topology = self._prepare(model)
         self._picker.timed(lambda threads: self._project(model, topology, state, time, dt, threads))
 
-    def _pushed_back(self, moved: np.ndarray) -> bool:
-        """Whether a collider's last `project` pushed a vertex among `moved` (V,) bool."""
+    def _pushed(self, n: int) -> np.ndarray:
+        """(n,) bool: the vertices a collider pushed in its last `project`."""
+        pushed = np.zeros(n, dtype=np.bool_)
         for collider in self.colliders:
-            if isinstance(collider, Collider) and collider.pushed is not None:
-                pushed = collider.pushed
-                if pushed.shape[0] == moved.shape[0] and bool((pushed & moved).any()):
-                    return True
-        return False
+            if isinstance(collider, Collider) and collider.pushed is not None and collider.pushed.shape[0] == n:
+                pushed |= collider.pushed
+        return pushed
 
     def _project(
         self, model: SpringModel, topology: _Topology, state: State, time: float, dt: float, threads: int
@@ -537,34 +536,42 @@ class SelfCollision(Constraint, Remappable):
         # the colliders again, where the proximity step moved something (it may push a layer into
         # them); where it moved nothing they already hold the positions they left. A collider
         # that pushes back a vertex the proximity step moved into it leaves that vertex's pairs
-        # short of their gap by its push (a layer fallen onto a corner lying on the ground came
-        # within 3.2 mm of it, each substep's proximity step moving the grounded corner half the
-        # way into the ground): the proximity step and the colliders again, up to
-        # `PROXIMITY_ROUNDS` times, while a collider pushes back what the step moved
+        # short of their gap by its push (proximity moves both sides, the collider puts one back:
+        # a layer pressed onto a sheet lying on the ground kept 2.7 mm of the 5): those pairs once
+        # more, the pushed-back vertices held where the collider put them (no inverse mass), then
+        # the colliders again
         if work.projections:
             moved = np.any(x != x1, axis=1)
             for collider in self.colliders:
                 collider.project(model, state, time, dt)
-            for _ in range(PROXIMITY_ROUNDS):
-                if not self._pushed_back(moved):
-                    break
+            held = moved & self._pushed(n)
+            if held.any():
                 before = x.copy()
                 active_vf, side_vf, active_ee, side_ee = by_rows(
                     functools.partial(self_kernels.proximity_sides, x, x0, topology.triangles, topology.edges),
                     ((pairs.vf, vf_gap, pairs.vf_lower), (pairs.ee, ee_gap, pairs.ee_lower)),
                     threads,
                 )
+                active_vf &= held[pairs.vf[:, 0]] | held[topology.triangles[pairs.vf[:, 1]]].any(axis=1)
+                active_ee &= held[topology.edges[pairs.ee]].reshape(-1, 4).any(axis=1)
+                free_mass = np.where(held, 0.0, inv_mass)
                 more = self_kernels.project_proximity(
-                    x, x0, inv_mass, topology.triangles, topology.edges, pairs.vf, vf_gap, active_vf, side_vf,
+                    x, x0, free_mass, topology.triangles, topology.edges, pairs.vf, vf_gap, active_vf, side_vf,
                     pairs.ee, ee_gap, active_ee, side_ee, settings.sweeps, settings.friction,
                 )
+                # a pair whose only free vertex has a small share in it (an edge's end at a
+                # barycentric weight near 0) moves that vertex as a long lever would: a round
+                # that moved any vertex farther than the thickness is undone (the anchor solver's
+                # collapsing sheet was thrown to 1e14 m)
+                step = x - before
+                if np.einsum("ij,ij->i", step, step).max(initial=0.0) > self.thickness**2:
+                    x[:] = before
+                    more = 0
                 _settle(state, before, dt)
-                if not more:
-                    break
-                work.projections += more
-                moved = np.any(x != before, axis=1)
-                for collider in self.colliders:
-                    collider.project(model, state, time, dt)
+                if more:
+                    work.projections += more
+                    for collider in self.colliders:
+                        collider.project(model, state, time, dt)
         x2 = x.copy()
 
         # 2. and 3. the continuous check along x0 -> x, impact zones until nothing is flagged
@@ -603,8 +610,6 @@ class SelfCollision(Constraint, Remappable):
         self.work.add(work)
 
 
-#: rounds of the proximity step again after the colliders pushed back what it moved (`_project`)
-PROXIMITY_ROUNDS = 3
 #: rounds of the colliders and zones that stay where the substep started after the first
 #: zones (`_project`): each round's colliders may move a vertex a zone put back, and each round's
 #: zones may put back a vertex a collider moved, until either leaves the other nothing to do

@@ -454,13 +454,13 @@ class ImplicitSolver(ModelCache, Solver):
             self.contact_friction = np.zeros(pushed_vertices.shape[0])
             if control.friction is not None and control.friction.shape[0] == x.shape[0]:
                 self.contact_friction = control.friction[pushed_vertices]
-            # sliding faster along its surface than its friction stops in a step (friction |a| dt):
-            # no static friction for it this step (held where it is along every axis, a crumpled
+            # sliding faster along its surface than its friction stops in `STICK_STEPS` steps: no
+            # static friction for it this step (held where it is along every axis, a crumpled
             # sheet's rows sliding at 1 m/s were stopped dead and stretched the cloth 40 %)
             normal = np.einsum("ij,ij->i", v[pushed_vertices], self.contact_normals)
             sliding = v[pushed_vertices] - normal[:, None] * self.contact_normals
             self.contact_sliding = np.einsum("ij,ij->i", sliding, sliding) > (
-                self.contact_friction * np.linalg.norm(accel[pushed_vertices], axis=1) * dt
+                STICK_STEPS * self.contact_friction * np.linalg.norm(accel[pushed_vertices], axis=1) * dt
             ) ** 2
             self.contact_still = np.zeros(pushed_vertices.shape[0], dtype=np.bool_)
             if control.still_contact is not None and control.still_contact.shape[0] == x.shape[0]:
@@ -536,7 +536,7 @@ class ImplicitSolver(ModelCache, Solver):
         energy's gradient (F, 3) at the iterations' start: pressed in (F_n = grad . n > 0, the
         force the obstacle takes) with the rest of the force, momentum included, within the
         friction's cone (|F_t| <= friction F_n), and not sliding at the step's start faster than
-        its friction stops in a step (`contact_sliding`); None where none is. Such a contact is held where
+        its friction stops in `STICK_STEPS` steps (`contact_sliding`); None where none is. Such a contact is held where
         it is along every axis, not only its normal: held along the normal alone, a cloth on a
         slope slid within every step by what gravity gives it along the slope, and the
         velocity friction after the step took the speed but not the way (docs/performance.md,
@@ -557,7 +557,7 @@ class ImplicitSolver(ModelCache, Solver):
         """No vertex held: the free rows (K,) of F a constraint pushed before this step and the unit
         push of each (K, 3) are empty together, with whether each is an impact, whether
         self-collision pushed it, whether a still collider did and whether it slides faster than
-        its friction stops in a step (K,) bool each, and that collider's friction (K,)."""
+        its friction stops in `STICK_STEPS` steps (K,) bool each, and that collider's friction (K,)."""
         self.contact_rows = np.zeros(0, dtype=np.int64)
         self.contact_normals = np.zeros((0, 3))
         self.contact_impacts = np.zeros(0, dtype=np.bool_)
@@ -774,6 +774,12 @@ TRUST_FRACTION = 0.25
 #: structural rest length: pressed by stiff springs, a vertex would otherwise be sunk deep and
 #: pushed back out as a strong, sticking friction that stretches the cloth (docs/performance.md)
 SINK_FRACTION = 1.0 / 16.0
+#: a contact sliding at its step's start faster than its friction stops in this many steps
+#: (STICK_STEPS friction |a| dt) takes no static friction in the step (`contact_sliding`): 1 let
+#: a sheet collapsing onto the ground slide and stretch 1.065 (1.018 held), 8 let a crumpled
+#: sheet's sliding rows be stopped dead and stretch it 40 % (docs/performance.md, "Static
+#: friction for contacts that do not slide")
+STICK_STEPS = 4.0
 #: the share of a held contact's press that its springs must give for the matrix to tie it down
 #: (`anchors`): a cloth the springs pull into an obstacle needs its contacts tied, but tying one
 #: that only its weight presses stiffens the matrix against its sliding by the springs' stiffness
