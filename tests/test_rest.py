@@ -253,6 +253,22 @@ def test_a_sheet_creeping_down_a_slope_is_not_reported_at_rest(solver: str) -> N
 LYING_SOLVERS = ("springs", "verlet", "xpbd")
 
 
+#: the ball a sheet is laid on (m), and the frames it lies there (6 s at 24 fps)
+LAID_RADIUS, LAID_FRAMES = 0.45, 144
+
+
+def laid_on_a_ball(solver: str) -> BuiltSimulation:
+    """A 12 x 12 sheet of 0.4 m, flat, 2 cm above the top of a ball of radius `LAID_RADIUS`,
+    friction 0.5, no ground, `solver` at its defaults, built through a recipe."""
+    grid = grid_mesh(12, 12, size=(0.4, 0.4), plane="xz")
+    mesh = replace(grid, positions=grid.positions - [0.2, -(2 * LAID_RADIUS + 0.02), 0.2])
+    text = (
+        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {LAID_FRAMES}\n\n'
+        f"[[colliders]]\nsphere = {{ center = [0, {LAID_RADIUS}, 0], radius = {LAID_RADIUS} }}\nfriction = 0.5\n"
+    )
+    return build_simulation(parse_recipe(text), mesh)
+
+
 @pytest.mark.parametrize("solver", LYING_SOLVERS)
 def test_a_cloth_laid_on_a_ball_comes_to_rest_on_it(solver: str) -> None:
     """A 12 x 12 sheet of 0.4 m dropped from 2 cm onto the top of a ball of radius 0.45 m, friction
@@ -261,14 +277,8 @@ def test_a_cloth_laid_on_a_ball_comes_to_rest_on_it(solver: str) -> None:
     written positions barely move (under the rest speed times the frame time). The air damping
     (0.9) alone takes 4 s to bring a hanging edge's swing of 1 cm/s to the rest speed: `springs`,
     without numerical damping, rests at 4.6 s (xpbd 1.8 s, verlet 3.9 s)."""
-    radius, frames = 0.45, 144
-    grid = grid_mesh(12, 12, size=(0.4, 0.4), plane="xz")
-    mesh = replace(grid, positions=grid.positions - [0.2, -(2 * radius + 0.02), 0.2])
-    text = (
-        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {frames}\n\n'
-        f"[[colliders]]\nsphere = {{ center = [0, {radius}, 0], radius = {radius} }}\nfriction = 0.5\n"
-    )
-    built = build_simulation(parse_recipe(text), mesh)
+    radius, frames = LAID_RADIUS, LAID_FRAMES
+    built = laid_on_a_ball(solver)
     frames_out = list(simulate(built.model, built.scene, built.settings))
     positions = np.stack([f.welded_positions for f in frames_out])
     assert positions[-1][:, 1].max() > 2 * radius  # still on top of the ball
@@ -284,16 +294,9 @@ def test_a_cloth_laid_on_a_ball_stays_on_it_under_implicit() -> None:
     ball's axis in every frame (it bounced and slid off while the preconditioner's solves ignored
     the held contacts). Its edges still swing up and down for a second (the sheet bends
     elastically, undamped but by the air), so no rest is asked for."""
-    radius, frames = 0.45, 144
-    grid = grid_mesh(12, 12, size=(0.4, 0.4), plane="xz")
-    mesh = replace(grid, positions=grid.positions - [0.2, -(2 * radius + 0.02), 0.2])
-    text = (
-        f'[simulation]\nsolver = "implicit"\nfps = 24\nframes = {frames}\n\n'
-        f"[[colliders]]\nsphere = {{ center = [0, {radius}, 0], radius = {radius} }}\nfriction = 0.5\n"
-    )
-    built = build_simulation(parse_recipe(text), mesh)
+    built = laid_on_a_ball("implicit")
     positions = np.stack([f.welded_positions for f in simulate(built.model, built.scene, built.settings)])
-    assert positions[:, :, 1].max(axis=1).min() > 2 * radius
+    assert positions[:, :, 1].max(axis=1).min() > 2 * LAID_RADIUS
     centre = np.einsum("v,fvk->fk", built.model.mass, positions) / built.model.mass.sum()
     assert np.hypot(centre[:, 0], centre[:, 2]).max() < 0.05
 

@@ -176,14 +176,11 @@ def test_a_sheet_thrown_at_another_never_passes_through(speed: float) -> None:
         assert (x[np.flatnonzero(upper)[point], 1] > height).all()
 
 
-def test_an_impact_zone_does_not_carry_a_layer_into_the_ground() -> None:
-    """A sheet falling through one that lies on the ground within one substep, with no proximity
-    sweeps, so only impact zones part them: a zone's common translation would carry the lower
-    sheet down into the ground's thickness (its mean motion is the upper sheet's fall, halved).
-    Afterwards no triangle pair intersects, every vertex keeps the ground's 1 cm less 1 mm, and
-    the upper sheet is still above the lower one."""
-    lower = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.0, 0.012, 0.0))
-    upper = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.01, 0.03, 0.013))
+def _sheet_over_sheet(lower_height: float, upper_height: float) -> tuple[SpringModel, np.ndarray]:
+    """Two 6 x 6 triangulated sheets of 0.3 m lying flat (XZ) at the given heights (m), the upper
+    one shifted 1 and 1.3 cm sideways, as one model of two pieces, and its upper sheet's mask."""
+    lower = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.0, lower_height, 0.0))
+    upper = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.01, upper_height, 0.013))
     count = lower.positions.shape[0]
     mesh = Mesh(
         positions=np.concatenate([lower.positions, upper.positions]),
@@ -191,7 +188,16 @@ def test_an_impact_zone_does_not_carry_a_layer_into_the_ground() -> None:
         face_offsets=np.concatenate([lower.face_offsets, upper.face_offsets[1:] + lower.face_indices.shape[0]]),
     )
     model = SpringModel.from_mesh(mesh)
-    top = np.arange(model.vertex_count) >= count
+    return model, np.arange(model.vertex_count) >= count
+
+
+def test_an_impact_zone_does_not_carry_a_layer_into_the_ground() -> None:
+    """A sheet falling through one that lies on the ground within one substep, with no proximity
+    sweeps, so only impact zones part them: a zone's common translation would carry the lower
+    sheet down into the ground's thickness (its mean motion is the upper sheet's fall, halved).
+    Afterwards no triangle pair intersects, every vertex keeps the ground's 1 cm less 1 mm, and
+    the upper sheet is still above the lower one."""
+    model, top = _sheet_over_sheet(0.012, 0.03)
     state = State.at_rest(model)
     dt = 1.0 / 240.0
     ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 0.3, 0.01)
@@ -215,16 +221,7 @@ def test_a_layer_pressed_onto_a_sheet_lying_on_the_ground_is_pushed_off_it_by_th
     layers are at least the thickness less 1 mm apart (the planes' heights: both sheets stay flat)
     and the lower one still lies on the ground. The proximity step moves both layers half of the
     4 mm they lack; the ground pushed the lower one back and the pair was left 2 mm short."""
-    lower = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.0, 0.01, 0.0))
-    upper = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.01, 0.02, 0.013))
-    count = lower.positions.shape[0]
-    mesh = Mesh(
-        positions=np.concatenate([lower.positions, upper.positions]),
-        face_indices=np.concatenate([lower.face_indices, upper.face_indices + count]),
-        face_offsets=np.concatenate([lower.face_offsets, upper.face_offsets[1:] + lower.face_indices.shape[0]]),
-    )
-    model = SpringModel.from_mesh(mesh)
-    top = np.arange(model.vertex_count) >= count
+    model, top = _sheet_over_sheet(0.01, 0.02)
     state = State.at_rest(model)
     dt = 1.0 / 240.0
     ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 0.3, 0.01)
