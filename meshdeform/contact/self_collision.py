@@ -71,7 +71,7 @@ from meshdeform.contact.triangle_distance import triangles_cross
 from meshdeform.geometry import scatter_triangles, triangle_area_vectors
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Constraint, Remappable
-from meshdeform.scene.colliders import Collider
+from meshdeform.scene.colliders import Collider, pushed_vertices
 from meshdeform.solvers.threads import ThreadPicker, split_threads
 
 
@@ -488,14 +488,6 @@ class SelfCollision(Constraint, Remappable):
         topology = self._prepare(model)
         self._picker.timed(lambda threads: self._project(model, topology, state, time, dt, threads))
 
-    def _pushed(self, n: int) -> np.ndarray:
-        """(n,) bool: the vertices a collider pushed in its last `project`."""
-        pushed = np.zeros(n, dtype=np.bool_)
-        for collider in self.colliders:
-            if isinstance(collider, Collider) and collider.pushed is not None and collider.pushed.shape[0] == n:
-                pushed |= collider.pushed
-        return pushed
-
     def _project(
         self, model: SpringModel, topology: _Topology, state: State, time: float, dt: float, threads: int
     ) -> None:
@@ -544,7 +536,7 @@ class SelfCollision(Constraint, Remappable):
             moved = np.any(x != x1, axis=1)
             for collider in self.colliders:
                 collider.project(model, state, time, dt)
-            held = moved & self._pushed(n)
+            held = moved & pushed_vertices(self.colliders, n)
             if held.any():
                 before = x.copy()
                 active_vf, side_vf, active_ee, side_ee = by_rows(

@@ -416,6 +416,15 @@ def hold_contacts_still(constraints: Sequence[Constraint], hold: bool) -> None:
             constraint.holds_still = hold
 
 
+def pushed_vertices(constraints: Sequence[Constraint], vertex_count: int, *, still: bool = False) -> np.ndarray:
+    """(V,) bool: the vertices a collider among `constraints` moved in its last `project` (a
+    still one only, where `still`)."""
+    pushed = np.zeros(vertex_count, dtype=np.bool_)
+    for collider in _pushing(constraints, vertex_count, still):
+        pushed |= collider.pushed
+    return pushed
+
+
 def still_pushes(constraints: Sequence[Constraint], vertex_count: int) -> tuple[np.ndarray, np.ndarray]:
     """Which vertices a still collider moved in its last `project` (V,) bool
     (`Control.still_contact`), and the friction coefficient of that collider (V,) (the largest
@@ -423,14 +432,20 @@ def still_pushes(constraints: Sequence[Constraint], vertex_count: int) -> tuple[
     left out of both: its static friction would hold a vertex to its moving surface, which the
     solver does not know (they keep the velocity friction alone), and a hold along the push of
     its moving, turning surface is no hold on it."""
-    pushed = np.zeros(vertex_count, dtype=np.bool_)
     friction = np.zeros(vertex_count)
-    for constraint in constraints:
-        moved = constraint.pushed if isinstance(constraint, Collider) and not constraint.moves else None
-        if moved is not None and moved.shape[0] == vertex_count:
-            pushed |= moved
-            np.maximum(friction, np.where(moved, constraint.friction, 0.0), out=friction)
-    return pushed, friction
+    for collider in _pushing(constraints, vertex_count, True):
+        np.maximum(friction, np.where(collider.pushed, collider.friction, 0.0), out=friction)
+    return pushed_vertices(constraints, vertex_count, still=True), friction
+
+
+def _pushing(constraints: Sequence[Constraint], vertex_count: int, still: bool) -> list[Collider]:
+    """The colliders among `constraints` whose last `project` left a (vertex_count,) `pushed`
+    array (the still ones only, where `still`)."""
+    return [
+        c for c in constraints
+        if isinstance(c, Collider) and not (still and c.moves) and c.pushed is not None
+        and c.pushed.shape[0] == vertex_count
+    ]
 
 
 def fastest_motion(place: Callable[[float], np.ndarray], start: float, end: float) -> float:

@@ -21,9 +21,10 @@ a low-rank correction of the usual solve u (Woodbury's identity for the constrai
 what eliminating the constraints from the matrix would give, without refactorising it). A^-1 C^T
 needs the columns of A^-1 at the held rows: each is one solve with the factor, kept for as long as
 the factor is (`forget` when it changes), so a contact held for many steps costs its column once.
-C A^-1 C^T (m x m, m constraints) is dense and small: G_ij = (A^-1)_{r_i r_j} (n_i . n_j). It is
-solved by a dense Cholesky factorisation in `project_kernel`, the correction applied there too,
-in a fixed order (the same bytes on any thread count; no BLAS).
+C A^-1 C^T (m x m, m constraints) is dense and small: G_ij = (A^-1)_{r_i r_j} (n_i . n_j)
+(`held_matrix`), factorised by the coarse space's dense Cholesky (`coarse.factor_spd`, serial and
+in a fixed order: the same bytes on any thread count, no BLAS; a constraint the others already
+hold is left out) and kept while the constraint set stays; `held_correct` applies it.
 
 The columns cost F floats each; at most `MAX_CONSTRAINTS` constraints are treated exactly (fewer
 on a large cloth: `BUDGET` floats in all). Where more rows are held, the ones whose unconstrained
@@ -38,7 +39,8 @@ import numba as nb
 import numpy as np
 
 from meshdeform.solvers.implicit.cholesky import CholmodFactor, SparseCholesky
-from meshdeform.solvers.jit import FAST, JIT
+from meshdeform.solvers.implicit.coarse import factor_spd, solve_factored
+from meshdeform.solvers.jit import JIT
 
 #: the most constraints treated exactly (a row held along its normal is one, a row static
 #: friction holds three): the dense system's factorisation costs O(m^3); measured in
@@ -76,8 +78,9 @@ class HeldContacts:
         #: (F + 1,) all False between calls: rows marked for a membership test (index -1, an
         #: empty slot's row, is the extra one, never marked)
         self._marked = np.zeros(rows + 1, dtype=np.bool_)
-        #: the last system's constraints (rows, unit directions) and its Cholesky factor
-        self._system: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        #: the last system's constraints (rows, unit directions) and its Cholesky factor (lower
+        #: triangle, pivots left out: `coarse.factor_spd`)
+        self._system: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def forget(self) -> None:
         """The factor changed: every column computed so far is void."""
@@ -119,14 +122,14 @@ class HeldContacts:
             np.array_equal(last[0], constraint_rows) and np.array_equal(last[1], constraint_normals)
         ):
             m = constraint_rows.shape[0]
-            system = np.empty((m, m))
-            if not held_system(self._columns, constraint_rows, constraint_slots, constraint_normals, system):
-                self._system = None
-                return  # not positive definite (rounding): the filter alone, as without this correction
-            self._system = last = (constraint_rows, constraint_normals, system)
+            system, skip = np.empty((m, m)), np.empty(m, dtype=np.bool_)
+            held_matrix(self._columns, constraint_rows, constraint_slots, constraint_normals, system)
+            factor_spd(system, skip)  # a constraint the others already hold (rounding) is left out
+            self._system = last = (constraint_rows, constraint_normals, system, skip)
+        m = constraint_rows.shape[0]
         held_correct(
-            direction, self._columns, constraint_rows, constraint_slots, constraint_normals, slots, last[2],
-            np.empty(constraint_rows.shape[0]), self._push,
+            direction, self._columns, constraint_rows, constraint_slots, constraint_normals, slots, last[2], last[3],
+            np.empty(m), np.empty(m), np.empty(m), self._push,
         )  # fmt: skip
 
     def _chosen(
@@ -173,12 +176,11 @@ class HeldContacts:
         return slots
 
 
-@nb.njit(**FAST)
-def held_system(columns, rows, slots, normals, system):  # pragma: no cover - compiled
-    """system (m, m) = the lower Cholesky factor of G = C A^-1 C^T for m constraints, each a unit
-    normal (m, 3) at a free row (m,) whose column of A^-1 is columns[slot] ((S, F), slots (m,)):
-    G_ij = (A^-1)_{r_i r_j} (n_i . n_j), the mean of its two computed copies (the solves'
-    rounding). False where G is not positive definite."""
+@nb.njit(**JIT)
+def held_matrix(columns, rows, slots, normals, system):  # pragma: no cover - compiled
+    """system (m, m) = G = C A^-1 C^T for m constraints, each a unit normal (m, 3) at a free row
+    (m,) whose column of A^-1 is columns[slot] ((S, F), slots (m,)): G_ij = (A^-1)_{r_i r_j}
+    (n_i . n_j), the mean of its two computed copies (the solves' rounding)."""
     m = rows.shape[0]
     for i in range(m):
         for j in range(i + 1):
@@ -186,46 +188,26 @@ def held_system(columns, rows, slots, normals, system):  # pragma: no cover - co
             value = 0.5 * (columns[slots[j], rows[i]] + columns[slots[i], rows[j]]) * dot
             system[i, j] = value
             system[j, i] = value
-    for j in range(m):
-        diagonal = system[j, j]
-        for k in range(j):
-            diagonal -= system[j, k] * system[j, k]
-        if not diagonal > 0.0:
-            return False
-        diagonal = np.sqrt(diagonal)
-        system[j, j] = diagonal
-        for i in range(j + 1, m):
-            value = system[i, j]
-            for k in range(j):
-                value -= system[i, k] * system[j, k]
-            system[i, j] = value / diagonal
-    return True
 
 
 @nb.njit(**JIT)
-def held_correct(direction, columns, rows, slots, normals, used, system, rhs, push):  # pragma: no cover - compiled
-    """direction (F, 3) -= A^-1 C^T G^-1 C direction, in place, with G's factor in system (m, m,
-    `held_system`'s) for the m constraints (rows, slots (m,), normals (m, 3)); used (U,): the
-    distinct slots among them. rhs (m,) is scratch, push (S, 3) too (left zero): each slot's
-    summed lambda_i n_i, taken from direction through its column."""
+def held_correct(  # pragma: no cover - compiled
+    direction, columns, rows, slots, normals, used, lower, skip, rhs, forward, lam, push
+):
+    """direction (F, 3) -= A^-1 C^T G^-1 C direction, in place, with G's factor lower, skip (m, m),
+    (m,) (`coarse.factor_spd` of `held_matrix`'s G) for the m constraints (rows, slots (m,),
+    normals (m, 3)); used (U,): the distinct slots among them. rhs, forward, lam (m,) are
+    scratch, push (S, 3) too (left zero): each slot's summed lambda_i n_i, taken from direction
+    through its column."""
     m = rows.shape[0]
     for i in range(m):
         r = rows[i]
         rhs[i] = direction[r, 0] * normals[i, 0] + direction[r, 1] * normals[i, 1] + direction[r, 2] * normals[i, 2]
-    for i in range(m):  # L w = C direction
-        value = rhs[i]
-        for k in range(i):
-            value -= system[i, k] * rhs[k]
-        rhs[i] = value / system[i, i]
-    for i in range(m - 1, -1, -1):  # L^T lambda = w
-        value = rhs[i]
-        for k in range(i + 1, m):
-            value -= system[k, i] * rhs[k]
-        rhs[i] = value / system[i, i]
+    solve_factored(lower, skip, rhs, forward, lam)
     for i in range(m):
-        push[slots[i], 0] += rhs[i] * normals[i, 0]
-        push[slots[i], 1] += rhs[i] * normals[i, 1]
-        push[slots[i], 2] += rhs[i] * normals[i, 2]
+        push[slots[i], 0] += lam[i] * normals[i, 0]
+        push[slots[i], 1] += lam[i] * normals[i, 1]
+        push[slots[i], 2] += lam[i] * normals[i, 2]
     for u in range(used.shape[0]):  # a slot's column at a time: contiguous
         s = used[u]
         p0, p1, p2 = push[s, 0], push[s, 1], push[s, 2]

@@ -697,8 +697,7 @@ class ImplicitSolver(ModelCache, Solver):
                 held = self._pressed(grad, x, y)
                 if iteration + 1 == iterations:
                     held &= ~self.contact_self
-                along, along_normals = self.contact_rows[held], self.contact_normals[held]
-                rows, normals, fixed = along, along_normals, no_rows
+                rows, normals, fixed = self.contact_rows[held], self.contact_normals[held], no_rows
                 # a still collider's and the cloth's own layers': the preconditioner keeps them exactly
                 exact = held & (self.contact_still | self.contact_self)
                 along, along_normals = self.contact_rows[exact], self.contact_normals[exact]
