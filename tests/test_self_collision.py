@@ -287,6 +287,29 @@ def test_broad_phase_finds_exactly_the_overlapping_boxes(dense_factor: float) ->
     assert len(same) == np.count_nonzero(np.triu(overlap, 1))
 
 
+@pytest.mark.parametrize("dense_factor", [0.0, 1e9])  # always hashed, always dense
+def test_a_box_thrown_far_away_keeps_the_grid_small_and_the_pairs_exact(dense_factor: float) -> None:
+    """A vertex a diverging substep throws 1e14 m (or to 1e300 m, or to a non-finite place) must
+    not make a grid of billions of cells before the frame's divergence guard stops the run: the
+    cell grows, the pairs of the finite boxes stay those of NumPy's all-pairs test."""
+    rng = np.random.default_rng(5)
+    lo = rng.uniform(0, 1, (3000, 3))
+    hi = lo + rng.uniform(0, 0.02, (3000, 3))
+    hi[5] = 1e14  # a box from the cloth out to 1e14 m along every axis
+    lo[9], hi[9] = 1e300, 1e300
+    _, start, element, _, _ = broad_phase.grid_for(lo, hi, lo, hi, dense_factor)
+    assert start.shape[0] < 1e7 and element.shape[0] < 1e7  # at the given cell: 1e48 entries
+    found = overlapping_pairs(lo, hi, lo, hi, upper_only=True, dense_factor=dense_factor)
+    overlap = np.all((lo[:, None] <= hi[None]) & (hi[:, None] >= lo[None]), axis=2)
+    assert set(map(tuple, found.tolist())) == {(a, b) for a, b in zip(*np.nonzero(overlap), strict=True) if a < b}
+    assert (found == 5).any(axis=1).sum() > 100  # the long box meets many others
+    lo[11, 0], hi[12, 1], lo[13, 2] = np.nan, np.inf, -np.inf
+    found = overlapping_pairs(lo, hi, lo, hi, upper_only=True, dense_factor=dense_factor)
+    finite = np.isfinite(lo).all(axis=1) & np.isfinite(hi).all(axis=1)
+    kept = {(a, b) for a, b in zip(*np.nonzero(overlap), strict=True) if a < b and finite[a] and finite[b]}
+    assert kept <= set(map(tuple, found.tolist()))  # the finite boxes' pairs all found still
+
+
 def test_the_scan_grid_finds_exactly_the_overlapping_boxes_in_element_order() -> None:
     """The one-cell grid of a search with few queries (`broad_phase.scan_grid`): every element whose
     box overlaps the query's, each once, in element order; against NumPy's all-pairs test."""

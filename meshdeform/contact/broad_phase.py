@@ -23,6 +23,16 @@ _P1, _P2, _P3 = 73856093, 19349663, 83492791  # Teschner et al.'s hash primes
 #: a grid is dense (no hashing) where the cells of its elements' range are at most this many per
 #: entry: a crumpled or draped cloth (compact), not a sheet spread over a large volume
 DENSE_FACTOR = 4.0
+#: the most grid cells a box may touch on average, element and query boxes together, before the
+#: cell grows (`bounded_inv_cell`): a typical box touches at most 8, so the cell never grows in a
+#: sound scene, but one vertex thrown kilometres away inside a diverging substep no longer makes
+#: a grid of billions of entries (24 GB once) before the frame's divergence guard can stop the run
+CELLS_PER_BOX = 64
+#: the cells the boxes may touch in any case (about 32 MB of grid entries)
+MIN_CELL_BUDGET = 1 << 20
+#: the largest cell index (per axis) a coordinate maps to: beyond it cells are clamped, so a
+#: coordinate of 1e300 m gives an index in range rather than an undefined integer conversion
+_MAX_INDEX = float(1 << 60)
 
 
 def cell_size(lo: np.ndarray, hi: np.ndarray) -> float:
@@ -59,6 +69,44 @@ def _percentile_90(values: np.ndarray) -> float:
 
 
 @nb.njit(**JIT)
+def cell_index(coordinate: float, inv_cell: float) -> int:
+    """The grid cell index along one axis of `coordinate` (m) at 1 / cell `inv_cell` (1/m):
+    clamped to +-2^60, and 0 for a coordinate that is not finite (a diverged vertex: its element
+    is entered in one cell, its pairs are left to the divergence guard)."""
+    scaled = coordinate * inv_cell
+    if not np.isfinite(scaled):
+        return 0
+    return int(np.floor(min(max(scaled, -_MAX_INDEX), _MAX_INDEX)))
+
+
+@nb.njit(**JIT)
+def _touched_cells(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> float:
+    """How many grid cells the boxes lo, hi (M, 3) touch together at 1 / cell `inv_cell` (a float:
+    the count of a far-flung box overflows an integer)."""
+    total = 0.0
+    for e in range(lo.shape[0]):
+        count = 1.0
+        for k in range(3):
+            count *= float(max(cell_index(hi[e, k], inv_cell) - cell_index(lo[e, k], inv_cell), 0) + 1)
+        total += count
+    return total
+
+
+def bounded_inv_cell(
+    qlo: np.ndarray, qhi: np.ndarray, elo: np.ndarray, ehi: np.ndarray, inv_cell: float
+) -> float:
+    """`inv_cell` (1/m), or a coarser one where at it the element and query boxes would touch
+    more than `CELLS_PER_BOX` cells a box (at least `MIN_CELL_BUDGET`): a grid's memory and a
+    query's cell visits stay bounded whatever the positions. The same pairs at any cell."""
+    budget = max(float(CELLS_PER_BOX * (elo.shape[0] + qlo.shape[0])), float(MIN_CELL_BUDGET))
+    touched = _touched_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _touched_cells(qlo, qhi, inv_cell))
+    while touched > budget:  # each box's count falls to 8 or fewer as the cell outgrows it
+        inv_cell /= max(2.0, (touched / budget) ** (1.0 / 3.0))
+        touched = _touched_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _touched_cells(qlo, qhi, inv_cell))
+    return inv_cell
+
+
+@nb.njit(**JIT)
 def _hash(ix: int, iy: int, iz: int, mask: int) -> int:
     return ((ix * _P1) ^ (iy * _P2) ^ (iz * _P3)) & mask
 
@@ -83,14 +131,14 @@ def build_grid(
     high = np.full(3, np.iinfo(np.int64).min, dtype=np.int64)
     for e in range(m):
         for k in range(3):
-            cells[e, k] = int(np.floor(lo[e, k] * inv_cell))
-            cells[e, 3 + k] = int(np.floor(hi[e, k] * inv_cell))
+            cells[e, k] = cell_index(lo[e, k], inv_cell)
+            cells[e, 3 + k] = max(cell_index(hi[e, k], inv_cell), cells[e, k])  # (not finite: one cell)
             low[k] = min(low[k], cells[e, k])
             high[k] = max(high[k], cells[e, 3 + k])
         total += (cells[e, 3] - cells[e, 0] + 1) * (cells[e, 4] - cells[e, 1] + 1) * (cells[e, 5] - cells[e, 2] + 1)
     box = np.zeros(6, dtype=np.int64)
     if m:
-        span = (high[0] - low[0] + 1) * (high[1] - low[1] + 1) * (high[2] - low[2] + 1)
+        span = float(high[0] - low[0] + 1) * float(high[1] - low[1] + 1) * float(high[2] - low[2] + 1)
         if span <= dense_factor * total:
             for k in range(3):
                 box[k] = low[k]
@@ -167,12 +215,12 @@ def query_box(
     mask = 0 if dense else start.shape[0] - 2
     capacity = found.shape[0]
     count = 0
-    x0 = int(np.floor(qlo[q, 0] * inv_cell))
-    y0 = int(np.floor(qlo[q, 1] * inv_cell))
-    z0 = int(np.floor(qlo[q, 2] * inv_cell))
-    x1 = int(np.floor(qhi[q, 0] * inv_cell))
-    y1 = int(np.floor(qhi[q, 1] * inv_cell))
-    z1 = int(np.floor(qhi[q, 2] * inv_cell))
+    x0 = cell_index(qlo[q, 0], inv_cell)
+    y0 = cell_index(qlo[q, 1], inv_cell)
+    z0 = cell_index(qlo[q, 2], inv_cell)
+    x1 = cell_index(qhi[q, 0], inv_cell)
+    y1 = cell_index(qhi[q, 1], inv_cell)
+    z1 = cell_index(qhi[q, 2], inv_cell)
     # a dense grid has no entries outside its range: visit only the cells inside it
     ax0, ay0, az0 = (max(x0, box[0]), max(y0, box[1]), max(z0, box[2])) if dense else (x0, y0, z0)
     ax1 = min(x1, box[0] + box[3] - 1) if dense else x1
@@ -195,9 +243,9 @@ def query_box(
                     ):
                         continue
                     # report once: in the cell of the overlap's lower corner (clamped to the query's cells)
-                    cx = min(max(int(np.floor(max(qlo[q, 0], elo[e, 0]) * inv_cell)), x0), x1)
-                    cy = min(max(int(np.floor(max(qlo[q, 1], elo[e, 1]) * inv_cell)), y0), y1)
-                    cz = min(max(int(np.floor(max(qlo[q, 2], elo[e, 2]) * inv_cell)), z0), z1)
+                    cx = min(max(cell_index(max(qlo[q, 0], elo[e, 0]), inv_cell), x0), x1)
+                    cy = min(max(cell_index(max(qlo[q, 1], elo[e, 1]), inv_cell), y0), y1)
+                    cz = min(max(cell_index(max(qlo[q, 2], elo[e, 2]), inv_cell), z0), z1)
                     if cx != ix or cy != iy or cz != iz:
                         continue
                     if count < capacity:
@@ -279,6 +327,7 @@ def grid_for(
     if inv_cell is None:
         size = cell_size(elo, ehi)
         inv_cell = 1.0 / (size if qlo is elo and qhi is ehi else max(size, cell_size(qlo, qhi)))
+    inv_cell = bounded_inv_cell(qlo, qhi, elo, ehi, inv_cell)
     return (inv_cell, *build_grid(elo, ehi, inv_cell, dense_factor))
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from meshdeform.contact.broad_phase import dense_cell, query_grown
+from meshdeform.contact.broad_phase import cell_index, dense_cell, query_grown
 from meshdeform.contact.primitives import point_triangle_weights, segment_segment_params
 from meshdeform.solvers.jit import JIT, opaque
 
@@ -301,7 +301,7 @@ def ee_candidates_in_cells(
         for k in range(3):
             entry_box[j, k] = elo[e, k]
             entry_box[j, 3 + k] = ehi[e, k]
-            entry_ends[j, 2 + k] = int(np.floor(elo[e, k] * inv_cell))
+            entry_ends[j, 2 + k] = cell_index(elo[e, k], inv_cell)
         entry_ends[j, 0], entry_ends[j, 1] = edges[e, 0], edges[e, 1]
     ix, iy, iz = 0, 0, 0
     for k in range(buckets.shape[0]):
