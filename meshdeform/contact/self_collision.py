@@ -539,17 +539,20 @@ class SelfCollision(Constraint, Remappable):
             held = moved & pushed_vertices(self.colliders, n)
             if held.any():
                 before = x.copy()
+                # the pairs touching a held vertex, in their order (the rest are not projected)
+                vf_held = np.flatnonzero(held[pairs.vf[:, 0]] | held[topology.triangles[pairs.vf[:, 1]]].any(axis=1))
+                ee_held = np.flatnonzero(held[topology.edges[pairs.ee]].reshape(-1, 4).any(axis=1))
+                vf, ee = pairs.vf[vf_held], pairs.ee[ee_held]
+                vf_held_gap, ee_held_gap = vf_gap[vf_held], ee_gap[ee_held]
                 active_vf, side_vf, active_ee, side_ee = by_rows(
                     functools.partial(self_kernels.proximity_sides, x, x0, topology.triangles, topology.edges),
-                    ((pairs.vf, vf_gap, pairs.vf_lower), (pairs.ee, ee_gap, pairs.ee_lower)),
+                    ((vf, vf_held_gap, pairs.vf_lower[vf_held]), (ee, ee_held_gap, pairs.ee_lower[ee_held])),
                     threads,
                 )
-                active_vf &= held[pairs.vf[:, 0]] | held[topology.triangles[pairs.vf[:, 1]]].any(axis=1)
-                active_ee &= held[topology.edges[pairs.ee]].reshape(-1, 4).any(axis=1)
                 free_mass = np.where(held, 0.0, inv_mass)
                 more = self_kernels.project_proximity(
-                    x, x0, free_mass, topology.triangles, topology.edges, pairs.vf, vf_gap, active_vf, side_vf,
-                    pairs.ee, ee_gap, active_ee, side_ee, settings.sweeps, settings.friction,
+                    x, x0, free_mass, topology.triangles, topology.edges, vf, vf_held_gap, active_vf, side_vf,
+                    ee, ee_held_gap, active_ee, side_ee, settings.sweeps, settings.friction,
                 )
                 # a pair whose only free vertex has a small share in it (an edge's end at a
                 # barycentric weight near 0) moves that vertex as a long lever would: a round
