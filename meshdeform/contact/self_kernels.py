@@ -456,6 +456,11 @@ def _tangential(rel: np.ndarray, nx: float, ny: float, nz: float, limit: float) 
     return min(1.0, limit / length)
 
 
+#: a pair is projected in a substep where its distance may have come within this many times its gap
+#: (the others' projections move its vertices too: a pair just outside its gap may be pushed in)
+ACTIVE_GAPS = 1.25
+
+
 @nb.njit(**JIT)
 def proximity_sides(
     x: np.ndarray,
@@ -470,7 +475,7 @@ def proximity_sides(
     ee_lower: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which pairs `project_proximity` treats, and the side each keeps: a pair whose distance may
-    come within twice its gap (m) (the lower bound at x0, `vf_lower`/`ee_lower` as
+    come within `ACTIVE_GAPS` times its gap (m) (the lower bound at x0, `vf_lower`/`ee_lower` as
     `colliding_pairs` keeps them, less the pair's relative travel to x); the unit direction from
     the triangle to the vertex, or from the second edge to the first, at x0. Returns active_vf
     (P,) bool, side_vf (P, 3), active_ee (Q,), side_ee (Q, 3) (sides of inactive pairs
@@ -482,7 +487,7 @@ def proximity_sides(
     for k in range(vf.shape[0]):
         t = vf[k, 1]
         ids[0], ids[1], ids[2], ids[3] = vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2]
-        if vf_lower[k] - _relative_travel(x0, x, ids, is_vf) > 2.0 * vf_gap[k]:
+        if vf_lower[k] - _relative_travel(x0, x, ids, is_vf) > ACTIVE_GAPS * vf_gap[k]:
             continue
         active_vf[k] = True
         nx, ny, nz = _vf_side(x0, vf[k, 0], triangles[t, 0], triangles[t, 1], triangles[t, 2])
@@ -492,7 +497,7 @@ def proximity_sides(
     for k in range(ee.shape[0]):
         e, f = ee[k, 0], ee[k, 1]
         ids[0], ids[1], ids[2], ids[3] = edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]
-        if ee_lower[k] - _relative_travel(x0, x, ids, is_ee) > 2.0 * ee_gap[k]:
+        if ee_lower[k] - _relative_travel(x0, x, ids, is_ee) > ACTIVE_GAPS * ee_gap[k]:
             continue
         active_ee[k] = True
         dist, _, _, dx, dy, dz = _ee_gap(x0, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1])
