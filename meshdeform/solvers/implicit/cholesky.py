@@ -525,12 +525,11 @@ class Supernodes(NamedTuple):
     """L's supernodes: S runs of columns (`start` (S + 1,): the first of each, then n) that share
     one pattern of rows, held as dense h x w blocks, column-major (`vals` from `vals_ptr` (S +
     1,): the solves run down each column's contiguous rows), zeros where a column has no entry,
-    1 / L_jj on the diagonal. `rows` (R,) int32, from
+    1 / L_jj on the diagonal (float32 where the factor is `single`). `rows` (R,) int32, from
     `rows_ptr` (S + 1,): each block's rows in the solves' work array (n + 2 T rows: a half's rows
     in the T separator rows are its own copies, n + T k + slot); `pattern`: the same rows in L.
     `shares`: the supernodes (first, last + 1) of each thread's half and of the separator, in
-    that order; `widest`, `tallest`: the most columns of a supernode and rows below them. (float32
-    blocks solved 3 % faster but broke free fall's exactness.)"""
+    that order; `widest`, `tallest`: the most columns of a supernode and rows below them."""
 
     start: np.ndarray
     rows_ptr: np.ndarray
@@ -543,6 +542,10 @@ class Supernodes(NamedTuple):
     tallest: int
 
 
+#: the blocks of a factor not yet made (or being remade)
+_NO_BLOCKS = np.zeros(0)
+
+
 class SparseCholesky:
     """A = L L^T of a symmetric positive definite (n, n) matrix given by its lower triangle in
     CSC (`indptr` (n + 1,), `indices`, `data`: each column's rows ascending, diagonal first), its
@@ -553,14 +556,20 @@ class SparseCholesky:
     threads: 1 or 2 (`beside`), settable between calls; the results are the same bytes either way.
     parallel_rows: the fewest rows split into two halves (`MIN_PARALLEL_ROWS`; `compile_kernels`
     splits a small one).
+    single: keep L in single precision for the solves once factorised (in double precision): the
+    solves read each block once and wait on memory, so half the bytes make them 1.45x faster
+    (256 x 256: 6.7 -> 4.6 ms on two threads); a solve is then the exact solve (in double
+    precision) of L~ L~^T, within about 1e-7 relative of A: what a preconditioner needs, not
+    an exact solve (docs/performance.md, "Single-precision factor blocks").
     """
 
     def __init__(
         self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray, threads: int = 2,
-        parallel_rows: int = MIN_PARALLEL_ROWS,
+        parallel_rows: int = MIN_PARALLEL_ROWS, single: bool = False,
     ) -> None:
         n = indptr.shape[0] - 1
         self.size = n
+        self.single = single
         self.threads = threads
         indptr = np.asarray(indptr, dtype=np.int64)
         indices = np.asarray(indices, dtype=np.int64)
@@ -623,12 +632,12 @@ class SparseCholesky:
         if data.shape != self._indices.shape or not np.isfinite(data).all():
             raise ValueError("the implicit solver's matrix has values of another count or non-finite ones")
         row_vals = data[self._value_source]
-        nodes = self._supernodes
-        nodes.vals[:] = 0.0
+        nodes = self._supernodes = self._supernodes._replace(vals=_NO_BLOCKS)  # the last factor's freed first
+        values = np.zeros(int(nodes.vals_ptr[-1]))  # factorised in double precision
         fill = np.arange(self.size, dtype=np.int64) - nodes.start[self._column_node]  # each diagonal's position
 
         matrix = (self._row_ptr, self._row_cols, row_vals, self._parent, self._column_node, nodes.start)
-        blocks = (nodes.rows_ptr, nodes.pattern, nodes.vals_ptr, nodes.vals, fill)
+        blocks = (nodes.rows_ptr, nodes.pattern, nodes.vals_ptr, values, fill)
 
         def scratch() -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # a thread's work, flag and stack
             return np.zeros(self.size), np.full(self.size, -1, dtype=np.int64), np.empty(self.size, dtype=np.int64)
@@ -649,6 +658,7 @@ class SparseCholesky:
                 )
                 failed.append(_separator_rest(first, *matrix, *blocks, *scratch(), sums))
         bad = [k for k in failed if k is not None and k >= 0]
+        self._supernodes = nodes._replace(vals=values.astype(np.float32) if self.single else values)
         if bad:
             raise ValueError(f"the implicit solver's matrix is not positive definite (row {int(self.order[min(bad)])})")
 
@@ -691,7 +701,7 @@ class SparseCholesky:
             rows=np.where(private, n + row_owner * (high - low) + slot[rows], rows).astype(np.int32),
             pattern=rows,
             vals_ptr=vals_ptr,
-            vals=np.zeros(int(vals_ptr[-1])),
+            vals=_NO_BLOCKS,
             shares=tuple((int(np.searchsorted(node_owner, side)), int(np.searchsorted(node_owner, side, "right")))
                          for side in (0, 1, 2)),
             widest=int(widths.max()) if widths.shape[0] else 1,
@@ -754,14 +764,15 @@ class CholmodFactor:
 
 
 def factorise(
-    indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray, threads: int
+    indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, points: np.ndarray, threads: int, single: bool
 ) -> SparseCholesky | CholmodFactor:
     """The factor of the SPD matrix whose lower triangle is `indptr`, `indices`, `data` (CSC,
     each column's diagonal first), its rows at `points` (n, 3), factorised on `threads` (1 or 2):
-    CHOLMOD's below `OWN_FACTOR_ROWS` rows, ours from there on (the module docstring)."""
+    CHOLMOD's below `OWN_FACTOR_ROWS` rows, ours from there on (the module docstring), its blocks
+    kept in single precision where `single` (a preconditioner's: `SparseCholesky`)."""
     if indptr.shape[0] - 1 < OWN_FACTOR_ROWS:
         return CholmodFactor(indptr, indices, data)
-    return SparseCholesky(indptr, indices, data, points, threads=threads)
+    return SparseCholesky(indptr, indices, data, points, threads=threads, single=single)
 
 
 def compile_kernels() -> None:
@@ -779,7 +790,8 @@ def compile_kernels() -> None:
     lower.sort_indices()
     u, v = np.meshgrid(np.arange(side, dtype=np.float64), np.arange(side, dtype=np.float64))
     points = np.stack([u.ravel(), v.ravel(), np.zeros(side * side)], axis=1)
-    factor = SparseCholesky(lower.indptr, lower.indices, lower.data, points, parallel_rows=0)
+    # single precision: the default L-BFGS's (local/global's double blocks compile on first use)
+    factor = SparseCholesky(lower.indptr, lower.indices, lower.data, points, parallel_rows=0, single=True)
     factor.solve(np.ones((side * side, 3)), np.empty((side * side, 3)))
 
 

@@ -392,7 +392,9 @@ class ImplicitSolver(ModelCache, Solver):
             self.factor.refactor(data)  # the ordering and symbolic analysis kept
         else:
             self.factor = None  # free the old factor before building the new one
-            self.factor = cholesky.factorise(indptr, indices, data, self.free_rest, self._threads)
+            # L-BFGS's matrix is its preconditioner (single-precision blocks), local/global's exact
+            single = self.options.method == "lbfgs"
+            self.factor = cholesky.factorise(indptr, indices, data, self.free_rest, self._threads, single)
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         if not self._prepared(model):
