@@ -92,3 +92,26 @@ def test_more_held_rows_than_its_capacity_keeps_those_pushed_hardest_against_the
     held.project(factor, direction, np.array([0, 12, 24]), np.tile(up, (3, 1)), np.zeros(0, dtype=np.int64))
     expected = constrained_solve(dense, g, [(12, up), (24, up)])
     assert np.abs(direction - expected).max() < 1e-9 * np.abs(expected).max()
+
+
+def test_a_call_computes_columns_for_at_most_its_new_rows_the_ones_pushed_hardest_first() -> None:
+    """With room for one new row a call (a large cloth's bound on its column solves), of three
+    rows held along +y the first call keeps the one the plain solve moves the most against it;
+    the next call keeps it and adds the one of the others it moves the most: each answer the
+    constrained minimum with those rows alone."""
+    dense, factor = grid_matrix(5, seed=3)
+    g = np.zeros((25, 3))
+    g[[0, 12, 24], 1] = 3.0
+    g[24, 0] = 1.0
+    plain = np.zeros((25, 3))
+    factor.solve(g, plain)
+    held = HeldContacts(25)
+    held.new_rows = 1
+    rows, normals = np.array([0, 12, 24]), np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    against = np.abs(np.einsum("ij,ij->i", plain[rows], normals))
+    assert against[1] > 1.5 * against[2] > 1.5 * against[0]  # 12 moved the most against its normal, then 24
+    for kept in ([(12, normals[1])], [(12, normals[1]), (24, normals[2])]):
+        direction = plain.copy()
+        held.project(factor, direction, rows, normals, np.zeros(0, dtype=np.int64))
+        expected = constrained_solve(dense, g, kept)
+        assert np.abs(direction - expected).max() < 1e-9 * np.abs(expected).max()
