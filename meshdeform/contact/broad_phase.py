@@ -92,6 +92,25 @@ def _touched_cells(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> float:
     return total
 
 
+@nb.njit(**JIT)
+def _most_cells(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> float:
+    """An upper bound on the grid cells the boxes lo, hi (M, 3) touch together at 1 / cell
+    `inv_cell` (1/m): their count times the cells of a box as long as the longest along each axis
+    (inf where a box is not finite). One pass without a floor: a third of `_touched_cells`."""
+    longest = np.zeros(3)
+    for e in range(lo.shape[0]):
+        for k in range(3):
+            longest[k] = max(longest[k], hi[e, k] - lo[e, k])  # NaN: max keeps longest, isfinite below
+    cells = 1.0
+    for k in range(3):
+        cells *= longest[k] * inv_cell + 2.0
+    finite = True
+    for e in range(lo.shape[0]):
+        for k in range(3):
+            finite &= np.isfinite(lo[e, k]) & np.isfinite(hi[e, k])
+    return lo.shape[0] * cells if finite else np.inf
+
+
 def bounded_inv_cell(
     qlo: np.ndarray, qhi: np.ndarray, elo: np.ndarray, ehi: np.ndarray, inv_cell: float
 ) -> float:
@@ -99,6 +118,8 @@ def bounded_inv_cell(
     more than `CELLS_PER_BOX` cells a box (at least `MIN_CELL_BUDGET`): a grid's memory and a
     query's cell visits stay bounded whatever the positions. The same pairs at any cell."""
     budget = max(float(CELLS_PER_BOX * (elo.shape[0] + qlo.shape[0])), float(MIN_CELL_BUDGET))
+    if _most_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _most_cells(qlo, qhi, inv_cell)) <= budget:
+        return inv_cell  # a sound scene: no box near that long
     touched = _touched_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _touched_cells(qlo, qhi, inv_cell))
     while touched > budget:  # each box's count falls to 8 or fewer as the cell outgrows it
         inv_cell /= max(2.0, (touched / budget) ** (1.0 / 3.0))
