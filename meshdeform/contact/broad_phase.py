@@ -71,11 +71,12 @@ def _percentile_90(values: np.ndarray) -> float:
 @nb.njit(**JIT)
 def cell_index(coordinate: float, inv_cell: float) -> int:
     """The grid cell index along one axis of `coordinate` (m) at 1 / cell `inv_cell` (1/m):
-    clamped to +-2^60, and 0 for a coordinate that is not finite (a diverged vertex: its element
-    is entered in one cell, its pairs are left to the divergence guard)."""
-    scaled = coordinate * inv_cell
-    if not np.isfinite(scaled):
+    clamped to +-2^60 (monotonic in any finite coordinate, however far), and 0 for a coordinate
+    that is not finite (a diverged vertex: its element is entered in one cell, its pairs are left
+    to the divergence guard)."""
+    if not np.isfinite(coordinate):
         return 0
+    scaled = coordinate * inv_cell  # +-inf past the float range: clamped below
     return int(np.floor(min(max(scaled, -_MAX_INDEX), _MAX_INDEX)))
 
 
@@ -117,7 +118,8 @@ def bounded_inv_cell(
     """`inv_cell` (1/m), or a coarser one where at it the element and query boxes would touch
     more than `CELLS_PER_BOX` cells a box (at least `MIN_CELL_BUDGET`): a grid's memory and a
     query's cell visits stay bounded whatever the positions. The same pairs at any cell."""
-    budget = max(float(CELLS_PER_BOX * (elo.shape[0] + qlo.shape[0])), float(MIN_CELL_BUDGET))
+    boxes = elo.shape[0] + (0 if qlo is elo else qlo.shape[0])
+    budget = max(float(CELLS_PER_BOX * boxes), float(MIN_CELL_BUDGET))
     if _most_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _most_cells(qlo, qhi, inv_cell)) <= budget:
         return inv_cell  # a sound scene: no box near that long
     touched = _touched_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _touched_cells(qlo, qhi, inv_cell))

@@ -718,6 +718,8 @@ class SparseCholesky:
     def solve(self, b: np.ndarray, x: np.ndarray) -> None:
         """x (n, 3) = A^-1 b (n, 3); x and b may be the same array."""
         nodes, work, solved, below = self._supernodes, self._work, self._solved, self._below
+        if nodes.vals.shape[0] != nodes.vals_ptr[-1]:  # a refactorisation that failed left no blocks
+            raise ValueError("the implicit solver's matrix has no factor (its last factorisation failed)")
         structure = (nodes.start, nodes.rows_ptr, nodes.rows, nodes.vals_ptr, nodes.vals, work)
         (first, middle), (_, top), (_, last) = nodes.shares
         gather_rows(b, self.order, work)  # b permuted

@@ -71,8 +71,8 @@ class HeldContacts:
 
     def __init__(self, rows: int) -> None:
         self.rows = rows
-        #: the most rows kept
-        self.cached = max(1, min(CACHED_ROWS, rows))
+        #: the most rows kept: at least a full set of constraints' rows, at most every row
+        self.cached = max(1, min(max(CACHED_ROWS, MAX_CONSTRAINTS), rows))
         #: the most constraints treated exactly
         self.capacity = MAX_CONSTRAINTS
         #: the most rows a call computes columns for
@@ -202,13 +202,13 @@ class HeldContacts:
 @nb.njit(**JIT)
 def held_matrix(among, slots, normals, system):  # pragma: no cover - compiled
     """system (m, m) = G = C A^-1 C^T for m constraints, each a unit normal (m, 3) at a row whose
-    slot is slots (m,), among (S, S) A^-1 between the slots' rows: G_ij = (A^-1)_{r_i r_j}
-    (n_i . n_j), the mean of its two computed copies (the solves' rounding)."""
+    slot is slots (m,), among (S, S) A^-1 between the slots' rows (symmetric to the solves'
+    rounding): G_ij = (A^-1)_{r_i r_j} (n_i . n_j), read once for both places of the pair."""
     m = slots.shape[0]
     for i in range(m):
         for j in range(i + 1):
             dot = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
-            value = 0.5 * (among[slots[i], slots[j]] + among[slots[j], slots[i]]) * dot
+            value = among[slots[i], slots[j]] * dot
             system[i, j] = value
             system[j, i] = value
 

@@ -266,8 +266,8 @@ class ImplicitSolver(ModelCache, Solver):
         self.anchors = (
             ContactAnchors(self.free_vertices.shape[0], self.solid) if self.options.method == "lbfgs" else None
         )
-        #: the held contacts' correction of the preconditioner's solves (L-BFGS only), its columns
-        #: of the factor's inverse kept while the factor is
+        #: the held contacts' correction of the preconditioner's solves (L-BFGS only), its entries
+        #: of the factor's inverse among the held rows kept while the factor is
         self.held = HeldContacts(self.free_vertices.shape[0]) if self.options.method == "lbfgs" else None
         self.coarse_space: coarse.CoarseSpace | None = None
         self._coarse_building: Future[coarse.CoarseSpace | None] | None = None
@@ -311,7 +311,7 @@ class ImplicitSolver(ModelCache, Solver):
         aside (`_StepLength`), where dt is that one (refactorised where the anchored set was renewed
         since); otherwise assembled and factorised, and the current length's kept aside in turn."""
         if self.held is not None:
-            self.held.forget()  # its columns are of the last length's factor
+            self.held.forget()  # its entries are of the last length's factor
         current = self._current_length() if self._dt > 0.0 else None
         other, self._other_length = self._other_length, current
         if other is not None and other.dt == dt:
