@@ -118,14 +118,14 @@ def bounded_inv_cell(
     """`inv_cell` (1/m), or a coarser one where at it the element and query boxes would touch
     more than `CELLS_PER_BOX` cells a box (at least `MIN_CELL_BUDGET`): a grid's memory and a
     query's cell visits stay bounded whatever the positions. The same pairs at any cell."""
-    boxes = elo.shape[0] + (0 if qlo is elo else qlo.shape[0])
-    budget = max(float(CELLS_PER_BOX * boxes), float(MIN_CELL_BUDGET))
-    if _most_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _most_cells(qlo, qhi, inv_cell)) <= budget:
+    sets = ((elo, ehi),) if qlo is elo else ((elo, ehi), (qlo, qhi))  # a self-search's boxes once
+    budget = max(float(CELLS_PER_BOX * sum(lo.shape[0] for lo, _ in sets)), float(MIN_CELL_BUDGET))
+    if sum(_most_cells(lo, hi, inv_cell) for lo, hi in sets) <= budget:
         return inv_cell  # a sound scene: no box near that long
-    touched = _touched_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _touched_cells(qlo, qhi, inv_cell))
+    touched = sum(_touched_cells(lo, hi, inv_cell) for lo, hi in sets)
     while touched > budget:  # each box's count falls to 8 or fewer as the cell outgrows it
         inv_cell /= max(2.0, (touched / budget) ** (1.0 / 3.0))
-        touched = _touched_cells(elo, ehi, inv_cell) + (0.0 if qlo is elo else _touched_cells(qlo, qhi, inv_cell))
+        touched = sum(_touched_cells(lo, hi, inv_cell) for lo, hi in sets)
     return inv_cell
 
 

@@ -554,14 +554,6 @@ class SelfCollision(Constraint, Remappable):
                     x, x0, free_mass, topology.triangles, topology.edges, vf, vf_held_gap, active_vf, side_vf,
                     ee, ee_held_gap, active_ee, side_ee, settings.sweeps, settings.friction,
                 )
-                # a pair whose only free vertex has a small share in it (an edge's end at a
-                # barycentric weight near 0) moves that vertex as a long lever would: a round
-                # that moved any vertex farther than the thickness is undone (the anchor solver's
-                # collapsing sheet was thrown to 1e14 m)
-                step = x - before
-                if np.einsum("ij,ij->i", step, step).max(initial=0.0) > self.thickness**2:
-                    x[:] = before
-                    more = 0
                 _settle(state, before, dt)
                 if more:
                     work.projections += more

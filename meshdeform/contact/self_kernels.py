@@ -553,6 +553,8 @@ def project_proximity(
             if denom <= 0.0:
                 continue
             lam = violation / denom
+            share = _lever_share(lam, violation, inv_mass[v], wa * inv_mass[a], wb * inv_mass[b], wc * inv_mass[c])
+            lam *= share
             for axis, n in ((0, nx), (1, ny), (2, nz)):
                 x[v, axis] += inv_mass[v] * lam * n
                 x[a, axis] -= inv_mass[a] * wa * lam * n
@@ -565,7 +567,7 @@ def project_proximity(
                         x[v, axis] - x0[v, axis] - wa * (x[a, axis] - x0[a, axis])
                         - wb * (x[b, axis] - x0[b, axis]) - wc * (x[c, axis] - x0[c, axis])
                     )
-                scale = _tangential(rel, nx, ny, nz, friction * violation)
+                scale = _tangential(rel, nx, ny, nz, friction * violation * share)
                 if scale > 0.0:
                     for axis in range(3):
                         shift = scale * rel[axis] / denom
@@ -594,6 +596,10 @@ def project_proximity(
             if denom <= 0.0:
                 continue
             lam = violation / denom
+            share = _lever_share(
+                lam, violation, w0 * inv_mass[p0], w1 * inv_mass[p1], w2 * inv_mass[q0], w3 * inv_mass[q1]
+            )
+            lam *= share
             for axis, n in ((0, nx), (1, ny), (2, nz)):
                 x[p0, axis] += inv_mass[p0] * w0 * lam * n
                 x[p1, axis] += inv_mass[p1] * w1 * lam * n
@@ -606,7 +612,7 @@ def project_proximity(
                         w0 * (x[p0, axis] - x0[p0, axis]) + w1 * (x[p1, axis] - x0[p1, axis])
                         - w2 * (x[q0, axis] - x0[q0, axis]) - w3 * (x[q1, axis] - x0[q1, axis])
                     )
-                scale = _tangential(rel, nx, ny, nz, friction * violation)
+                scale = _tangential(rel, nx, ny, nz, friction * violation * share)
                 if scale > 0.0:
                     for axis in range(3):
                         shift = scale * rel[axis] / denom
@@ -615,6 +621,19 @@ def project_proximity(
                         x[q0, axis] += inv_mass[q0] * w2 * shift
                         x[q1, axis] += inv_mass[q1] * w3 * shift
     return moved
+
+
+@nb.njit(**JIT)
+def _lever_share(lam: float, violation: float, m0: float, m1: float, m2: float, m3: float) -> float:
+    """The share of a pair projection's multiplier lam that moves no vertex farther than the
+    violation (m), vertex k moving m_k lam (its weight times its inverse mass): 1 where none
+    would. With every vertex free none does; where the only free one has a small weight in the
+    pair (an edge's end at a barycentric weight near 0, the others pinned or held) it would move
+    as a long lever, violation / weight (a collapsing sheet under the anchor solver was thrown to
+    1e14 m). Capped, such a pair closes its gap over the sweeps and substeps, its friction scaled
+    alike, and the continuous check keeps it from crossing meanwhile."""
+    reach = lam * max(max(m0, m1), max(m2, m3))
+    return violation / reach if reach > violation else 1.0
 
 
 @nb.njit(**JIT)

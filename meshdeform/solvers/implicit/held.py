@@ -187,13 +187,13 @@ class HeldContacts:
             kept_rows = self._row_of_slot[kept]
             for start in range(0, missing.shape[0], 3):
                 batch, targets = missing[start : start + 3], order[start : start + 3]
-                self._unit[:] = 0.0
-                self._unit[batch, np.arange(batch.shape[0])] = 1.0
+                units = (batch, np.arange(batch.shape[0]))
+                self._unit[units] = 1.0  # the scratch is zero between uses
                 factor.solve(self._unit, self._solved)
+                self._unit[units] = 0.0
                 entries = self._solved[kept_rows, : batch.shape[0]].T  # (batch, kept): A^-1 at the kept rows
                 self._among[np.ix_(targets, kept)] = entries
                 self._among[np.ix_(kept, targets)] = entries.T
-            self._unit[:] = 0.0
             slots = self._slot_of_row[rows]
         self._used_at[slots] = self._calls
         return slots
