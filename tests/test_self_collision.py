@@ -325,9 +325,38 @@ def test_the_scan_grid_finds_exactly_the_overlapping_boxes_in_element_order() ->
     overlap = np.all((qlo[:, None] <= ehi[None]) & (qhi[:, None] >= elo[None]), axis=2)
     found = np.empty(8, dtype=np.int64)
     for q in range(qlo.shape[0]):
-        count, found = broad_phase.query_grown(qlo, qhi, q, elo, ehi, *broad_phase.scan_grid(500), -1, found)
+        count, found = broad_phase.query_grown(qlo, qhi, q, elo, ehi, *broad_phase.scan_grid(np.arange(500)), -1, found)
         assert found[:count].tolist() == np.flatnonzero(overlap[q]).tolist()
     assert overlap.any(axis=1).sum() > 10  # the boxes do meet
+
+
+@pytest.mark.parametrize("dense_factor", [0.0, 1e9])  # always hashed, always dense
+def test_a_grid_of_the_elements_near_a_few_queries_finds_their_pairs_in_order(dense_factor: float) -> None:
+    """A partial search's grid holds only the elements near its queries (`broad_phase.near_elements`):
+    each of those queries finds exactly the elements whose boxes overlap its own, in element order
+    (NumPy's all-pairs test), as from a grid of them all, while far elements are left out; a
+    non-finite element box is kept, a non-finite query box keeps every element."""
+    rng = np.random.default_rng(17)
+    elo = rng.uniform(0, 1, (4000, 3))
+    ehi = elo + rng.uniform(0, 0.03, (4000, 3))
+    ehi[7, 1] = np.inf
+    qlo = rng.uniform(0, 1, (2000, 3))
+    qhi = qlo + rng.uniform(0, 0.03, (2000, 3))
+    clustered = np.flatnonzero(np.all(qlo < 0.2, axis=1))  # a few queries in one corner
+    scattered = np.array([clustered[0], int(np.argmax(qlo.sum(axis=1)))])  # and two corners apart
+    overlap = np.all((qlo[:, None] <= ehi[None]) & (qhi[:, None] >= elo[None]), axis=2)
+    for queries in (clustered, scattered):
+        near = broad_phase.near_elements(qlo, qhi, queries, elo, ehi)
+        assert np.all(np.diff(near) > 0) and 7 in near
+        assert near.shape[0] < 0.2 * elo.shape[0]  # the grid's elements: a fraction of them all
+        assert set(np.flatnonzero(overlap[queries].any(axis=0))) <= set(near.tolist())
+        grid = broad_phase.grid_for(qlo, qhi, elo, ehi, dense_factor, near=queries)
+        found = np.empty(8, dtype=np.int64)
+        for q in queries:
+            count, found = broad_phase.query_grown(qlo, qhi, q, elo, ehi, *grid, -1, found)
+            assert found[:count].tolist() == np.flatnonzero(overlap[q]).tolist()
+    qhi[clustered[0], 2] = np.nan
+    assert broad_phase.near_elements(qlo, qhi, clustered, elo, ehi).shape[0] == elo.shape[0]
 
 
 def test_the_dense_and_the_hashed_grid_report_the_same_pairs_in_the_same_order() -> None:

@@ -136,10 +136,11 @@ def _hash(ix: int, iy: int, iz: int, mask: int) -> int:
 
 @nb.njit(**JIT)
 def build_grid(
-    lo: np.ndarray, hi: np.ndarray, inv_cell: float, dense_factor: float
+    lo: np.ndarray, hi: np.ndarray, members: np.ndarray, inv_cell: float, dense_factor: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The grid of element boxes lo, hi (M, 3): dense (one bucket per cell of the elements'
-    bounding range) where that range has at most `dense_factor` cells per entry, else hashed.
+    """The grid of the element boxes lo, hi (M, 3) of `members` (K,) int64, ascending (all M, or
+    `near_elements`' few): dense (one bucket per cell of the members' bounding range) where that
+    range has at most `dense_factor` cells per entry, else hashed.
 
     Returns bucket_start (H + 1,) int64, and per entry, sorted by bucket and within a bucket by
     element: the element (K,) int64 and, hashed, its cell (K, 3) int64 ((0, 3) when dense); and
@@ -147,18 +148,19 @@ def build_grid(
     H a power of two). Either way a bucket's entries of one cell come in element order, so a
     query reports the same pairs in the same order from both.
     """
-    m = lo.shape[0]
-    cells = np.empty((m, 6), dtype=np.int64)
+    m = members.shape[0]
+    cells = np.empty((m, 6), dtype=np.int64)  # row j: member j's first and last cell per axis
     total = 0
     low = np.full(3, np.iinfo(np.int64).max, dtype=np.int64)
     high = np.full(3, np.iinfo(np.int64).min, dtype=np.int64)
-    for e in range(m):
+    for j in range(m):
+        e = members[j]
         for k in range(3):
-            cells[e, k] = cell_index(lo[e, k], inv_cell)
-            cells[e, 3 + k] = max(cell_index(hi[e, k], inv_cell), cells[e, k])  # (not finite: one cell)
-            low[k] = min(low[k], cells[e, k])
-            high[k] = max(high[k], cells[e, 3 + k])
-        total += (cells[e, 3] - cells[e, 0] + 1) * (cells[e, 4] - cells[e, 1] + 1) * (cells[e, 5] - cells[e, 2] + 1)
+            cells[j, k] = cell_index(lo[e, k], inv_cell)
+            cells[j, 3 + k] = max(cell_index(hi[e, k], inv_cell), cells[j, k])  # (not finite: one cell)
+            low[k] = min(low[k], cells[j, k])
+            high[k] = max(high[k], cells[j, 3 + k])
+        total += (cells[j, 3] - cells[j, 0] + 1) * (cells[j, 4] - cells[j, 1] + 1) * (cells[j, 5] - cells[j, 2] + 1)
     box = np.zeros(6, dtype=np.int64)
     if m:
         span = float(high[0] - low[0] + 1) * float(high[1] - low[1] + 1) * float(high[2] - low[2] + 1)
@@ -176,24 +178,24 @@ def build_grid(
             size *= 2
         mask = size - 1
     start = np.zeros(size + 1, dtype=np.int64)
-    for e in range(m):
-        for ix in range(cells[e, 0], cells[e, 3] + 1):
-            for iy in range(cells[e, 1], cells[e, 4] + 1):
-                for iz in range(cells[e, 2], cells[e, 5] + 1):
+    for j in range(m):
+        for ix in range(cells[j, 0], cells[j, 3] + 1):
+            for iy in range(cells[j, 1], cells[j, 4] + 1):
+                for iz in range(cells[j, 2], cells[j, 5] + 1):
                     start[_bucket(ix, iy, iz, box, mask) + 1] += 1
     for h in range(size):
         start[h + 1] += start[h]
     fill = start[:-1].copy()
     element = np.empty(total, dtype=np.int64)
     cell = np.empty((0 if dense else total, 3), dtype=np.int64)
-    for e in range(m):
-        for ix in range(cells[e, 0], cells[e, 3] + 1):
-            for iy in range(cells[e, 1], cells[e, 4] + 1):
-                for iz in range(cells[e, 2], cells[e, 5] + 1):
+    for j in range(m):
+        for ix in range(cells[j, 0], cells[j, 3] + 1):
+            for iy in range(cells[j, 1], cells[j, 4] + 1):
+                for iz in range(cells[j, 2], cells[j, 5] + 1):
                     h = _bucket(ix, iy, iz, box, mask)
                     slot = fill[h]
                     fill[h] += 1
-                    element[slot] = e
+                    element[slot] = members[j]
                     if not dense:
                         cell[slot, 0] = ix
                         cell[slot, 1] = iy
@@ -335,6 +337,86 @@ def _overlapping(
     return out[:count]
 
 
+#: cells per axis of the coarse grid `near_elements` marks the queries' boxes in
+NEAR_CELLS = 16
+
+
+@nb.njit(**JIT)
+def _coarse(coordinate: float, low: float, scale: float, cells: int) -> int:
+    """The coarse cell (0 .. cells - 1) of a finite `coordinate` (m) in a grid from `low` (m) at
+    `scale` cells a metre, clamped (before the conversion: a far coordinate stays in range)."""
+    return int(min(max((coordinate - low) * scale, 0.0), cells - 1.0))
+
+
+@nb.njit(**JIT)
+def _any_marked(
+    marked: np.ndarray, lo: np.ndarray, hi: np.ndarray, e: int, low: np.ndarray, scale: np.ndarray, cells: int
+) -> bool:
+    """Whether box e of lo, hi (M, 3) touches a cell flagged in `marked` (cells, cells, cells) of
+    the coarse grid from `low` (3,) m at `scale` (3,) cells a metre (`_coarse`)."""
+    x0, x1 = _coarse(lo[e, 0], low[0], scale[0], cells), _coarse(hi[e, 0], low[0], scale[0], cells)
+    y0, y1 = _coarse(lo[e, 1], low[1], scale[1], cells), _coarse(hi[e, 1], low[1], scale[1], cells)
+    z0, z1 = _coarse(lo[e, 2], low[2], scale[2], cells), _coarse(hi[e, 2], low[2], scale[2], cells)
+    for ix in range(x0, x1 + 1):
+        for iy in range(y0, y1 + 1):
+            for iz in range(z0, z1 + 1):
+                if marked[ix, iy, iz]:
+                    return True
+    return False
+
+
+@nb.njit(**JIT)
+def near_elements(
+    qlo: np.ndarray, qhi: np.ndarray, queries: np.ndarray, elo: np.ndarray, ehi: np.ndarray
+) -> np.ndarray:
+    """The elements (K,) int64, ascending, whose boxes elo, ehi (M, 3) touch a cell that a box
+    of `queries` (Q,) int64 of qlo, qhi touches, in a coarse grid of `NEAR_CELLS` cells per axis
+    over the queries' bounds: every element whose box overlaps one of theirs, and some near them.
+    A search of a few stale vertices' pairs builds its grid of these rather than of every element
+    (a grid costs about 50 ns an element, this pass a few). A query box that is not finite makes
+    every element near; an element box that is not finite is near."""
+    m = elo.shape[0]
+    if queries.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    low = np.full(3, np.inf)
+    high = np.full(3, -np.inf)
+    for q in queries:
+        for k in range(3):
+            if not (np.isfinite(qlo[q, k]) and np.isfinite(qhi[q, k])):
+                return np.arange(m, dtype=np.int64)
+            low[k] = min(low[k], qlo[q, k])
+            high[k] = max(high[k], qhi[q, k])
+    r = NEAR_CELLS
+    scale = np.zeros(3)
+    for k in range(3):
+        scale[k] = r / (high[k] - low[k]) if high[k] > low[k] else 0.0
+    marked = np.zeros((r, r, r), dtype=np.bool_)
+    first = np.empty(3, dtype=np.int64)
+    last = np.empty(3, dtype=np.int64)
+    for q in queries:
+        for k in range(3):
+            first[k] = _coarse(qlo[q, k], low[k], scale[k], r)
+            last[k] = _coarse(qhi[q, k], low[k], scale[k], r)
+        marked[first[0] : last[0] + 1, first[1] : last[1] + 1, first[2] : last[2] + 1] = True
+    out = np.empty(m, dtype=np.int64)
+    count = 0
+    for e in range(m):
+        finite_box = True
+        outside = False
+        for k in range(3):
+            if not (np.isfinite(elo[e, k]) and np.isfinite(ehi[e, k])):
+                finite_box = False
+            elif elo[e, k] > high[k] or ehi[e, k] < low[k]:
+                outside = True
+        if finite_box and outside:
+            continue
+        if finite_box and not _any_marked(marked, elo, ehi, e, low, scale, r):
+            continue  # (not finite: left to the grid, `cell_index`, and the divergence guard)
+        out[count] = e
+        count += 1
+    return out[:count]
+
+
 def grid_for(
     qlo: np.ndarray,
     qhi: np.ndarray,
@@ -342,25 +424,34 @@ def grid_for(
     ehi: np.ndarray,
     dense_factor: float = DENSE_FACTOR,
     inv_cell: float | None = None,
+    near: np.ndarray | None = None,
 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The grid of element boxes elo, ehi (M, 3) for queries qlo, qhi (Q, 3): 1 / cell (1/m) and
     `build_grid`'s bucket starts, elements, cells and dense range. The cell suits the larger
     boxes of the two, unless `inv_cell` is given (any cell finds the same pairs; sizing it reads
-    every box, a tenth of a search that asks the grid for a few elements only)."""
+    every box, a tenth of a search that asks the grid for a few elements only). `near` (Q',)
+    int64: only these queries will ask, and the grid holds only the elements near them
+    (`near_elements`): the same pairs for them, at the cost of the elements they may meet."""
+    if near is None:
+        members = np.arange(elo.shape[0], dtype=np.int64)
+        boxes = (qlo, qhi, elo, ehi)
+    else:
+        members = near_elements(qlo, qhi, near, elo, ehi)
+        boxes = (qlo[near], qhi[near], elo[members], ehi[members])
     if inv_cell is None:
-        size = cell_size(elo, ehi)
-        inv_cell = 1.0 / (size if qlo is elo and qhi is ehi else max(size, cell_size(qlo, qhi)))
-    inv_cell = bounded_inv_cell(qlo, qhi, elo, ehi, inv_cell)
-    return (inv_cell, *build_grid(elo, ehi, inv_cell, dense_factor))
+        size = cell_size(boxes[2], boxes[3])
+        inv_cell = 1.0 / (size if qlo is elo and qhi is ehi else max(size, cell_size(boxes[0], boxes[1])))
+    inv_cell = bounded_inv_cell(*boxes, inv_cell)
+    return (inv_cell, *build_grid(elo, ehi, members, inv_cell, dense_factor))
 
 
-def scan_grid(count: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A `grid_for` grid of one dense cell holding all `count` elements in order (1 / cell 0: every
-    box falls in cell (0, 0, 0)), so a query reads every element's box: cheaper than building a
-    grid where only a few queries ask it (`SCAN_QUERIES`). The same pairs as any grid, each query's
-    in element order."""
+def scan_grid(members: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A `grid_for` grid of one dense cell holding the elements `members` (K,) int64, ascending, in
+    order (1 / cell 0: every box falls in cell (0, 0, 0)), so a query reads each one's box: cheaper
+    than building a grid where only a few queries ask it (`SCAN_QUERIES`). The same pairs as any
+    grid among the members, each query's in element order."""
     return (
-        0.0, np.array([0, count], dtype=np.int64), np.arange(count, dtype=np.int64), np.zeros((0, 3), dtype=np.int64),
+        0.0, np.array([0, members.shape[0]], dtype=np.int64), members, np.zeros((0, 3), dtype=np.int64),
         np.array([0, 0, 0, 1, 1, 1], dtype=np.int64),
     )
 

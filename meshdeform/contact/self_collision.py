@@ -65,7 +65,15 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from meshdeform.contact import self_kernels
-from meshdeform.contact.broad_phase import SCAN_QUERIES, grid_for, overlapping_pairs, scan_grid, strays, swept_boxes
+from meshdeform.contact.broad_phase import (
+    SCAN_QUERIES,
+    grid_for,
+    near_elements,
+    overlapping_pairs,
+    scan_grid,
+    strays,
+    swept_boxes,
+)
 from meshdeform.contact.parts import by_rows, search_in_parts
 from meshdeform.contact.triangle_distance import triangles_cross
 from meshdeform.geometry import scatter_triangles, triangle_area_vectors
@@ -324,16 +332,19 @@ class SelfCollision(Constraint, Remappable):
         shared = (topology.triangles, self._origin, ring_start, ring, pairs.motion, self._span, reach)
         everyone = fresh.shape[0] == x0.shape[0]
         capacity = self._capacity if everyone else (0, 0)
-        # a partial search keeps the cells of the last whole one (`grid_for`), and where it has only
-        # a few queries of a kind they read every box (`scan_grid`)
+        # a partial search keeps the cells of the last whole one (`grid_for`) and holds only the
+        # elements near its queries (`near_elements`); where it has only a few queries of a kind,
+        # they read those elements' boxes (`scan_grid`)
         vf_cell, ee_cell = (None, None) if everyone or self._cells is None else self._cells
 
-        def grid(queries: int, *boxes: np.ndarray, inv_cell: float | None) -> tuple:
-            if not everyone and queries < SCAN_QUERIES:
-                return scan_grid(boxes[2].shape[0])
-            return grid_for(*boxes, inv_cell=inv_cell)
+        def grid(queries: np.ndarray, *boxes: np.ndarray, inv_cell: float | None) -> tuple:
+            if everyone:
+                return grid_for(*boxes, inv_cell=inv_cell)
+            if queries.shape[0] < SCAN_QUERIES:
+                return scan_grid(near_elements(*boxes[:2], queries, *boxes[2:]))
+            return grid_for(*boxes, inv_cell=inv_cell, near=queries)
 
-        vf_grid = grid(fresh.shape[0], qlo, qhi, tlo, thi, inv_cell=vf_cell)
+        vf_grid = grid(fresh, qlo, qhi, tlo, thi, inv_cell=vf_cell)
         found_vf = [
             search_in_parts(
                 self_kernels.vf_candidates, (carried, rest), fresh,
@@ -342,13 +353,14 @@ class SelfCollision(Constraint, Remappable):
             )
         ]  # fmt: skip
         if not everyone:
+            fresh_triangles = np.flatnonzero(triangle_fresh)
+            by_triangle = grid(fresh_triangles, tlo, thi, qlo, qhi, inv_cell=vf_cell)
             found_vf.append(search_in_parts(
-                self_kernels.vf_candidates, (carried, rest), np.flatnonzero(triangle_fresh),
-                (stale, qlo, qhi, tlo, thi, True, *grid(int(np.count_nonzero(triangle_fresh)), tlo, thi, qlo, qhi,
-                                                          inv_cell=vf_cell), *shared),
-                0, threads,
+                self_kernels.vf_candidates, (carried, rest), fresh_triangles,
+                (stale, qlo, qhi, tlo, thi, True, *by_triangle, *shared), 0, threads,
             ))  # fmt: skip
-        ee_grid = grid(int(np.count_nonzero(edge_fresh)), elo, ehi, elo, ehi, inv_cell=ee_cell)
+        fresh_edges = np.flatnonzero(edge_fresh)
+        ee_grid = grid(fresh_edges, elo, ehi, elo, ehi, inv_cell=ee_cell)
         if edge_fresh.all():  # every edge against every edge: pairs of entries cell by cell
             found_ee = search_in_parts(
                 self_kernels.ee_candidates_in_cells, (carried, rest), np.arange(ee_grid[1].shape[0] - 1),
@@ -356,7 +368,7 @@ class SelfCollision(Constraint, Remappable):
             )  # fmt: skip
         else:
             found_ee = search_in_parts(
-                self_kernels.ee_candidates, (carried, rest), np.flatnonzero(edge_fresh),
+                self_kernels.ee_candidates, (carried, rest), fresh_edges,
                 (edge_fresh, elo, ehi, *ee_grid, topology.edges, *shared[1:], False), capacity[1], threads,
             )  # fmt: skip
         if everyone:
