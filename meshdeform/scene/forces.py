@@ -17,11 +17,12 @@ import numpy as np
 from meshdeform.geometry import triangle_vertex_normals
 from meshdeform.model import SpringModel, State
 from meshdeform.scene.base import Force, Remappable
+from meshdeform.solvers.jit import FAST
 
 AIR_DENSITY = 1.2
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=True)
+@nb.njit(**FAST)
 def _noise_add(points, time, k, omega, phase, amplitude, advect, gain, out):  # pragma: no cover - compiled
     """out += gain * sum_m amplitude_m sin(k_m . (p - advect t) + omega_m t + phase_m), per point."""
     for i in range(points.shape[0]):
@@ -35,7 +36,7 @@ def _noise_add(points, time, k, omega, phase, amplitude, advect, gain, out):  # 
             out[i, 2] += amplitude[m, 2] * s
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=True)
+@nb.njit(**FAST)
 def _wind_faces(x, relative, tri, inv_mass_lumped, rho, drag, lift, out):  # pragma: no cover - compiled
     """Per triangle drag + lift from the corners' mean relative air velocity; a third to each corner."""
     for t in range(tri.shape[0]):

@@ -19,11 +19,12 @@ import numpy as np
 
 from meshdeform.arrays import argsort_int
 from meshdeform.model import SpringModel
+from meshdeform.solvers.jit import JIT
 from meshdeform.tearing.settings import TearSettings
 from meshdeform.topology import SpringKind
 
 
-@nb.njit(cache=True, error_model="numpy", nogil=True)
+@nb.njit(**JIT)
 def _over_threshold(x, a, b, inv_rest, thr, window, ring, step, out_index, out_ratio):  # pragma: no cover
     """Stretch of each tested spring (averaged over its window with the ring buffer, whose rows
     are substeps); writes the springs above their threshold to out_*, returns how many."""
