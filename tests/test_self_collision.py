@@ -372,19 +372,25 @@ def test_the_dense_and_the_hashed_grid_report_the_same_pairs_in_the_same_order()
 
 
 @pytest.mark.parametrize("dense_factor", [0.0, 1e9])  # always hashed, always dense
-def test_edge_pairs_found_cell_by_cell_are_every_close_pair_and_the_queries_own(dense_factor: float) -> None:
-    """A whole search's edge-edge pairs, found cell by cell (`ee_candidates_in_cells`), are every
-    pair of edges that share no vertex and lie within the reach, as ipctk's edge-edge distance
-    finds them over all pairs (written elsewhere), each once, with the flags and rest distances
-    that the edge-by-edge search (`ee_candidates`) gives them."""
+@pytest.mark.parametrize("thrown", [0.0, 1e9])  # a vertex thrown far: its edges' boxes are long
+def test_edge_pairs_found_cell_by_cell_are_every_close_pair_and_the_queries_own(
+    dense_factor: float, thrown: float
+) -> None:
+    """A whole search's edge-edge pairs, found cell by cell (`ee_candidates_in_cells`, and the long
+    edges' own, `long_edge_pairs`), are every pair of edges that share no vertex and lie within
+    the reach, as ipctk's edge-edge distance finds them over all pairs (written elsewhere), each
+    once, with the flags and rest distances that the edge-by-edge search (`ee_candidates`) gives
+    them. With a vertex thrown 1e9 m (a diverging substep) the cell stays the cloth's."""
     import ipctk
 
-    from meshdeform.contact.broad_phase import grid_for, swept_boxes
-    from meshdeform.contact.self_collision import _rings, _Topology
+    from meshdeform.contact.broad_phase import cell_size, grid_for, swept_boxes
+    from meshdeform.contact.self_collision import _rings, _Topology, long_edge_pairs
 
     rng = np.random.default_rng(11)
     model = SpringModel.from_mesh(grid_sheet(12, 12))
     x = np.asarray(model.rest_positions) + rng.normal(0.0, 0.04, (model.vertex_count, 3))  # crumpled
+    if thrown:
+        x[70] = x[60] + thrown  # through the cloth's corner, out along the diagonal
     topology = _Topology.of(model)
     edges = topology.edges
     n = model.vertex_count
@@ -397,6 +403,12 @@ def test_edge_pairs_found_cell_by_cell_are_every_close_pair_and_the_queries_own(
     in_cells = self_kernels.ee_candidates_in_cells(
         x, rest, np.arange(start.shape[0] - 1), lo, hi, inv_cell, start, element, cell, box, edges, *shared, 0
     )
+    if thrown:
+        assert inv_cell == 1.0 / cell_size(lo, hi)  # the cell of the boxes' sizes: not grown
+        assert element.shape[0] > start[-1]  # the long edges set apart
+        found_long = long_edge_pairs(x, rest, lo, hi, (inv_cell, start, element, cell, box), edges, *shared)
+        assert found_long[0].shape[0] > 0
+        in_cells = tuple(np.concatenate(part) for part in zip(in_cells, found_long, strict=True))
     by_edge = self_kernels.ee_candidates(
         x, rest, np.arange(edges.shape[0]), np.ones(edges.shape[0], dtype=bool), lo, hi, inv_cell, start, element,
         cell, box, edges, *shared, True, 0,

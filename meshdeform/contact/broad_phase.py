@@ -30,6 +30,13 @@ DENSE_FACTOR = 4.0
 CELLS_PER_BOX = 64
 #: the cells the boxes may touch in any case (about 32 MB of grid entries)
 MIN_CELL_BUDGET = 1 << 20
+#: a box touching more cells than this, and than the boxes of the other kind there are, is long: an
+#: element kept out of the cells (every query reads its box), a query that reads every element's
+#: box (`query_box`); as many as `LONG_MOST` of each are (more, and the cell grows instead:
+#: `bounded_inv_cell`): one box thrown 1e14 m no longer makes the cell 1e12 m and the search all pairs
+LONG_CELLS = 64
+#: the most long boxes of either kind a grid sets apart (each costs a pass over the other kind's boxes)
+LONG_MOST = 256
 #: the largest cell index (per axis) a coordinate maps to: beyond it cells are clamped, so a
 #: coordinate of 1e300 m gives an index in range rather than an undefined integer conversion
 _MAX_INDEX = float(1 << 60)
@@ -94,6 +101,19 @@ def _touched_cells(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> float:
 
 
 @nb.njit(**JIT)
+def _cell_counts(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> np.ndarray:
+    """How many grid cells each box of lo, hi (M, 3) touches at 1 / cell `inv_cell` (M,) (floats,
+    as `_touched_cells`)."""
+    counts = np.empty(lo.shape[0])
+    for e in range(lo.shape[0]):
+        count = 1.0
+        for k in range(3):
+            count *= float(max(cell_index(hi[e, k], inv_cell) - cell_index(lo[e, k], inv_cell), 0) + 1)
+        counts[e] = count
+    return counts
+
+
+@nb.njit(**JIT)
 def _most_cells(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> float:
     """An upper bound on the grid cells the boxes lo, hi (M, 3) touch together at 1 / cell
     `inv_cell` (1/m): their count times the cells of a box as long as the longest along each axis
@@ -112,6 +132,11 @@ def _most_cells(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> float:
     return lo.shape[0] * cells if finite else np.inf
 
 
+def cell_budget(boxes: int) -> float:
+    """The grid cells `boxes` boxes may touch together (`CELLS_PER_BOX` each, at least `MIN_CELL_BUDGET`)."""
+    return max(float(CELLS_PER_BOX * boxes), float(MIN_CELL_BUDGET))
+
+
 def bounded_inv_cell(
     qlo: np.ndarray, qhi: np.ndarray, elo: np.ndarray, ehi: np.ndarray, inv_cell: float
 ) -> float:
@@ -119,7 +144,7 @@ def bounded_inv_cell(
     more than `CELLS_PER_BOX` cells a box (at least `MIN_CELL_BUDGET`): a grid's memory and a
     query's cell visits stay bounded whatever the positions. The same pairs at any cell."""
     sets = ((elo, ehi),) if qlo is elo else ((elo, ehi), (qlo, qhi))  # a self-search's boxes once
-    budget = max(float(CELLS_PER_BOX * sum(lo.shape[0] for lo, _ in sets)), float(MIN_CELL_BUDGET))
+    budget = cell_budget(sum(lo.shape[0] for lo, _ in sets))
     if sum(_most_cells(lo, hi, inv_cell) for lo, hi in sets) <= budget:
         return inv_cell  # a sound scene: no box near that long
     touched = sum(_touched_cells(lo, hi, inv_cell) for lo, hi in sets)
@@ -136,17 +161,27 @@ def _hash(ix: int, iy: int, iz: int, mask: int) -> int:
 
 @nb.njit(**JIT)
 def build_grid(
-    lo: np.ndarray, hi: np.ndarray, members: np.ndarray, inv_cell: float, dense_factor: float
+    lo: np.ndarray,
+    hi: np.ndarray,
+    members: np.ndarray,
+    long: np.ndarray,
+    long_query: float,
+    inv_cell: float,
+    dense_factor: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The grid of the element boxes lo, hi (M, 3) of `members` (K,) int64, ascending (all M, or
     `near_elements`' few): dense (one bucket per cell of the members' bounding range) where that
-    range has at most `dense_factor` cells per entry, else hashed.
+    range has at most `dense_factor` cells per entry, else hashed. The `long` elements (L,) int64,
+    ascending, are kept out of the cells and follow the entries (every query reads their boxes),
+    and a query box touching more than `long_query` cells reads every element's box instead of
+    its cells (`query_box`).
 
-    Returns bucket_start (H + 1,) int64, and per entry, sorted by bucket and within a bucket by
-    element: the element (K,) int64 and, hashed, its cell (K, 3) int64 ((0, 3) when dense); and
-    the dense range (6,) int64, its first cell and its size in cells per axis (sizes 0: hashed,
-    H a power of two). Either way a bucket's entries of one cell come in element order, so a
-    query reports the same pairs in the same order from both.
+    Returns bucket_start (H + 1,) int64; per entry, sorted by bucket and within a bucket by
+    element, the element (E + L,) int64 (the long elements after the E entries) and, hashed, its
+    cell (E, 3) int64 ((0, 3) when dense); and `box` (7,) int64: the dense range, its first cell
+    and its size in cells per axis (sizes 0: hashed, H a power of two), then `long_query`. Either
+    way a bucket's entries of one cell come in element order, so a query reports the same pairs
+    in the same order from both.
     """
     m = members.shape[0]
     cells = np.empty((m, 6), dtype=np.int64)  # row j: member j's first and last cell per axis
@@ -161,13 +196,14 @@ def build_grid(
             low[k] = min(low[k], cells[j, k])
             high[k] = max(high[k], cells[j, 3 + k])
         total += (cells[j, 3] - cells[j, 0] + 1) * (cells[j, 4] - cells[j, 1] + 1) * (cells[j, 5] - cells[j, 2] + 1)
-    box = np.zeros(6, dtype=np.int64)
+    box = np.zeros(7, dtype=np.int64)
     if m:
         span = float(high[0] - low[0] + 1) * float(high[1] - low[1] + 1) * float(high[2] - low[2] + 1)
         if span <= dense_factor * total:
             for k in range(3):
                 box[k] = low[k]
                 box[3 + k] = high[k] - low[k] + 1
+    box[6] = int(min(long_query, 2.0**62))
     dense = box[3] > 0
     if dense:
         size = box[3] * box[4] * box[5]
@@ -186,7 +222,8 @@ def build_grid(
     for h in range(size):
         start[h + 1] += start[h]
     fill = start[:-1].copy()
-    element = np.empty(total, dtype=np.int64)
+    element = np.empty(total + long.shape[0], dtype=np.int64)
+    element[total:] = long
     cell = np.empty((0 if dense else total, 3), dtype=np.int64)
     for j in range(m):
         for ix in range(cells[j, 0], cells[j, 3] + 1):
@@ -235,7 +272,9 @@ def query_box(
     """The elements whose boxes overlap query box q of qlo, qhi (Q, 3), each once, in the grid's
     fixed order, written to found (S,) int64; only elements > `above` (-1: all). The grid is
     `build_grid`'s (start, element, cell, box). Returns their count, which may exceed S: then
-    found holds the first S and the caller asks again with room."""
+    found holds the first S and the caller asks again with room. A query box touching more than
+    box[6] cells reads every element's box instead (in element order), and the long elements
+    after the entries are read by every other query (after its cells)."""
     dense = box[3] > 0
     mask = 0 if dense else start.shape[0] - 2
     capacity = found.shape[0]
@@ -246,6 +285,13 @@ def query_box(
     x1 = cell_index(qhi[q, 0], inv_cell)
     y1 = cell_index(qhi[q, 1], inv_cell)
     z1 = cell_index(qhi[q, 2], inv_cell)
+    if float(x1 - x0 + 1) * float(y1 - y0 + 1) * float(z1 - z0 + 1) > float(box[6]):  # a long query
+        for e in range(above + 1, elo.shape[0]):
+            if _overlap(qlo, qhi, q, elo, ehi, e):
+                if count < capacity:
+                    found[count] = e
+                count += 1
+        return count
     # a dense grid has no entries outside its range: visit only the cells inside it
     ax0, ay0, az0 = (max(x0, box[0]), max(y0, box[1]), max(z0, box[2])) if dense else (x0, y0, z0)
     ax1 = min(x1, box[0] + box[3] - 1) if dense else x1
@@ -276,7 +322,23 @@ def query_box(
                     if count < capacity:
                         found[count] = e
                     count += 1
+    for slot in range(start[-1], element.shape[0]):  # the long elements: in no cell
+        e = element[slot]
+        if e > above and _overlap(qlo, qhi, q, elo, ehi, e):
+            if count < capacity:
+                found[count] = e
+            count += 1
     return count
+
+
+@nb.njit(**JIT)
+def _overlap(qlo: np.ndarray, qhi: np.ndarray, q: int, elo: np.ndarray, ehi: np.ndarray, e: int) -> bool:
+    """Whether query box q of qlo, qhi and element box e of elo, ehi overlap (touching counts)."""
+    return not (
+        elo[e, 0] > qhi[q, 0] or ehi[e, 0] < qlo[q, 0]
+        or elo[e, 1] > qhi[q, 1] or ehi[e, 1] < qlo[q, 1]
+        or elo[e, 2] > qhi[q, 2] or ehi[e, 2] < qlo[q, 2]
+    )  # fmt: skip
 
 
 @nb.njit(**JIT)
@@ -433,16 +495,41 @@ def grid_for(
     int64: only these queries will ask, and the grid holds only the elements near them
     (`near_elements`): the same pairs for them, at the cost of the elements they may meet."""
     if near is None:
-        members = np.arange(elo.shape[0], dtype=np.int64)
-        boxes = (qlo, qhi, elo, ehi)
+        queries, members = np.arange(qlo.shape[0], dtype=np.int64), np.arange(elo.shape[0], dtype=np.int64)
+        asked, held = (qlo, qhi), (elo, ehi)
     else:
-        members = near_elements(qlo, qhi, near, elo, ehi)
-        boxes = (qlo[near], qhi[near], elo[members], ehi[members])
+        queries, members = near, near_elements(qlo, qhi, near, elo, ehi)
+        asked, held = (qlo[queries], qhi[queries]), (elo[members], ehi[members])
     if inv_cell is None:
-        size = cell_size(boxes[2], boxes[3])
-        inv_cell = 1.0 / (size if qlo is elo and qhi is ehi else max(size, cell_size(boxes[0], boxes[1])))
-    inv_cell = bounded_inv_cell(*boxes, inv_cell)
-    return (inv_cell, *build_grid(elo, ehi, members, inv_cell, dense_factor))
+        size = cell_size(*held)
+        inv_cell = 1.0 / (size if asked[0] is held[0] and asked[1] is held[1] else max(size, cell_size(*asked)))
+    # long boxes set apart (`LONG_CELLS`): an element past as many cells as there are queries, a query
+    # past as many as there are elements; each kind's count checked first on its longest box
+    self_search = asked[0] is held[0] and asked[1] is held[1]
+    element_cells = _most_cells(*held, inv_cell)  # upper bounds on the cells the boxes touch together
+    query_cells = element_cells if self_search else _most_cells(*asked, inv_cell)
+    long_element = max(float(LONG_CELLS), float(queries.shape[0]))
+    long_query = max(float(LONG_CELLS), float(members.shape[0]))
+    long = members[:0]
+    sound = element_cells + (0.0 if self_search else query_cells) <= cell_budget(
+        members.shape[0] + (0 if self_search else queries.shape[0])
+    )
+    if element_cells > long_element * members.shape[0]:
+        apart = _cell_counts(*held, inv_cell) > long_element
+        if 0 < np.count_nonzero(apart) <= LONG_MOST:
+            members, long = members[~apart], members[apart]
+            held = (held[0][~apart], held[1][~apart])
+            sound = False  # counted afresh without them
+    if query_cells > long_query * queries.shape[0]:
+        apart = _cell_counts(*asked, inv_cell) > long_query
+        if np.count_nonzero(apart) <= LONG_MOST:
+            asked = (asked[0][~apart], asked[1][~apart])
+            sound = False
+        else:
+            long_query = np.inf  # too many to read every element each: the cell grows (`bounded_inv_cell`)
+    if not sound:
+        inv_cell = bounded_inv_cell(*asked, *held, inv_cell)
+    return (inv_cell, *build_grid(elo, ehi, members, long, long_query, inv_cell, dense_factor))
 
 
 def scan_grid(members: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -452,7 +539,7 @@ def scan_grid(members: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.nd
     grid among the members, each query's in element order."""
     return (
         0.0, np.array([0, members.shape[0]], dtype=np.int64), members, np.zeros((0, 3), dtype=np.int64),
-        np.array([0, 0, 0, 1, 1, 1], dtype=np.int64),
+        np.array([0, 0, 0, 1, 1, 1, 1], dtype=np.int64),
     )
 
 

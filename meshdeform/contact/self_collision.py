@@ -366,6 +366,8 @@ class SelfCollision(Constraint, Remappable):
                 self_kernels.ee_candidates_in_cells, (carried, rest), np.arange(ee_grid[1].shape[0] - 1),
                 (elo, ehi, *ee_grid, topology.edges, *shared[1:]), capacity[1], threads,
             )  # fmt: skip
+            found_long = long_edge_pairs(carried, rest, elo, ehi, ee_grid, topology.edges, *shared[1:])
+            found_ee = tuple(np.concatenate(part) for part in zip(found_ee, found_long, strict=True))
         else:
             found_ee = search_in_parts(
                 self_kernels.ee_candidates, (carried, rest), fresh_edges,
@@ -645,6 +647,21 @@ LIST_MIN_SUBSTEPS = 3
 #: when more than this fraction of the vertices strayed from their paths, the whole list is
 #: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone
 REGATHER_FRACTION = 0.5
+
+
+def long_edge_pairs(
+    x: np.ndarray, rest: np.ndarray, elo: np.ndarray, ehi: np.ndarray, grid: tuple, edges: np.ndarray, *tail
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edge pairs of a whole search that the cell-by-cell pass (`ee_candidates_in_cells`) does
+    not see: those of the long edges the grid (`broad_phase.grid_for` of the edge boxes elo, ehi)
+    keeps out of its cells (`broad_phase.LONG_CELLS`), each of which reads every edge's box
+    (`ee_candidates`, each pair once). tail: `ee_candidates`' arguments after `edges` up to `every`
+    (origin, ring_start, ring, motion, span, reach). Empty where no edge is long."""
+    start, element = grid[1], grid[2]
+    long_edges = element[start[-1] :]
+    is_long = np.zeros(edges.shape[0], dtype=np.bool_)
+    is_long[long_edges] = True
+    return self_kernels.ee_candidates(x, rest, long_edges, is_long, elo, ehi, *grid, edges, *tail, False, 0)
 
 
 def list_substeps(dt: float) -> int:
