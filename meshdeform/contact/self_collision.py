@@ -48,7 +48,8 @@ triangles, their whole substep with them; another way, or none, where that would
 triangles around the split cross: `_parting`) and every pair of the two sides starts apart.
 Proximity keeps a pair whose vertices came from one rest vertex, or neighbours (`origin`,
 updated by `remap`), the parting's distance apart, not the thickness (they were one vertex at
-rest: a tear opens as it would without self-collision), so they never close to within
+rest: a tear opens as it would without self-collision; neighbours closer at rest, their rest
+distance: `_neighbour_gap`), so they never close to within
 `self_kernels.TOUCHING`, where the continuous check no longer judges them; that check takes
 every pair sharing no vertex, the two sides of a tear included, so they never pass through each
 other, and new boundary edges take part like any other.
@@ -502,6 +503,15 @@ class SelfCollision(Constraint, Remappable):
         topology = self._prepare(model)
         self._picker.timed(lambda threads: self._project(model, topology, state, time, dt, threads))
 
+    def _neighbour_gap(self, rest: np.ndarray) -> np.ndarray:
+        """The distance (m) proximity keeps between rest neighbours (or copies of one vertex) whose
+        distance in the rest mesh is `rest` (P,): the parting's, `PART_FRACTION` of the thickness,
+        or the rest distance where that is less and more than `self_kernels.TOUCHING` (a sliver of
+        a scanned mesh: pushed to the parting's distance, a falling bunny stretched 17 % in its
+        first frame). Copies of one vertex lie at one rest place: the parting's distance."""
+        close = PART_FRACTION * self.thickness
+        return np.where(rest > self_kernels.TOUCHING, np.minimum(close, rest), close)
+
     def _project(
         self, model: SpringModel, topology: _Topology, state: State, time: float, dt: float, threads: int
     ) -> None:
@@ -524,10 +534,9 @@ class SelfCollision(Constraint, Remappable):
         pairs = self._pairs(model, topology, x0, x1, threads)
         # rest neighbours and the copies of one vertex: the parting's distance, so that they never
         # close to within `self_kernels.TOUCHING` nor lie so close that the continuous check
-        # cannot prove them apart (module docstring)
-        close = PART_FRACTION * self.thickness
-        vf_gap = np.where(pairs.vf_apart, np.minimum(self.thickness, pairs.vf_rest), close)
-        ee_gap = np.where(pairs.ee_apart, np.minimum(self.thickness, pairs.ee_rest), close)
+        # cannot prove them apart (module docstring), or their rest distance where that is less
+        vf_gap = np.where(pairs.vf_apart, np.minimum(self.thickness, pairs.vf_rest), self._neighbour_gap(pairs.vf_rest))
+        ee_gap = np.where(pairs.ee_apart, np.minimum(self.thickness, pairs.ee_rest), self._neighbour_gap(pairs.ee_rest))
         active_vf, side_vf, active_ee, side_ee = by_rows(
             functools.partial(self_kernels.proximity_sides, x, x0, topology.triangles, topology.edges),
             ((pairs.vf, vf_gap, pairs.vf_lower), (pairs.ee, ee_gap, pairs.ee_lower)),
