@@ -26,12 +26,10 @@ import numba
 import numpy as np
 
 from meshdeform.contact.triangle_distance import segment_triangle_closest
-from meshdeform.solvers.jit import opaque
-
-_JIT = {"cache": True, "error_model": "numpy"}
+from meshdeform.solvers.jit import JIT, opaque
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def point_box(
     px: float, py: float, pz: float, lo: np.ndarray, hi: np.ndarray
 ) -> tuple[float, float, float, float, float, float, float]:
@@ -65,7 +63,7 @@ def point_box(
     return -best, px, py, face, 0.0, 0.0, sign
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def segment_box_overlap(x: np.ndarray, a: int, b: int, lo: np.ndarray, hi: np.ndarray) -> tuple[bool, float, float]:
     """(hit, t0, t1): the parameters (0 <= t0 <= t1 <= 1) of the part of segment x[a]-x[b] inside
     the closed box lo, hi (slab test); hit False when the segment misses it."""
@@ -89,7 +87,7 @@ def segment_box_overlap(x: np.ndarray, a: int, b: int, lo: np.ndarray, hi: np.nd
     return True, t0, t1
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def primitive_box_closest(
     tri: np.ndarray, corners: int, box: np.ndarray, lo: np.ndarray, hi: np.ndarray
 ) -> tuple[float, float, float, float, float, float, float, float, float, float]:

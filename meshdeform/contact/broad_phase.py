@@ -92,10 +92,7 @@ def _touched_cells(lo: np.ndarray, hi: np.ndarray, inv_cell: float) -> float:
     """How many grid cells the boxes lo, hi (M, 3) touch together at 1 / cell `inv_cell` (a float:
     the count of a far-flung box overflows an integer)."""
     total = 0.0
-    for e in range(lo.shape[0]):
-        count = 1.0
-        for k in range(3):
-            count *= float(max(cell_index(hi[e, k], inv_cell) - cell_index(lo[e, k], inv_cell), 0) + 1)
+    for count in _cell_counts(lo, hi, inv_cell):  # summed in order
         total += count
     return total
 
@@ -307,11 +304,7 @@ def query_box(
                     e = element[slot]
                     if e <= above:
                         continue
-                    if (
-                        elo[e, 0] > qhi[q, 0] or ehi[e, 0] < qlo[q, 0]
-                        or elo[e, 1] > qhi[q, 1] or ehi[e, 1] < qlo[q, 1]
-                        or elo[e, 2] > qhi[q, 2] or ehi[e, 2] < qlo[q, 2]
-                    ):
+                    if not _overlap(qlo, qhi, q, elo, ehi, e):
                         continue
                     # report once: in the cell of the overlap's lower corner (clamped to the query's cells)
                     cx = min(max(cell_index(max(qlo[q, 0], elo[e, 0]), inv_cell), x0), x1)
@@ -495,24 +488,25 @@ def grid_for(
     int64: only these queries will ask, and the grid holds only the elements near them
     (`near_elements`): the same pairs for them, at the cost of the elements they may meet."""
     if near is None:
-        queries, members = np.arange(qlo.shape[0], dtype=np.int64), np.arange(elo.shape[0], dtype=np.int64)
+        members = np.arange(elo.shape[0], dtype=np.int64)
         asked, held = (qlo, qhi), (elo, ehi)
     else:
-        queries, members = near, near_elements(qlo, qhi, near, elo, ehi)
-        asked, held = (qlo[queries], qhi[queries]), (elo[members], ehi[members])
+        members = near_elements(qlo, qhi, near, elo, ehi)
+        asked, held = (qlo[near], qhi[near]), (elo[members], ehi[members])
+    self_search = asked[0] is held[0] and asked[1] is held[1]
+    queries = asked[0].shape[0]
     if inv_cell is None:
         size = cell_size(*held)
-        inv_cell = 1.0 / (size if asked[0] is held[0] and asked[1] is held[1] else max(size, cell_size(*asked)))
+        inv_cell = 1.0 / (size if self_search else max(size, cell_size(*asked)))
     # long boxes set apart (`LONG_CELLS`): an element past as many cells as there are queries, a query
     # past as many as there are elements; each kind's count checked first on its longest box
-    self_search = asked[0] is held[0] and asked[1] is held[1]
     element_cells = _most_cells(*held, inv_cell)  # upper bounds on the cells the boxes touch together
     query_cells = element_cells if self_search else _most_cells(*asked, inv_cell)
-    long_element = max(float(LONG_CELLS), float(queries.shape[0]))
+    long_element = max(float(LONG_CELLS), float(queries))
     long_query = max(float(LONG_CELLS), float(members.shape[0]))
     long = members[:0]
     sound = element_cells + (0.0 if self_search else query_cells) <= cell_budget(
-        members.shape[0] + (0 if self_search else queries.shape[0])
+        members.shape[0] + (0 if self_search else queries)
     )
     if element_cells > long_element * members.shape[0]:
         apart = _cell_counts(*held, inv_cell) > long_element
@@ -520,7 +514,7 @@ def grid_for(
             members, long = members[~apart], members[apart]
             held = (held[0][~apart], held[1][~apart])
             sound = False  # counted afresh without them
-    if query_cells > long_query * queries.shape[0]:
+    if query_cells > long_query * queries:
         apart = _cell_counts(*asked, inv_cell) > long_query
         if np.count_nonzero(apart) <= LONG_MOST:
             asked = (asked[0][~apart], asked[1][~apart])

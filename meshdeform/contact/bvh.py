@@ -22,8 +22,7 @@ import numba
 import numpy as np
 
 from meshdeform.contact.triangle_distance import point_triangle_d2, triangle_triangle_closest
-
-_JIT = {"cache": True, "error_model": "numpy"}
+from meshdeform.solvers.jit import JIT
 
 #: triangles per leaf at most
 LEAF_SIZE = 4
@@ -46,7 +45,7 @@ class TriangleBVH(NamedTuple):
     depth: int
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _build(tlo: np.ndarray, thi: np.ndarray, centroids: np.ndarray, leaf_size: int):  # pragma: no cover - compiled
     t_count = centroids.shape[0]
     capacity = max(2 * t_count, 1)
@@ -126,7 +125,7 @@ def build_bvh(vertices: np.ndarray, triangles: np.ndarray, leaf_size: int = LEAF
     )
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _refit(bounds: np.ndarray, nodes: np.ndarray, order: np.ndarray, tri_bounds: np.ndarray) -> None:
     """Node boxes (N, 6) from the triangle boxes (T, 6), children before parents: `_build`
     numbers every child after its parent, so a walk from the last node to the first sees both
@@ -158,7 +157,7 @@ def refit_bvh(bvh: TriangleBVH, vertices: np.ndarray, triangles: np.ndarray) -> 
     return bvh._replace(bounds=bounds, tri_bounds=tri_bounds)
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _box_point_d2(boxes: np.ndarray, i: int, px: float, py: float, pz: float) -> float:
     """Squared distance of p to box i of boxes (B, 6)."""
     dx = max(boxes[i, 0] - px, 0.0, px - boxes[i, 3])
@@ -167,7 +166,7 @@ def _box_point_d2(boxes: np.ndarray, i: int, px: float, py: float, pz: float) ->
     return dx * dx + dy * dy + dz * dz
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _box_box_d2(boxes: np.ndarray, i: int, q: tuple[float, float, float, float, float, float]) -> float:
     """Squared distance between box i of boxes (B, 6) and the box q = (x0, y0, z0, x1, y1, z1)."""
     dx = max(boxes[i, 0] - q[3], 0.0, q[0] - boxes[i, 3])
@@ -176,7 +175,7 @@ def _box_box_d2(boxes: np.ndarray, i: int, q: tuple[float, float, float, float, 
     return dx * dx + dy * dy + dz * dz
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _plane_gap2(
     vertices: np.ndarray, triangles: np.ndarray, face_normals: np.ndarray, t: int, xq: np.ndarray, q0: int, q1: int,
     q2: int,
@@ -199,13 +198,13 @@ def _plane_gap2(
     return 0.0
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def new_stack() -> np.ndarray:
     """A traversal stack for the queries (a kernel makes one and passes it to every query)."""
     return np.empty(STACK, dtype=np.int64)
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def closest_to_point(
     bounds: np.ndarray,
     nodes: np.ndarray,
@@ -253,7 +252,7 @@ def closest_to_point(
     return best, tri, wa, wb, wc
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def closest_to_triangle(
     bounds: np.ndarray,
     nodes: np.ndarray,

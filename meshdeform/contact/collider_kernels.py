@@ -47,9 +47,7 @@ from meshdeform.contact.bvh import closest_to_point, closest_to_triangle, new_st
 from meshdeform.contact.primitives import point_triangle_weights
 from meshdeform.contact.surface import FEATURE_EPS, Surface, pseudo_normal
 from meshdeform.contact.triangle_distance import segment_triangle_closest
-from meshdeform.solvers.jit import opaque
-
-_JIT = {"cache": True, "error_model": "numpy"}
+from meshdeform.solvers.jit import JIT, opaque
 
 PLANE = 0
 SPHERE = 1
@@ -98,7 +96,7 @@ def shape_arrays(kind: int, params: np.ndarray, surface: Surface) -> ShapeArrays
     )  # fmt: skip
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _merge(i0: int, i1: int, i2: int, w0: float, w1: float, w2: float) -> tuple[float, float, float]:
     """Weights of repeated vertices (an edge (a, b, b), a vertex (a, a, a)) summed on the first
     row that holds the vertex, so each vertex appears once in the corrections."""
@@ -114,7 +112,7 @@ def _merge(i0: int, i1: int, i2: int, w0: float, w1: float, w2: float) -> tuple[
     return w0, w1, w2
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _triangle_normal(tri: np.ndarray) -> tuple[float, float, float, bool]:
     ux, uy, uz = tri[1, 0] - tri[0, 0], tri[1, 1] - tri[0, 1], tri[1, 2] - tri[0, 2]
     vx, vy, vz = tri[2, 0] - tri[0, 0], tri[2, 1] - tri[0, 1], tri[2, 2] - tri[0, 2]
@@ -125,7 +123,7 @@ def _triangle_normal(tri: np.ndarray) -> tuple[float, float, float, bool]:
     return 0.0, 1.0, 0.0, False
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def closest_plane(
     params: np.ndarray, tri: np.ndarray, i0: int, i1: int, i2: int
 ) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
@@ -150,7 +148,7 @@ def closest_plane(
     return best, w0, w1, w2, qx, qy, qz, nx, ny, nz, 0.0
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def closest_simple(
     kind: int,
     params: np.ndarray,
@@ -211,7 +209,7 @@ def closest_simple(
     return np.inf, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def closest_mesh(
     kind: int,
     params: np.ndarray,
@@ -288,7 +286,7 @@ def closest_mesh(
     return 0.0, w0, w1, w2, qx, qy, qz, side * gx, side * gy, side * gz, side
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def closest_box(
     kind: int,
     params: np.ndarray,
@@ -325,7 +323,7 @@ def closest_box(
 closest = closest_simple
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _fill(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, i0: int, i1: int, i2: int, s: float) -> None:
     for k in range(3):
         tri[0, k] = x0[i0, k] + s * (x1[i0, k] - x0[i0, k])
@@ -333,7 +331,7 @@ def _fill(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, i0: int, i1: int, i2:
         tri[2, k] = x0[i2, k] + s * (x1[i2, k] - x0[i2, k])
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def candidates(
     x0: np.ndarray,
     x1: np.ndarray,
@@ -494,7 +492,7 @@ def _advance(
         )  # fmt: skip
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _correct(
     x: np.ndarray,
     inv_mass: np.ndarray,
@@ -644,7 +642,7 @@ def _evaluate(
     return d
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def hold_still(
     x0: np.ndarray,
     x1: np.ndarray,
@@ -1099,11 +1097,11 @@ def _family(suffix: str, query: Callable[..., tuple]) -> Family:
         # no Numba IR inlining (`inline="always"`) of the sweep `_advance`: it saved a few per
         # cent of a sphere's contact time, about the noise of benchmarks/colliders.py, and cost
         # 4 s of compile time in every fresh process (CI runners, containers, Dask workers)
-        env[name] = numba.njit(**_JIT)(copy)
+        env[name] = numba.njit(**JIT)(copy)
     return Family(contact=env["contact"], near=env["near"])
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def closest_only_plane(
     kind: int,
     params: np.ndarray,
@@ -1161,7 +1159,7 @@ def contact_kernel(kind: int, company: frozenset[int] = frozenset()) -> Callable
     return contact_box if kind == BOX else contact_simple
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def respond(
     v: np.ndarray,
     inv_mass: np.ndarray,
@@ -1246,7 +1244,7 @@ def respond(
 SETTLED_SPEED = 1e-9
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _settle_vertices(
     v: np.ndarray,
     v_before: np.ndarray,
@@ -1289,7 +1287,7 @@ def _settle_vertices(
                 touched[i] = True
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def acting_contacts(
     ids: np.ndarray,
     plane: np.ndarray,
@@ -1327,7 +1325,7 @@ def acting_contacts(
     return acting
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def copy_rows(target: np.ndarray, source: np.ndarray, mask: np.ndarray) -> None:  # pragma: no cover - compiled
     """target[mask] = source[mask] for (V, 3) arrays and a (V,) mask, in place."""
     for i in range(mask.shape[0]):
@@ -1337,7 +1335,7 @@ def copy_rows(target: np.ndarray, source: np.ndarray, mask: np.ndarray) -> None:
             target[i, 2] = source[i, 2]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def restart_paths(
     previous: np.ndarray, positions: np.ndarray, velocities: np.ndarray, mask: np.ndarray, dt: float
 ) -> None:  # pragma: no cover - compiled

@@ -17,9 +17,8 @@ import numba
 import numpy as np
 
 from meshdeform.contact.bvh import STACK, TriangleBVH, build_bvh, closest_to_point, refit_bvh
+from meshdeform.solvers.jit import JIT
 from meshdeform.topology import is_closed
-
-_JIT = {"cache": True, "error_model": "numpy"}
 
 #: a barycentric weight at most this is taken as 0 when choosing the feature (face, edge, vertex)
 FEATURE_EPS = 1e-9
@@ -58,7 +57,7 @@ def surface_normals(vertices: np.ndarray, triangles: np.ndarray, edges: np.ndarr
     return _surface_normals(np.ascontiguousarray(vertices, dtype=np.float64), tri, edge, count)
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _surface_normals(v: np.ndarray, tri: np.ndarray, edges: np.ndarray, edge_count: int) -> np.ndarray:
     """`surface_normals`, in fixed order over the triangles (the same bytes on every run): unit face
     normals; per edge the sum of its faces' normals; per vertex the angle-weighted sum."""
@@ -118,7 +117,7 @@ def moved_surface(surface: Surface, vertices: np.ndarray, edges: np.ndarray) -> 
     )
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def pseudo_normal(normals: np.ndarray, t: int, w0: float, w1: float, w2: float) -> tuple[float, float, float]:
     """The (unnormalised) pseudo-normal at the point of triangle t with weights (w0, w1, w2):
     of the corner, edge or face the point lies on (normals: `Surface.normals`)."""
@@ -134,7 +133,7 @@ def pseudo_normal(normals: np.ndarray, t: int, w0: float, w1: float, w2: float) 
     return normals[t, row, 0], normals[t, row, 1], normals[t, row, 2]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def signed_closest(
     surface: Surface, points: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
@@ -164,7 +163,7 @@ def signed_closest(
     return closest, normals, dist
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def surface_motion(
     surface: Surface, start: np.ndarray, end: np.ndarray, points: np.ndarray, limit: float
 ) -> np.ndarray:  # pragma: no cover
@@ -191,7 +190,7 @@ def surface_motion(
     return out
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def closest_triangles(surface: Surface, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
     """For points (N, 3): the triangle (N,) int64 holding the nearest surface point and that
     point's barycentric weights (N, 3) on it."""

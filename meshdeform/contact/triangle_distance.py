@@ -21,11 +21,10 @@ import numba
 import numpy as np
 
 from meshdeform.contact.primitives import point_triangle_weights, segment_segment_params
+from meshdeform.solvers.jit import JIT
 
-_JIT = {"cache": True, "error_model": "numpy"}
 
-
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def segment_pierces_triangle(
     xs: np.ndarray, s0: int, s1: int, xt: np.ndarray, t0: int, t1: int, t2: int
 ) -> tuple[bool, float, float, float, float]:
@@ -69,7 +68,7 @@ def segment_pierces_triangle(
     return True, u, 1.0 - beta - gamma, beta, gamma
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def point_triangle_d2(
     px: float, py: float, pz: float, xt: np.ndarray, t0: int, t1: int, t2: int
 ) -> tuple[float, float, float, float]:
@@ -81,7 +80,7 @@ def point_triangle_d2(
     return dx * dx + dy * dy + dz * dz, wa, wb, wc
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def segment_edge_d2(xs: np.ndarray, s0: int, s1: int, xt: np.ndarray, e0: int, e1: int) -> tuple[float, float, float]:
     """(squared distance, u on the segment, t on the edge e0-e1)."""
     u, t = segment_segment_params(xs, s0, s1, xt, e0, e1)
@@ -91,7 +90,7 @@ def segment_edge_d2(xs: np.ndarray, s0: int, s1: int, xt: np.ndarray, e0: int, e
     return dx * dx + dy * dy + dz * dz, u, t
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def segment_triangle_closest(
     xs: np.ndarray, s0: int, s1: int, xt: np.ndarray, t0: int, t1: int, t2: int
 ) -> tuple[float, float, float, float, float]:
@@ -117,7 +116,7 @@ def segment_triangle_closest(
     return best, bu, wa, wb, wc
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _plane_sides(xp: np.ndarray, p0: int, p1: int, p2: int, xq: np.ndarray, q0: int, q1: int, q2: int) -> bool:
     """True when triangle Q lies strictly on one side of the plane of triangle P (then the two
     cannot intersect); False when it touches or straddles it, or P has no plane (zero area)."""
@@ -133,7 +132,7 @@ def _plane_sides(xp: np.ndarray, p0: int, p1: int, p2: int, xq: np.ndarray, q0: 
     return lo > 0.0 or hi < 0.0
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def _over_face(
     xp: np.ndarray, p0: int, p1: int, p2: int, xq: np.ndarray, q0: int, q1: int, q2: int
 ) -> tuple[bool, float, int, float, float, float]:
@@ -175,7 +174,7 @@ def _over_face(
     return True, best, corner, 1.0 - bb - bc, bb, bc
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def triangle_triangle_closest(
     xa: np.ndarray, a0: int, a1: int, a2: int, xb: np.ndarray, b0: int, b1: int, b2: int
 ) -> tuple[float, float, float, float, float, float, float]:
@@ -247,7 +246,7 @@ def triangle_triangle_closest(
     return best, w0, w1, w2, b_0, b_1, b_2
 
 
-@numba.njit(**_JIT)
+@numba.njit(**JIT)
 def triangles_cross(x: np.ndarray, triangles: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     """(K,) bool: whether the triangles of each pair (K, 2) (rows of `triangles` (T, 3), corners in
     x (V, 3)) intersect: an edge of either piercing the other (`segment_pierces_triangle`); a
