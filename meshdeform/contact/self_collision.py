@@ -654,8 +654,10 @@ LIST_SPAN = 8.2e-3
 #: benchmarks with self-collision), where xpbd's 22 a frame keep `LIST_SPAN`'s 4 (3 was slower)
 LIST_MIN_SUBSTEPS = 3
 #: when more than this fraction of the vertices strayed from their paths, the whole list is
-#: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone
-REGATHER_FRACTION = 0.5
+#: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone: a
+#: partial search of many costs more than a whole one and leaves paths of mixed ages that stray
+#: again sooner (docs/performance.md, "A whole search once a fifth of the vertices strayed")
+REGATHER_FRACTION = 0.2
 
 
 def long_edge_pairs(
