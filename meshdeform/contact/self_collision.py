@@ -224,7 +224,9 @@ class SelfCollision(Constraint, Remappable):
         self._tear_map: np.ndarray | None = None
         self._held: _Pairs | None = None
         self._substep = 0  # substeps projected so far: the age of the kept pairs
-        self._span = 1  # substeps a list of candidate pairs covers at most (`list_substeps`)
+        self._span = 1  # substeps the kept list of candidate pairs covers (`_list_span`)
+        self._longest_span = 1  # substeps a list covers at most at this step length (`list_substeps`)
+        self._edge = 0.0  # the median rest edge (m) of the model last prepared
         self._margin = 0.0
         self._capacity = (0, 0)
         #: threads the split kernels use, by measurement (`threads.ThreadPicker`)
@@ -271,6 +273,7 @@ class SelfCollision(Constraint, Remappable):
         if self._picker.most != most:  # (a torn model keeps what the picker measured)
             self._picker = ThreadPicker(most)
         edge = median_edge(model)
+        self._edge = edge
         self.thickness = contact_thickness(self.settings.thickness, edge)
         self._margin = MARGIN_FRACTION * edge if edge > 0 else self.thickness
         return self._topology
@@ -288,9 +291,11 @@ class SelfCollision(Constraint, Remappable):
             stale, common_start, common_end = held.stale(x0, x1, self._substep, slack, self._span)
             if not stale.any():
                 return held
-            if np.count_nonzero(stale) > REGATHER_FRACTION * n:
+            # many strays, or strays so fast that the list's span would reach too far for them
+            if np.count_nonzero(stale) > REGATHER_FRACTION * n or self._list_span(x0, x1, stale) < self._span:
                 held = None
         if held is None:
+            self._span = self._list_span(x0, x1, None)
             held = _Pairs.empty(n)
             stale, common_start, common_end = np.ones(n, dtype=np.bool_), np.zeros(3), np.zeros(3)
         self.work.pair_builds += 1
@@ -298,6 +303,25 @@ class SelfCollision(Constraint, Remappable):
             model, topology, held, stale, x0 - common_start, x1 - common_end, slack, threads
         )
         return self._held
+
+    def _list_span(self, x0: np.ndarray, x1: np.ndarray, among: np.ndarray | None) -> int:
+        """The substeps a list searched now covers: `list_substeps` of the step (`_longest_span`),
+        fewer where the substep's fastest motion relative to the cloth's mean, of the vertices
+        `among` ((V,) bool; None: all of them) from x0 to x1 (V, 3), would let two of them close
+        by more than `SPAN_EDGES` median edges over the span, but at least `LIST_MIN_SUBSTEPS`.
+        A pair is kept within the thickness plus the span's closing, so on a mesh whose edges
+        are short for its speed (a scanned model landing at 4 m/s in its 64 fast steps a frame,
+        edges of 1.5 mm) a span of 8.2 ms held each vertex's pairs of a few centimetres around
+        it: hundreds a vertex, re-searched as it strays."""
+        motion = x1 - x0
+        relative = motion - motion.mean(axis=0)
+        if among is not None:
+            relative = relative[among]
+        fastest = float(np.sqrt(np.max(np.einsum("ij,ij->i", relative, relative), initial=0.0)))
+        span = self._longest_span
+        if fastest > 0.0 and self._edge > 0.0:
+            span = min(span, int(SPAN_EDGES * self._edge / (2.0 * fastest)))
+        return max(span, LIST_MIN_SUBSTEPS)
 
     def _regather(
         self, model: SpringModel, topology: _Topology, pairs: _Pairs, stale: np.ndarray,
@@ -519,9 +543,9 @@ class SelfCollision(Constraint, Remappable):
             self.moved = None
             return
         self._substep += 1
-        span = list_substeps(dt)
-        if span != self._span:  # a list covers the span it was searched for: a longer one is searched anew
-            self._span, self._held = span, None
+        longest = list_substeps(dt)
+        if longest != self._longest_span:  # a list covers the span it was searched for: another is searched anew
+            self._longest_span, self._held = longest, None
         x = state.positions
         n = x.shape[0]
         x0 = self._start if self._start is not None and self._start.shape[0] == n else state.previous.copy()
@@ -653,6 +677,10 @@ LIST_SPAN = 8.2e-3
 #: often at a wider reach and gain (3 against `LIST_SPAN`'s 2 and 1: 1.05-1.3x on the contact
 #: benchmarks with self-collision), where xpbd's 22 a frame keep `LIST_SPAN`'s 4 (3 was slower)
 LIST_MIN_SUBSTEPS = 3
+#: a list's span keeps two vertices at the substep's fastest relative motion from closing by more
+#: than this many median edges over it (`SelfCollision._list_span`): spans of xpbd's 22 and
+#: implicit's steps on the contact benchmarks' sheets stay as `list_substeps` gives them
+SPAN_EDGES = 2.0
 #: when more than this fraction of the vertices strayed from their paths, the whole list is
 #: searched afresh (one query a vertex, triangle and edge) rather than their pairs alone: a
 #: partial search of many costs more than a whole one and leaves paths of mixed ages that stray
