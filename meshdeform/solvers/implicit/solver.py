@@ -722,7 +722,9 @@ class ImplicitSolver(ModelCache, Solver):
                 return grad
             kernels.gather_rows(x, fv, base)
             longest = kernels.longest_row(direction) if trust < np.inf else 0.0
-            step = 1.0 if longest <= trust else trust / longest
+            step = 1.0
+            if longest > trust:
+                slope, step = _bounded_rows(direction, grad, trust, slope, longest)
             for _ in range(LINE_SEARCH_HALVINGS):
                 kernels.place(x, fv, base, direction, -step)
                 trial = self._energy(x, y, trial_grad)
@@ -744,6 +746,24 @@ class ImplicitSolver(ModelCache, Solver):
             grad, trial_grad = trial_grad, grad
             energy = trial
         return grad
+
+
+def _bounded_rows(
+    direction: np.ndarray, grad: np.ndarray, trust: float, slope: float, longest: float
+) -> tuple[float, float]:
+    """An L-BFGS direction (F, 3) whose longest row moves further than `trust` (m) bounded,
+    in place where it can be: each row longer than `trust` shortened to it alone, so that a few
+    fast rows (a small torn piece flying apart) do not shrink every other row's move, nor the
+    fast rows' own correction to a sliver of what they need; where that is no descent direction
+    of the energy (its slope -grad . direction (grad (F, 3)) not negative), the direction stays
+    and the step is scaled as a whole to `trust` / `longest`. Returns the slope and the step."""
+    lengths = np.sqrt(np.einsum("ij,ij->i", direction, direction))
+    clipped = direction * np.minimum(1.0, trust / np.maximum(lengths, 1e-300))[:, None]
+    clipped_slope = -float(np.einsum("ij,ij->", grad, clipped))
+    if clipped_slope < 0.0:
+        direction[:] = clipped
+        return clipped_slope, 1.0
+    return slope, trust / longest
 
 
 @dataclass
@@ -769,7 +789,8 @@ _AXES = np.eye(3)
 #: the longest move of a vertex in one L-BFGS iteration of a step with contact, as a fraction of
 #: the median structural rest length: a cloth stretched around an obstacle otherwise slings a
 #: vertex across it in one step (29 m/s on the fold scene, then divergence); steps without
-#: contact are not bounded (at 256 x 256 the bound slowed a hanging cloth's convergence)
+#: contact are not bounded (at 256 x 256 the bound slowed a hanging cloth's convergence). Each
+#: row is bounded alone (`_bounded_rows`)
 TRUST_FRACTION = 0.25
 #: the deepest `_sink_pressed` moves a held contact into its obstacle, as a fraction of the median
 #: structural rest length: pressed by stiff springs, a vertex would otherwise be sunk deep and
