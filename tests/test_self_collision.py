@@ -93,6 +93,11 @@ def _two_sheets(gap: float, n: int = 8) -> Mesh:
     """Two horizontal n x n sheets of 0.5 m, `gap` apart, as one mesh (two pieces)."""
     lower = grid_sheet(n, plane="xz", size=0.5, triangles=True, centred=True, offset=(0.0, 0.3, 0.0))
     upper = grid_sheet(n, plane="xz", size=0.5, triangles=True, centred=True, offset=(0.03, 0.3 + gap, 0.02))
+    return _stacked(lower, upper)
+
+
+def _stacked(lower: Mesh, upper: Mesh) -> Mesh:
+    """Two meshes as one (two pieces): lower's vertices first, then upper's."""
     count = lower.positions.shape[0]
     return Mesh(
         positions=np.concatenate([lower.positions, upper.positions]),
@@ -182,11 +187,7 @@ def _sheet_over_sheet(lower_height: float, upper_height: float) -> tuple[SpringM
     lower = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.0, lower_height, 0.0))
     upper = grid_sheet(6, plane="xz", size=0.3, triangles=True, centred=True, offset=(0.01, upper_height, 0.013))
     count = lower.positions.shape[0]
-    mesh = Mesh(
-        positions=np.concatenate([lower.positions, upper.positions]),
-        face_indices=np.concatenate([lower.face_indices, upper.face_indices + count]),
-        face_offsets=np.concatenate([lower.face_offsets, upper.face_offsets[1:] + lower.face_indices.shape[0]]),
-    )
+    mesh = _stacked(lower, upper)
     model = SpringModel.from_mesh(mesh)
     return model, np.arange(model.vertex_count) >= count
 
@@ -578,11 +579,7 @@ def test_a_fine_sheet_spinning_over_another_keeps_short_pair_lists() -> None:
     lower = grid_sheet(n, plane="xz", size=size, triangles=True, centred=True)
     upper = grid_sheet(n, plane="xz", size=size, triangles=True, centred=True, offset=(0.0, 0.0015, 0.0))
     count = lower.positions.shape[0]
-    mesh = Mesh(
-        positions=np.concatenate([lower.positions, upper.positions]),
-        face_indices=np.concatenate([lower.face_indices, upper.face_indices + count]),
-        face_offsets=np.concatenate([lower.face_offsets, upper.face_offsets[1:] + lower.face_indices.shape[0]]),
-    )
+    mesh = _stacked(lower, upper)
     model = SpringModel.from_mesh(mesh)
     state = State.at_rest(model)
     settings = Settings(solver="xpbd", frames=2, substeps=88)
