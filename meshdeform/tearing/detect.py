@@ -61,8 +61,9 @@ class SpringState:
     ring: (rows, tested) stretch of the last substeps; stuck: failed springs no end of which
     can split (not tested again until the topology changes); pending: largest stretch of
     springs that failed since the last update (0: none); all_thr, all_window: (S,) of every
-    spring (inf: not tested); by_vertex: the tested structural springs by vertex, built on
-    first use (`tested_structural`).
+    spring (inf: not tested); any_pending: whether any failed since the last update;
+    any_overdue: whether one of those is overdue (`record_failures`); by_vertex: the tested
+    structural springs by vertex, built on first use (`tested_structural`).
     """
 
     index: np.ndarray
@@ -77,6 +78,7 @@ class SpringState:
     all_thr: np.ndarray
     all_window: np.ndarray
     any_pending: bool = False
+    any_overdue: bool = False
     by_vertex: tuple[np.ndarray, np.ndarray] | None = None
 
 
@@ -127,9 +129,19 @@ def spring_state(
     )
 
 
+#: a failed spring waiting for the update budget is overdue once it has stretched this many times
+#: as far past its rest length as its threshold allows (2: at 1.04 for a threshold of 1.02, 1.6
+#: for 1.3): the tearer then updates at once (`Tearer.after_substep`). A cloth shredding faster
+#: than the budget let its springs stretch on while they waited, and a small piece cut loose with
+#: a spring at 2.35x (a threshold of 1.02) flew apart under implicit (docs/performance.md, "A
+#: sheet shredded into single quads")
+OVERDUE_FACTOR = 2.0
+
+
 def record_failures(sp: SpringState, positions: np.ndarray, step: int) -> None:
     """Test every tested spring at positions (W, 3) on substep `step` (the ring buffer's row);
-    failing springs not stuck raise their `pending` stretch."""
+    failing springs not stuck raise their `pending` stretch, and mark the state overdue where one
+    is `OVERDUE_FACTOR` times as far past 1 as its threshold."""
     out_index = np.empty(sp.index.shape[0], dtype=np.int64)
     out_ratio = np.empty(sp.index.shape[0])
     count = _over_threshold(positions, sp.a, sp.b, sp.inv_rest, sp.thr, sp.window, sp.ring, step, out_index, out_ratio)
@@ -138,8 +150,10 @@ def record_failures(sp: SpringState, positions: np.ndarray, step: int) -> None:
         fresh = ~sp.stuck[idx]
         if fresh.any():
             idx = idx[fresh]
-            sp.pending[idx] = np.maximum(sp.pending[idx], out_ratio[:count][fresh])
+            ratio = out_ratio[:count][fresh]
+            sp.pending[idx] = np.maximum(sp.pending[idx], ratio)
             sp.any_pending = True
+            sp.any_overdue = sp.any_overdue or bool(np.any(ratio - 1.0 > OVERDUE_FACTOR * (sp.thr[idx] - 1.0)))
 
 
 def tested_structural(sp: SpringState, model: SpringModel) -> tuple[np.ndarray, np.ndarray]:

@@ -28,7 +28,7 @@ from meshdeform.model import SpringModel, State
 from meshdeform.tearing.corners import Corners
 from meshdeform.tearing.crack import choose_ends, crack_ahead, plane_sides
 from meshdeform.tearing.cuts import Cut, cut_split
-from meshdeform.tearing.detect import SpringState, record_failures, spring_state
+from meshdeform.tearing.detect import record_failures, spring_state
 from meshdeform.tearing.output import OutputLayout
 from meshdeform.tearing.settings import TearSettings
 from meshdeform.tearing.surgery import mesh_pieces, rebuild, split_vertices
@@ -68,8 +68,8 @@ class Tearer:
     Springs are tested every substep; failures collect and the topology is updated at most
     every `settings.interval` seconds of simulated time (cuts at their own time), because every
     update hands the solver a new model to prepare, except where a waiting break is overdue
-    (`overdue`: its spring stretched `OVERDUE_FACTOR` times as far past its rest length as its
-    threshold allows), which updates at once.
+    (`SpringState.any_overdue`: its spring stretched `detect.OVERDUE_FACTOR` times as far past
+    its rest length as its threshold allows), which updates at once.
     """
 
     def __init__(
@@ -180,7 +180,7 @@ class Tearer:
             if s.interval > 0:  # refill the update budget
                 self._tokens = min(float(s.burst), self._tokens + (time - self._token_time) / s.interval)
             self._token_time = time
-            if sp.any_pending and (s.interval <= 0 or self._tokens >= 1.0 - 1e-9 or overdue(sp)):
+            if sp.any_pending and (s.interval <= 0 or self._tokens >= 1.0 - 1e-9 or sp.any_overdue):
                 event = self._tear(state)
                 if event is not None:
                     self._tokens = max(self._tokens - 1.0, 0.0)
@@ -211,7 +211,7 @@ class Tearer:
         local = np.flatnonzero(sp.pending > 0)
         ratio = sp.pending[local]
         sp.pending[:] = 0.0
-        sp.any_pending = False
+        sp.any_pending = sp.any_overdue = False
         if local.size == 0:
             return None
         model = self.model
@@ -299,18 +299,3 @@ class Tearer:
         self.total_split += new_count
         return TearEvent(model=new_model, index_map=index_map, parent=parent, broken=broken_total, split=new_count)
 
-
-#: a waiting break is overdue (`overdue`) once its spring has stretched this many times as far
-#: past its rest length as its threshold allows (2: at 1.04 for a threshold of 1.02, 1.6 for 1.3)
-OVERDUE_FACTOR = 2.0
-
-
-def overdue(sp: SpringState) -> bool:
-    """Whether a break waiting for the update budget (`SpringState.pending`: the largest stretch
-    ratio of each failed spring since the last update) is overdue: its spring `OVERDUE_FACTOR`
-    times as far past 1 as its threshold. Such a break is applied at once: a cloth shredding
-    faster than the budget let its springs stretch on while they waited, and a small piece cut
-    loose with a spring at 2.35x (a threshold of 1.02) flew apart under implicit
-    (docs/performance.md, "A sheet shredded into single quads").
-    """
-    return bool(np.any(sp.pending - 1.0 > OVERDUE_FACTOR * (sp.thr - 1.0)))

@@ -721,10 +721,9 @@ class ImplicitSolver(ModelCache, Solver):
             if not slope < 0.0:  # a stationary point
                 return grad
             kernels.gather_rows(x, fv, base)
-            longest = kernels.longest_row(direction) if trust < np.inf else 0.0
             step = 1.0
-            if longest > trust:
-                slope, step = _bounded_rows(direction, grad, trust, slope, longest)
+            if trust < np.inf and kernels.longest_row(direction) > trust:
+                slope, step = _bounded_rows(direction, grad, trust, slope)
             for _ in range(LINE_SEARCH_HALVINGS):
                 kernels.place(x, fv, base, direction, -step)
                 trial = self._energy(x, y, trial_grad)
@@ -748,22 +747,21 @@ class ImplicitSolver(ModelCache, Solver):
         return grad
 
 
-def _bounded_rows(
-    direction: np.ndarray, grad: np.ndarray, trust: float, slope: float, longest: float
-) -> tuple[float, float]:
+def _bounded_rows(direction: np.ndarray, grad: np.ndarray, trust: float, slope: float) -> tuple[float, float]:
     """An L-BFGS direction (F, 3) whose longest row moves further than `trust` (m) bounded,
     in place where it can be: each row longer than `trust` shortened to it alone, so that a few
     fast rows (a small torn piece flying apart) do not shrink every other row's move, nor the
     fast rows' own correction to a sliver of what they need; where that is no descent direction
     of the energy (its slope -grad . direction (grad (F, 3)) not negative), the direction stays
-    and the step is scaled as a whole to `trust` / `longest`. Returns the slope and the step."""
+    and the step is scaled as a whole to `trust` over the longest row. Returns the slope and the
+    step."""
     lengths = np.sqrt(np.einsum("ij,ij->i", direction, direction))
     clipped = direction * np.minimum(1.0, trust / np.maximum(lengths, 1e-300))[:, None]
     clipped_slope = -float(np.einsum("ij,ij->", grad, clipped))
     if clipped_slope < 0.0:
         direction[:] = clipped
         return clipped_slope, 1.0
-    return slope, trust / longest
+    return slope, trust / float(lengths.max())
 
 
 @dataclass
