@@ -488,7 +488,7 @@ def contact_planes(constraints: Sequence[Constraint], model: SpringModel, state:
     """The contact planes of the colliders among `constraints` after their last `project` for the
     cloth of `model` at `state` (`Collider.planes`, the colliders' rows in list order;
     `Control.planes`); None without any."""
-    parts = [c.planes(model, state.positions) for c in constraints if isinstance(c, Collider)]
+    parts = [c.planes(model, state.positions, state.velocities) for c in constraints if isinstance(c, Collider)]
     parts = [p for p in parts if p is not None and p.offsets.shape[0] > 0]
     if not parts:
         return None
@@ -594,15 +594,25 @@ class Collider(Constraint, Remappable):
             normal = normal @ self.keys.rotation(time).T
         return dist, normal
 
-    def planes(self, model: SpringModel, positions: np.ndarray) -> ContactPlanes | None:
+    def planes(
+        self, model: SpringModel, positions: np.ndarray, velocities: np.ndarray | None = None
+    ) -> ContactPlanes | None:
         """Contact planes in the world (`ContactPlanes`) for the cloth of `model` at positions
         (V, 3) after the last `project` (the substep's end): every primitive of the cloth with a
-        movable vertex nearer than `PLANE_REACH` thicknesses to the surface gets the surface's
-        tangent plane at its closest point, moved out by the thickness (or through the point itself
-        where it lies nearer), with the surface's velocity there. Not only the contacts the last
-        `project` touched: a face or vertex that hovers a hair above the surface after one substep
-        falls onto it within the next (on a ball, a face's middle lies below its corners), and
-        would meet it unheld. None before the first `project`."""
+        movable vertex nearer than `PLANE_REACH` thicknesses to the surface, or farther out but
+        closing on its plane (at its velocity from `velocities` (V, 3), m/s, relative to the
+        surface's) by more than the rest of that band within a substep (the last one's dt) and
+        as far as it closes in one, gets the surface's tangent plane at its closest point, moved
+        out by the thickness (or through the point itself where it lies nearer), with the
+        surface's velocity there. Not only the contacts the last `project` touched: a face or
+        vertex that hovers a hair above the surface after one substep falls onto it within the
+        next (on a ball, a face's middle lies below its corners), and would meet it unheld; nor
+        only the near ones: a stiff body landing at 2 m/s crossed a centimetre of the surface
+        within a substep of 5 ms unheld, and the colliders' push after it compressed its bottom
+        layer at once, which threw it back up higher than it fell (a plane that a point is still
+        in front of holds nothing until the point reaches it). Not every point within the
+        fastest one's reach either: a far point's tangent plane on a ball is no surface for a
+        point moving along it. None before the first `project`."""
         if self._planes_at is None:
             return None
         time, dt = self._planes_at
@@ -610,11 +620,17 @@ class Collider(Constraint, Remappable):
         prims = self._primitives(model)
         scale = self._scale(time)
         h, _ = self._gaps(scale)
+        reach = PLANE_REACH * h
+        if velocities is not None and velocities.shape[0]:
+            movable = np.asarray(model.inv_mass) > 0.0
+            fastest = float(np.sqrt(np.einsum("ij,ij->i", velocities[movable], velocities[movable]).max(initial=0.0)))
+            fastest += self.largest_speed(positions, time, time + dt)
+            reach += fastest * dt / scale
         x = np.ascontiguousarray(self._to_local(positions, time), dtype=np.float64)
         lo, hi = self._bounds(shape)
         hint = self._hints(prims, x.shape[0], shape.kind == ck.MESH and not shape.closed)
         ids, rows, _ = ck.near_kernel(shape.kind, self.company)(
-            *shape, x, prims, np.asarray(model.inv_mass) > 0.0, hint, lo, hi, PLANE_REACH * h,
+            *shape, x, prims, np.asarray(model.inv_mass) > 0.0, hint, lo, hi, reach,
         )  # fmt: skip
         surface_local = np.ascontiguousarray(rows[:, 3:6])
         normals = np.ascontiguousarray(rows[:, 6:9])
@@ -630,10 +646,21 @@ class Collider(Constraint, Remappable):
         # with their own response
         offsets = np.einsum("ij,ij->i", normals, surface) + h * scale
         now = np.einsum("ij,ij->i", normals, points)
+        surface_velocity = self._surface_velocity(surface_local, time, dt)
+        if velocities is not None and reach > PLANE_REACH * h:
+            # beyond the near band, only the points closing on their plane by more than the band in
+            # a substep, as far as they close in one (m, world)
+            point_velocity = np.einsum("ij,ijk->ik", weights, velocities[vertices])
+            closing = np.einsum("ij,ij->i", normals, surface_velocity - point_velocity) * dt
+            band = (PLANE_REACH - 1.0) * h * scale
+            ahead = now - offsets
+            keep = (ahead <= band) | ((closing > band) & (ahead <= closing))
+            vertices, weights, normals = vertices[keep], weights[keep], normals[keep]
+            offsets, now, surface_velocity = offsets[keep], now[keep], surface_velocity[keep]
         offsets = np.where(now < offsets - PLANE_SLACK * h * scale, now, offsets)
         return ContactPlanes(
             vertices=vertices, weights=weights, normals=normals, offsets=offsets,
-            velocities=self._surface_velocity(surface_local, time, dt), friction=np.full(ids.shape[0], self.friction),
+            velocities=surface_velocity, friction=np.full(vertices.shape[0], self.friction),
         )  # fmt: skip
 
     def _gaps(self, scale: float) -> tuple[float, float]:
