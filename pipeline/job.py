@@ -269,6 +269,7 @@ def _run_job(
             for warning in (
                 convergence_warning(last_frame, built.scene) if last_frame is not None else None,
                 unresolved_contact_warning(contact.get("unresolved", [])),
+                stretch_warning(max_stretch),
             )
             if warning is not None
         ]
@@ -340,6 +341,27 @@ def _run_job(
 
 #: frames a warning lists at most
 LISTED_FRAMES = 10
+#: a frame whose structural springs are longer than this many times their rest length gets a
+#: warning (`stretch_warning`): woven cloth stretches a few per cent, a knit a few tens; half again
+#: its length looks rubbery or torn, though a run stops only at 10x (`meshdeform.simulate`)
+STRETCH_WARNING = 1.5
+
+
+def stretch_warning(max_stretch: list[float]) -> str | None:
+    """The report's sentence where some frame's structural springs stretched past
+    `STRETCH_WARNING` (max_stretch: the report's list, per frame from frame 1), else None."""
+    frames = [index for index, stretch in enumerate(max_stretch, start=1) if stretch > STRETCH_WARNING]
+    if not frames:
+        return None
+    listed = ", ".join(str(index) for index in frames[:LISTED_FRAMES])
+    if len(frames) > LISTED_FRAMES:
+        listed += ", ..."
+    worst = max(frames, key=lambda index: max_stretch[index - 1])
+    return (
+        f"stretched: in {len(frames)} frame(s) ({listed}) structural springs were longer than "
+        f"{STRETCH_WARNING:g}x their rest length, {max_stretch[worst - 1]:.3g}x in frame {worst}; the cloth looks "
+        "rubbery or torn there: more substeps or iterations, or a stiffer material, hold it"
+    )
 
 
 def unresolved_contact_warning(unresolved: list[int]) -> str | None:
