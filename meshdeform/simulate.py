@@ -437,6 +437,13 @@ def simulate(
     solver = solver or make_solver(settings.solver, settings.options)
     name, hint = solver.name, solver.hint
     state = state or State.at_rest(model)
+    # the scene's initial velocity: in the state's velocities (the implicit and explicit solvers'
+    # own), and for the solvers that read a vertex's velocity as (x - previous) / dt (verlet,
+    # xpbd) in its previous position at the first step, once that step's length is known
+    launch = None if scene.initial_velocity is None else np.asarray(scene.initial_velocity, dtype=np.float64)
+    free = np.asarray(model.inv_mass) > 0.0
+    if launch is not None:
+        state.velocities[free] = launch
     substeps = int(settings.substeps)
     dt = 1.0 / (settings.fps * substeps)
     start_time = state.time
@@ -503,6 +510,9 @@ def simulate(
             if frame_substeps != substeps:
                 frame_keep_after = replace(settings, substeps=frame_substeps).subframe_substeps
         dt = 1.0 / (settings.fps * frame_substeps)
+        if launch is not None:  # the first step's start: where the velocity came from a step back
+            state.previous[free] = state.positions[free] - launch * dt
+            launch = None
         if whole_frames:  # in runs of substeps between the states kept: the same bytes
             done = 0
             for until in (*frame_keep_after, frame_substeps):

@@ -461,7 +461,13 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     constraints.extend(colliders)
 
     gravity = sim.gravity if sim.gravity is not None else gravity_vector(sim.up)
-    scene = Scene(gravity=gravity, forces=forces, constraints=constraints, pin_motion=pin_motion)
+    scene = Scene(
+        gravity=gravity,
+        forces=forces,
+        constraints=constraints,
+        pin_motion=pin_motion,
+        initial_velocity=sim.initial_velocity,
+    )
     scene.self_collision = _self_collision(recipe, colliders, model, warnings)
     scene.tearing = _tearing(recipe, res, mesh, model, settings, warnings)
     return BuiltSimulation(

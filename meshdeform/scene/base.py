@@ -116,6 +116,9 @@ class Scene:
     pin_motion: targets of the hard pins (None: they stay at rest). tearing: a `Tearer` or None.
     self_collision: the cloth's contact with itself (`meshdeform.contact.SelfCollision`), run
         after every constraint of a substep, or None (off).
+    initial_velocity: m/s, the velocity every vertex that is not hard-pinned has when a run
+        starts (`meshdeform.simulate.simulate`), or None (at rest): a cloth thrown, or shot at
+        an obstacle, without a scripted impact doing it in the first frame.
     """
 
     gravity: tuple[float, float, float] = gravity_vector()
@@ -124,6 +127,7 @@ class Scene:
     pin_motion: PinMotion | None = None
     tearing: Tearer | None = None
     self_collision: SelfCollision | None = None
+    initial_velocity: tuple[float, float, float] | None = None
 
     def pulled(self, vertex_count: int) -> np.ndarray | None:
         """(vertex_count,) bool: the vertices a `Pulling` constraint pulls; None where none does."""

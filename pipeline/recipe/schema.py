@@ -68,6 +68,7 @@ class SimulationSpec(Table):
     iterations: Annotated[StrictInt, limited("simulation.iterations")] | None = Field(None, ge=1)
     damping: Float | None = Field(None, ge=0, lt=1)
     gravity: Vec3 | None = None
+    initial_velocity: Vec3 | None = None
     up: Literal["y", "z"] = "y"
     seed: StrictInt = Field(0, ge=0)
     start_frame: Annotated[StrictInt, limited("simulation.start_frame")] = Field(1, ge=0)
