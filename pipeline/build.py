@@ -27,6 +27,7 @@ from meshdeform.scene.pins import HardPinMotion, Keyframes, Motion, SoftPins, pi
 from meshdeform.selection import BoundsFrame, SelectionContext, SelectionResolveError, vertex_property
 from meshdeform.simulate import Settings, steps_for
 from meshdeform.solvers.options import SweepOptions
+from meshdeform.solvers.registry import solver_class
 from meshdeform.tearing import DEFAULT_BURST, DEFAULT_INTERVAL, Cut, Tearer, TearRegion, TearSettings
 from meshdeform.topology import SpringKind, Springs, Welding, boundary_edge_count, build_springs
 from pipeline.recipe import (
@@ -332,6 +333,11 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
     vmap = welding.vertex_map
     n_welded = welding.count
     warnings: list[str] = []
+    if sim.iterations is not None and not solver_class(sim.solver).default_iterations:
+        warnings.append(
+            f"simulation.iterations: the {sim.solver} solver has no iterations (its steps are explicit), so "
+            f"iterations = {sim.iterations} has no effect"
+        )
 
     # -- colliders first: pins attach to them (they run last, see below) ---------------------------
     colliders = [_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders)]

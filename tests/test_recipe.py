@@ -570,3 +570,25 @@ def test_the_deprecation_line_goes_to_stderr_once_and_into_the_batch_log(tmp_pat
     run_batch(assets, recipe, tmp_path / "batch", jobs=0)
     log = (tmp_path / "batch" / "batch.log").read_text()
     assert log.count(expected) == 1
+
+
+@pytest.mark.parametrize("solver", ["springs", "anchor"])
+def test_iterations_given_to_a_solver_without_them_are_reported_as_none_with_a_warning(solver: str) -> None:
+    """`springs` and `anchor` step explicitly and sweep nothing: `iterations = 10` changes nothing
+    (the same bytes as without it), the settings in force say 0 iterations (the report's
+    `iterations`), and the build warns that the key has no effect; xpbd keeps the 10 it is given."""
+    from meshdeform.simulate import simulate
+
+    mesh = grid_sheet(6)
+    head = f'[simulation]\nsolver = "{solver}"\nframes = 2\n'
+    given = build_simulation(parse_recipe(head + "iterations = 10\n"), mesh)
+    plain = build_simulation(parse_recipe(head), mesh)
+    assert given.settings.iterations == 0
+    (warning,) = [w for w in given.warnings if w.startswith("simulation.iterations")]
+    assert f"the {solver} solver has no iterations" in warning
+    assert not [w for w in plain.warnings if w.startswith("simulation.iterations")]
+    ran = [f.welded_positions for f in simulate(given.model, given.scene, given.settings)]
+    same = [f.welded_positions for f in simulate(plain.model, plain.scene, plain.settings)]
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(ran, same, strict=True))
+    sweeping = build_simulation(parse_recipe('[simulation]\nsolver = "xpbd"\nframes = 2\niterations = 10\n'), mesh)
+    assert sweeping.settings.iterations == 10 and not sweeping.warnings

@@ -45,7 +45,10 @@ class SolverOptions:
     damping: Annotated[float, Interval(ge=0, lt=1)] = 0.9
 
     def iterations_for(self, solver: type | object) -> int:
-        """The iteration count in force for a solver class or instance."""
+        """The iteration count in force for a solver class or instance: 0 for one without
+        iterations (`default_iterations` 0: springs, anchor) whatever `iterations` says."""
+        if not solver.default_iterations:
+            return 0
         return int(self.iterations) if self.iterations is not None else int(solver.default_iterations)
 
 
