@@ -347,15 +347,19 @@ LISTED_FRAMES = 10
 STRETCH_WARNING = 1.5
 
 
+def _listed_frames(frames: list[int]) -> str:
+    """Frame numbers as a warning lists them: the first `LISTED_FRAMES`, then "..."."""
+    listed = ", ".join(str(index) for index in frames[:LISTED_FRAMES])
+    return listed + ", ..." if len(frames) > LISTED_FRAMES else listed
+
+
 def stretch_warning(max_stretch: list[float]) -> str | None:
     """The report's sentence where some frame's structural springs stretched past
     `STRETCH_WARNING` (max_stretch: the report's list, per frame from frame 1), else None."""
     frames = [index for index, stretch in enumerate(max_stretch, start=1) if stretch > STRETCH_WARNING]
     if not frames:
         return None
-    listed = ", ".join(str(index) for index in frames[:LISTED_FRAMES])
-    if len(frames) > LISTED_FRAMES:
-        listed += ", ..."
+    listed = _listed_frames(frames)
     worst = max(frames, key=lambda index: max_stretch[index - 1])
     return (
         f"stretched: in {len(frames)} frame(s) ({listed}) structural springs were longer than "
@@ -370,9 +374,7 @@ def unresolved_contact_warning(unresolved: list[int]) -> str | None:
     frames = [index for index, count in enumerate(unresolved, start=1) if count]
     if not frames:
         return None
-    listed = ", ".join(str(index) for index in frames[:LISTED_FRAMES])
-    if len(frames) > LISTED_FRAMES:
-        listed += ", ..."
+    listed = _listed_frames(frames)
     return (
         f"self_collision: in {len(frames)} frame(s) ({listed}) impact zones ran out of rounds with pairs the "
         "continuous check could not prove apart, so the cloth may pass through itself there; check that "

@@ -298,4 +298,3 @@ class Tearer:
         self.total_broken += broken_total
         self.total_split += new_count
         return TearEvent(model=new_model, index_map=index_map, parent=parent, broken=broken_total, split=new_count)
-
