@@ -218,9 +218,9 @@ class ContactPlanes(NamedTuple):
     with the surface's velocity (m/s) there; friction[k] is the collider's Coulomb coefficient.
     Shapes: vertices (C, 3) int64, weights, normals and velocities (C, 3) float64, offsets (m) and
     friction (C,) float64. A solver that runs many steps of its own between two collider passes
-    (the explicit ones) keeps its contacts on these planes in every step: otherwise a resting
-    cloth falls into the collider within those steps and is put back after them, and the cycle
-    never comes to rest.
+    (the explicit ones), or sweeps springs that pull a resting contact inward (xpbd), keeps its
+    contacts on these planes: otherwise a resting cloth falls into the collider within the
+    substep and is put back after it, and the cycle never comes to rest.
     """
 
     vertices: np.ndarray

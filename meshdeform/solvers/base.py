@@ -108,7 +108,8 @@ class Solver(ABC):
         leave its positions along the surface alone, its own static friction holding them
         (`scene.colliders.hold_contacts_still`).
     reads_planes: whether its step reads `Control.planes` (the explicit solvers, whose many
-        steps between two collider passes keep the contacts on them).
+        steps between two collider passes keep the contacts on them; xpbd, whose sweeps would
+        otherwise pull a resting contact into the obstacle every substep).
 
     `state.time` is the caller's: `simulate` sets it after every `step` and after `advance`.
     """

@@ -12,7 +12,7 @@ from meshdeform.solvers.base import Control
 from meshdeform.solvers.dispatch import SubstepPicker, substep_picker
 from meshdeform.solvers.layout import SpringLayout, inherited_layout, kernel_chunks, spring_layout
 from meshdeform.solvers.options import SweepOptions
-from meshdeform.solvers.sweep_kernels import VERTEX
+from meshdeform.solvers.sweep_kernels import PLANE, VERTEX
 
 
 def spring_constants(model: SpringModel) -> tuple[np.ndarray, np.ndarray]:
@@ -175,3 +175,26 @@ class SweepSolver(LayoutCache):
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         self.advance(model, state, dt, control, 1)
+
+    def _planes(self, control: Control, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """`control.planes` as `sweep_kernels.PLANE` records in kernel numbering, each plane's
+        level where its surface is at the end of a substep of dt (none: an empty array), and the
+        kernel's scratch for their pushes."""
+        planes = control.planes
+        if planes is None or planes.offsets.shape[0] == 0:
+            return NO_PLANES, NO_PUSHES
+        rank = self.layout.vertex_rank
+        out = np.empty(planes.offsets.shape[0], dtype=PLANE)
+        for j in range(3):
+            out[f"v{j}"] = rank[planes.vertices[:, j]]
+            out[f"w{j}"] = planes.weights[:, j]
+        out["nx"], out["ny"], out["nz"] = planes.normals.T
+        out["level"] = planes.offsets + np.einsum("ij,ij->i", planes.normals, planes.velocities) * dt
+        out["ux"], out["uy"], out["uz"] = planes.velocities.T * dt
+        out["mu"] = planes.friction
+        return out, np.empty(out.shape[0])
+
+
+#: no contact planes: the substep kernels' empty `PLANE` array
+NO_PLANES = np.zeros(0, dtype=PLANE)
+NO_PUSHES = np.zeros(0)

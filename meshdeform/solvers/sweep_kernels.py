@@ -37,6 +37,16 @@ VERTEX = np.dtype(
 )
 #: tether: kernel vertex, kernel pin vertex, largest distance
 TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
+#: a contact plane (`meshdeform.model.ContactPlanes` row) in kernel numbering: the cloth point
+#: p = w0 x[v0] + w1 x[v1] + w2 x[v2] keeps n . p >= level at the end of the substep (level: the
+#: plane's offset moved on with its surface over the substep), slides relative to the surface's
+#: move (ux, uy, uz) over the substep (m) under Coulomb friction mu
+PLANE = np.dtype(
+    [("v0", "u4"), ("v1", "u4"), ("v2", "u4"), ("w0", "f8"), ("w1", "f8"), ("w2", "f8"),
+     ("nx", "f8"), ("ny", "f8"), ("nz", "f8"), ("level", "f8"), ("ux", "f8"), ("uy", "f8"), ("uz", "f8"),
+     ("mu", "f8")],
+    align=True,
+)  # fmt: skip
 
 
 @nb.njit(**JIT)
@@ -166,3 +176,81 @@ def pull(va, vb, dx, dy, dz, fa, fb):  # pragma: no cover - compiled
     vb.x -= dx * fb
     vb.y -= dy * fb
     vb.z -= dz * fb
+
+
+@nb.njit(**SWEEP)
+def _shift(r, f, cx, cy, cz):  # pragma: no cover - compiled
+    """x_r += f c."""
+    r.x += f * cx
+    r.y += f * cy
+    r.z += f * cz
+
+
+@nb.njit(**SWEEP)
+def hold_planes(X, planes, pushed):  # pragma: no cover - compiled
+    """The contact planes (`PLANE` records) at the end of a substep's sweeps: first each point
+    behind its plane is moved onto it along the normal (Gauss-Seidel in row order; a point in
+    front of its plane is left alone: a contact only pushes), then the way each pushed point slid
+    along its plane over the substep (its move since the substep's start, less the surface's) is
+    taken back by Coulomb friction, up to mu times the push (all of it within the cone: static
+    friction); each correction spread over the point's vertices by weight and inverse mass, as
+    the colliders spread theirs (`collider_kernels`). pushed: (C,) scratch, each row's push.
+
+    Held here, before the velocities are taken from the positions, the springs' pull on a resting
+    contact ends the substep on the obstacle: left to the colliders after the substep, the pull
+    sank it by a quarter millimetre a substep and their push-back of the surface (vertices, edges,
+    faces) cycled on it, so a sheet draped on a ball never came to rest (docs/performance.md,
+    "Contact planes in the sweeps")."""
+    for k in range(planes.shape[0]):
+        c = planes[k]
+        pushed[k] = 0.0
+        a = X[c.v0]
+        b = X[c.v1]
+        d = X[c.v2]
+        w0 = c.w0
+        w1 = c.w1
+        w2 = c.w2
+        denom = w0 * w0 * a.w + w1 * w1 * b.w + w2 * w2 * d.w
+        if not denom > 1e-300:
+            continue
+        nx = c.nx
+        ny = c.ny
+        nz = c.nz
+        depth = c.level - (nx * (w0 * a.x + w1 * b.x + w2 * d.x) + ny * (w0 * a.y + w1 * b.y + w2 * d.y)
+                           + nz * (w0 * a.z + w1 * b.z + w2 * d.z))
+        if not depth > 0.0:
+            continue
+        pushed[k] = depth
+        s = depth / denom
+        _shift(a, w0 * a.w * s, nx, ny, nz)
+        _shift(b, w1 * b.w * s, nx, ny, nz)
+        _shift(d, w2 * d.w * s, nx, ny, nz)
+    for k in range(planes.shape[0]):
+        push = pushed[k]
+        if not push > 0.0:
+            continue
+        c = planes[k]
+        a = X[c.v0]
+        b = X[c.v1]
+        d = X[c.v2]
+        w0 = c.w0
+        w1 = c.w1
+        w2 = c.w2
+        denom = w0 * w0 * a.w + w1 * w1 * b.w + w2 * w2 * d.w
+        nx = c.nx
+        ny = c.ny
+        nz = c.nz
+        rx = w0 * (a.x - a.px) + w1 * (b.x - b.px) + w2 * (d.x - d.px) - c.ux
+        ry = w0 * (a.y - a.py) + w1 * (b.y - b.py) + w2 * (d.y - d.py) - c.uy
+        rz = w0 * (a.z - a.pz) + w1 * (b.z - b.pz) + w2 * (d.z - d.pz) - c.uz
+        rn = rx * nx + ry * ny + rz * nz
+        tx = rx - rn * nx
+        ty = ry - rn * ny
+        tz = rz - rn * nz
+        slide = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if not slide > 1e-300:
+            continue
+        s = -min(c.mu * push / slide, 1.0) / denom
+        _shift(a, w0 * a.w * s, tx, ty, tz)
+        _shift(b, w1 * b.w * s, tx, ty, tz)
+        _shift(d, w2 * d.w * s, tx, ty, tz)

@@ -8,6 +8,7 @@ import numpy as np
 from meshdeform.solvers.jit import JIT, SWEEP, serial_and_parallel
 from meshdeform.solvers.sweep_kernels import (
     apply_tethers,
+    hold_planes,
     load_vertices,
     predict_vertices,
     pull,
@@ -149,7 +150,7 @@ def _warm_range(X, P, lam, lo, hi, warm):  # pragma: no cover - compiled
 
 def xpbd_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, T, lam, offsets, parts, iterations, damped,
-    tethers, vchunks, tchunks, warm, count,
+    tethers, vchunks, tchunks, warm, planes, pushed, count,
 ):  # pragma: no cover - compiled
     """`count` XPBD substeps: predict, tethers, `iterations` sweeps, tethers; then positions,
     previous positions and velocities back to the State.
@@ -183,6 +184,7 @@ def xpbd_substep(
             for p in nb.prange(parts):
                 _xpbd_range(X, P, T, lam, offsets[p], offsets[p + 1], backward, damped, first, cold and it == last)
             _xpbd_range(X, P, T, lam, offsets[parts], offsets[parts + 1], backward, damped, first, cold and it == last)
+        hold_planes(X, planes, pushed)
         if step + 1 < count:
             for p in nb.prange(parts):
                 apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])

@@ -29,6 +29,13 @@ cannot resolve, which needs short substeps (it diverges on the defaults once k d
 above about 2). docs/performance.md has the figures; each frame's `force_residual`
 (`meshdeform.simulate`) says how far from equilibrium a cloth at rest is.
 
+Contact: after the sweeps, the colliders' contact planes of the last substep (`Control.planes`,
+`sweep_kernels.hold_planes`) put each contact point its springs pulled behind its plane back
+onto it, with Coulomb friction, before the velocities are taken from the positions: a resting
+contact then ends the substep on the obstacle (the colliders' pass after the substep, still the
+guarantee, finds nothing to push), where the springs' pull sank it a quarter millimetre every
+substep and the colliders' push-back cycled on it, so a draped sheet never came to rest.
+
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
 the sweeps. Their distances run along `TETHER_KINDS`, structural and shear springs (the octile
 distance on a grid: a vertex diagonal from a pin cannot stretch 41 % before its tether acts, as
@@ -80,6 +87,7 @@ class XPBDSolver(SweepSolver, Solver):
     options_class: ClassVar[type[XPBDOptions]] = XPBDOptions
     parallel_kernels: ClassVar[bool] = True
     default_substeps: ClassVar[int] = 22
+    reads_planes: ClassVar[bool] = True
     fast_step_edges: ClassVar[float | None] = 1.0
     default_iterations: ClassVar[int] = 2
     tether_kinds: ClassVar[tuple[int, ...]] = TETHER_KINDS
@@ -127,5 +135,6 @@ class XPBDSolver(SweepSolver, Solver):
             self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.constants,
             self.lam, self.offsets, lay.parts, self.iterations, self.damped,
             self.tethers, self.chunks.vertices, self.chunks.tethers, float(self.options.warm_start),
+            *self._planes(control, dt),
         )
         self.substep(*args, count)
