@@ -1073,6 +1073,78 @@ def near(
     return cand[:found], rows[:found], clearance[:found]
 
 
+@numba.njit(**JIT)
+def fastest_speed(velocities: np.ndarray, inv_mass: np.ndarray) -> float:  # pragma: no cover - compiled
+    """The largest speed (m/s) among the movable vertices (inv_mass > 0) of velocities (V, 3); 0 without any."""
+    top = 0.0
+    for i in range(velocities.shape[0]):
+        if inv_mass[i] > 0.0:
+            s = velocities[i, 0] * velocities[i, 0] + velocities[i, 1] * velocities[i, 1]
+            s += velocities[i, 2] * velocities[i, 2]
+            top = max(top, s)
+    return np.sqrt(top)
+
+
+@numba.njit(**JIT)
+def plane_rows(
+    ids: np.ndarray,
+    weights: np.ndarray,
+    prims: np.ndarray,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    normals: np.ndarray,
+    surface: np.ndarray,
+    surface_velocity: np.ndarray,
+    thickness: float,
+    band: float,
+    slack: float,
+    dt: float,
+    far: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """The contact planes of `near`'s primitives ids (N,) with their weights (N, 3), in the world
+    (`Collider.planes`): each point p = sum_j w_j positions[prims[id, j]] gets the plane of normal
+    normals[k] through surface[k] moved out by `thickness` (m), or through p itself where p lies
+    more than `slack` (m) nearer; with `far`, only the points within `band` (m) of their plane or
+    closing on it (at the surface's velocity less the point's, velocities (V, 3) m/s, over dt s)
+    by more than the band and as far as they close. Returns the kept rows' vertices (M, 3),
+    weights (M, 3), normals (M, 3), offsets (M,) and surface velocities (M, 3), in row order."""
+    n = ids.shape[0]
+    vertices = np.empty((n, 3), dtype=np.int64)
+    kept_weights = np.empty((n, 3))
+    kept_normals = np.empty((n, 3))
+    offsets = np.empty(n)
+    kept_velocity = np.empty((n, 3))
+    m = 0
+    for k in range(n):
+        p = ids[k]
+        i0, i1, i2 = prims[p, 0], prims[p, 1], prims[p, 2]
+        w0, w1, w2 = weights[k, 0], weights[k, 1], weights[k, 2]
+        nx, ny, nz = normals[k, 0], normals[k, 1], normals[k, 2]
+        px = w0 * positions[i0, 0] + w1 * positions[i1, 0] + w2 * positions[i2, 0]
+        py = w0 * positions[i0, 1] + w1 * positions[i1, 1] + w2 * positions[i2, 1]
+        pz = w0 * positions[i0, 2] + w1 * positions[i1, 2] + w2 * positions[i2, 2]
+        offset = nx * surface[k, 0] + ny * surface[k, 1] + nz * surface[k, 2] + thickness
+        now = nx * px + ny * py + nz * pz
+        ux, uy, uz = surface_velocity[k, 0], surface_velocity[k, 1], surface_velocity[k, 2]
+        if far:
+            vx = w0 * velocities[i0, 0] + w1 * velocities[i1, 0] + w2 * velocities[i2, 0]
+            vy = w0 * velocities[i0, 1] + w1 * velocities[i1, 1] + w2 * velocities[i2, 1]
+            vz = w0 * velocities[i0, 2] + w1 * velocities[i1, 2] + w2 * velocities[i2, 2]
+            closing = (nx * (ux - vx) + ny * (uy - vy) + nz * (uz - vz)) * dt
+            ahead = now - offset
+            if not (ahead <= band or (closing > band and ahead <= closing)):
+                continue
+        if now < offset - slack:
+            offset = now
+        vertices[m, 0], vertices[m, 1], vertices[m, 2] = i0, i1, i2
+        kept_weights[m, 0], kept_weights[m, 1], kept_weights[m, 2] = w0, w1, w2
+        kept_normals[m, 0], kept_normals[m, 1], kept_normals[m, 2] = nx, ny, nz
+        offsets[m] = offset
+        kept_velocity[m, 0], kept_velocity[m, 1], kept_velocity[m, 2] = ux, uy, uz
+        m += 1
+    return vertices[:m], kept_weights[:m], kept_normals[:m], offsets[:m], kept_velocity[:m]
+
+
 class Family(NamedTuple):
     """One closest-point query's compiled pipeline: `contact` and `near`."""
 

@@ -68,6 +68,8 @@ PLANE_REACH = 1.5
 #: points up to 1e-4 h inside (`collider_kernels.SETTLED`), and planes lowered to those let a
 #: sheet on a ball sink by that every substep and never rest
 PLANE_SLACK = 0.01
+#: no velocities (`Collider.planes` near band alone): the plane kernel's empty (0, 3) array
+NO_VELOCITIES = np.zeros((0, 3))
 #: Gauss-Seidel sweeps of the contact velocities' sequential impulses (`collider_kernels.respond`)
 RESPONSE_SWEEPS = 4
 #: stretches of a frame over which a moving collider's speed is measured (`Collider.largest_speed`)
@@ -621,11 +623,12 @@ class Collider(Constraint, Remappable):
         scale = self._scale(time)
         h, _ = self._gaps(scale)
         reach = PLANE_REACH * h
-        if velocities is not None and velocities.shape[0]:
-            movable = np.asarray(model.inv_mass) > 0.0
-            fastest = float(np.sqrt(np.einsum("ij,ij->i", velocities[movable], velocities[movable]).max(initial=0.0)))
+        far = velocities is not None and velocities.shape[0] > 0
+        if far:
+            fastest = ck.fastest_speed(velocities, np.asarray(model.inv_mass, dtype=np.float64))
             fastest += self.largest_speed(positions, time, time + dt)
             reach += fastest * dt / scale
+            far = reach > PLANE_REACH * h
         x = np.ascontiguousarray(self._to_local(positions, time), dtype=np.float64)
         lo, hi = self._bounds(shape)
         hint = self._hints(prims, x.shape[0], shape.kind == ck.MESH and not shape.closed)
@@ -635,29 +638,20 @@ class Collider(Constraint, Remappable):
         surface_local = np.ascontiguousarray(rows[:, 3:6])
         normals = np.ascontiguousarray(rows[:, 6:9])
         if self.keys is not None:
-            normals = normals @ self.keys.rotation(time).T
-        surface = self._to_world(surface_local, time)
-        vertices, weights = prims[ids], np.ascontiguousarray(rows[:, 0:3])
-        points = np.einsum("ij,ijk->ik", weights, positions[vertices])
-        # never further out than the point is now where it was left nearer than the thickness
-        # (beyond the colliders' own tolerance, `PLANE_SLACK`; by self-collision after the
-        # colliders, or a pin): it is not thrown out within the next steps, whose position-based
-        # velocity would turn the way into speed; the colliders' pass after the substep frees it
-        # with their own response
-        offsets = np.einsum("ij,ij->i", normals, surface) + h * scale
-        now = np.einsum("ij,ij->i", normals, points)
-        surface_velocity = self._surface_velocity(surface_local, time, dt)
-        if velocities is not None and reach > PLANE_REACH * h:
-            # beyond the near band, only the points closing on their plane by more than the band in
-            # a substep, as far as they close in one (m, world)
-            point_velocity = np.einsum("ij,ijk->ik", weights, velocities[vertices])
-            closing = np.einsum("ij,ij->i", normals, surface_velocity - point_velocity) * dt
-            band = (PLANE_REACH - 1.0) * h * scale
-            ahead = now - offsets
-            keep = (ahead <= band) | ((closing > band) & (ahead <= closing))
-            vertices, weights, normals = vertices[keep], weights[keep], normals[keep]
-            offsets, now, surface_velocity = offsets[keep], now[keep], surface_velocity[keep]
-        offsets = np.where(now < offsets - PLANE_SLACK * h * scale, now, offsets)
+            normals = np.ascontiguousarray(normals @ self.keys.rotation(time).T)
+        surface = np.ascontiguousarray(self._to_world(surface_local, time), dtype=np.float64)
+        surface_velocity = np.ascontiguousarray(self._surface_velocity(surface_local, time, dt), dtype=np.float64)
+        # beyond the near band, only the points closing on their plane by more than the band in a
+        # substep, as far as they close in one; and never further out than the point is now where
+        # it was left nearer than the thickness (beyond the colliders' own tolerance, `PLANE_SLACK`;
+        # by self-collision after the colliders, or a pin): it is not thrown out within the next
+        # steps, whose position-based velocity would turn the way into speed; the colliders' pass
+        # after the substep frees it with their own response
+        vertices, weights, normals, offsets, surface_velocity = ck.plane_rows(
+            ids, np.ascontiguousarray(rows[:, 0:3]), prims, np.ascontiguousarray(positions, dtype=np.float64),
+            velocities if far else NO_VELOCITIES, normals, surface, surface_velocity, h * scale,
+            (PLANE_REACH - 1.0) * h * scale, PLANE_SLACK * h * scale, dt, far,
+        )  # fmt: skip
         return ContactPlanes(
             vertices=vertices, weights=weights, normals=normals, offsets=offsets,
             velocities=surface_velocity, friction=np.full(vertices.shape[0], self.friction),
