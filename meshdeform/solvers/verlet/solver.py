@@ -65,7 +65,10 @@ class VerletSolver(SweepSolver, Solver):
 
     name: ClassVar[str] = "verlet"
     summary: ClassVar[str] = "Verlet integration, springs relaxed as distance constraints (Jakobsen 2001)"
-    hint: ClassVar[str] = "keep stiffness within 0..1 or use more substeps"
+    hint: ClassVar[str] = (
+        "keep stiffness within 0..1 or use more substeps; where a moving collider pushes the cloth "
+        "further from its pins than its rest distance, set [simulation.verlet] tethers = 0"
+    )
     options_class: ClassVar[type[VerletOptions]] = VerletOptions
     parallel_kernels: ClassVar[bool] = True
     default_substeps: ClassVar[int] = 18

@@ -83,7 +83,10 @@ class XPBDSolver(SweepSolver, Solver):
 
     name: ClassVar[str] = "xpbd"
     summary: ClassVar[str] = "compliant distance constraints in small steps (Macklin et al. 2016/2019)"
-    hint: ClassVar[str] = "use more substeps or check the forces for non-finite values"
+    hint: ClassVar[str] = (
+        "use more substeps or check the forces for non-finite values; where a moving collider pushes "
+        "the cloth further from its pins than its rest distance, set [simulation.xpbd] tethers = 0"
+    )
     options_class: ClassVar[type[XPBDOptions]] = XPBDOptions
     parallel_kernels: ClassVar[bool] = True
     default_substeps: ClassVar[int] = 22
