@@ -1,6 +1,7 @@
 """When damped scenes come to rest, for every registered solver, and where the stress ball ends.
 
     PYTHONPATH=<tree> python benchmarks/rest.py [--seconds 15] [--solvers implicit xpbd ...] [--scenes ...]
+                                                [--raise -0.05 0 0.05 0.1]
 
 Scenes (recipes at their defaults, air damping 0.9, built as `meshdeform simulate` builds them:
 `pipeline.build.build_simulation`, then `meshdeform.simulate`), 24 fps:
@@ -9,8 +10,8 @@ Scenes (recipes at their defaults, air damping 0.9, built as `meshdeform simulat
   stress ball's first impact (2 m/s along the normal); for `anchor` in both anchor frames;
 - box: a 0.3 m cube of 8 vertices and 12 triangles (trimesh's box), its bottom 0.5 m above the
   ground (a light, stiff, closed solid);
-- sheet on ball / sheet on big ball: a 20 x 20 / 32 x 32 sheet of 1 m, flat, 0.1 m above a ball of
-  radius 0.25 / 0.45 m lying on the ground (friction 0.3);
+- sheet on ball / sheet on big ball: a 20 x 20 / 32 x 32 sheet of 1 m, flat, 0.1 m (plus each
+  `--raise`) above a ball of radius 0.25 / 0.45 m lying on the ground (friction 0.3);
 - sheet laid on ball: a 12 x 12 sheet of 0.4 m, flat, 2 cm above a ball of radius 0.45 m, friction
   0.5, no ground (its edges lie at 26 degrees: friction holds it);
 - slope: a 12 x 12 sheet of 1 m lying on a plane tilted 20 degrees, friction 0.5 (more than
@@ -167,8 +168,21 @@ def ball_on_ground(radius: float) -> str:
     )
 
 
-def scenes() -> dict[str, Callable[[str], list[tuple[str, Mesh, str, Figure | None]]]]:
-    """Each scene's rows for a solver's recipe head: (label, mesh, recipe text, figure)."""
+def scenes(
+    raises: tuple[float, ...] = (0.0,),
+) -> dict[str, Callable[[str], list[tuple[str, Mesh, str, Figure | None]]]]:
+    """Each scene's rows for a solver's recipe head: (label, mesh, recipe text, figure); the
+    sheets dropped on balls once from each of their heights raised by `raises` (m)."""
+
+    Row = tuple[str, Mesh, str, Figure | None]
+
+    def dropped(head: str, label: str, n: int, height: float, radius: float) -> list[Row]:
+        return [
+            (label if up == 0.0 else f"{label} {up:+g} m", sheet(n, height + up), head + ball_on_ground(radius),
+             top_figure)
+            for up in raises
+        ]  # fmt: skip
+
     slope = np.radians(20.0)
     tilt = f"[{-float(np.sin(slope))!r}, {float(np.cos(slope))!r}, 0.0]"
 
@@ -187,10 +201,8 @@ def scenes() -> dict[str, Callable[[str], list[tuple[str, Mesh, str, Figure | No
                                 head + f"\n[[pins]]\nselect = {{ indices = {pins} }}\n", None)],
         "ball": lambda head: struck(head, head.split('"')[1]),
         "box": lambda head: [("box", box(), head + "\n[[colliders]]\nground = { height = 0.0 }\n", rebound_figure)],
-        "sheet on ball": lambda head: [("sheet on ball", sheet(20, 0.6), head + ball_on_ground(0.25), top_figure)],
-        "sheet on big ball": lambda head: [
-            ("sheet on big ball", sheet(32, 1.0), head + ball_on_ground(0.45), top_figure)
-        ],
+        "sheet on ball": lambda head: dropped(head, "sheet on ball", 20, 0.6, 0.25),
+        "sheet on big ball": lambda head: dropped(head, "sheet on big ball", 32, 1.0, 0.45),
         "sheet laid on ball": lambda head: [
             ("sheet laid on ball", sheet(12, 0.92, size=0.4), head + LAID_BALL, top_figure)
         ],
@@ -209,9 +221,13 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=15.0, help="simulated seconds per scene")
     parser.add_argument("--solvers", nargs="+", default=sorted(SOLVERS), choices=sorted(SOLVERS))
     parser.add_argument("--scenes", nargs="+", default=list(scenes()), choices=list(scenes()))
+    parser.add_argument(
+        "--raise", dest="raises", type=float, nargs="+", default=[0.0],
+        help="drop the sheets on balls from their heights raised by each of these (m), e.g. -0.05 0 0.05 0.1",
+    )  # fmt: skip
     args = parser.parse_args()
     frames = round(args.seconds * FPS)
-    table = scenes()
+    table = scenes(tuple(args.raises))
     print(f"{'solver':8} {'scene':17} {'rest':>6} {'at':>7} {'step*fps':>9} {'speed':>9}  figure")
     for name in args.solvers:
         head = f'[simulation]\nsolver = "{name}"\nfps = {FPS}\nframes = {frames}\n'
