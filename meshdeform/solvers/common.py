@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -121,11 +121,36 @@ def kernel_tethers(
     Sorted by kernel vertex (stably, so a vertex's tethers keep their order); empty when
     `ratio` is None or not positive.
     """
+    return linked_kernel_tethers(model, rank, ratio, kinds, slack).records
+
+
+class TetherLinks(NamedTuple):
+    """Kernel tethers (`sweep_kernels.TETHER` records) and, per record r, the records of the
+    same pin group at its vertex's neighbours along the tether paths: links[offsets[r]:
+    offsets[r + 1]] (record indices), each with gap = limit ratio x slack x the rest length
+    between the two vertices (m). By the triangle inequality of the paths, a neighbour within
+    its own limit is never further from the pins than r's limit plus that gap
+    (`sweep_kernels.release_tethers`)."""
+
+    records: np.ndarray
+    offsets: np.ndarray
+    links: np.ndarray
+    gaps: np.ndarray
+
+
+def linked_kernel_tethers(
+    model: SpringModel,
+    rank: np.ndarray,
+    ratio: float | None,
+    kinds: tuple[int, ...] | None = None,
+    slack: float = 1.0,
+) -> TetherLinks:
+    """`kernel_tethers` with their links (`TetherLinks`)."""
     from meshdeform.solvers.layout import tethers
     from meshdeform.solvers.sweep_kernels import TETHER
 
     if ratio is None or ratio <= 0:
-        return np.zeros(0, dtype=TETHER)
+        return TetherLinks(np.zeros(0, dtype=TETHER), np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0))
     t = tethers(model, ratio) if kinds is None else tethers(model, ratio, kinds=kinds)
     vertex = rank[t.vertex]
     order = np.argsort(vertex, kind="stable")
@@ -133,7 +158,36 @@ def kernel_tethers(
     out["v"] = vertex[order]
     out["p"] = rank[t.pin][order]
     out["lim"] = t.limit[order] * float(slack)
-    return out
+    # links: the neighbours along the tether paths (model numbering), each record's vertex's
+    kinds_used = (0,) if kinds is None else kinds
+    along = np.isin(np.asarray(model.kinds), np.asarray(kinds_used, dtype=np.int64))
+    ends = np.asarray(model.springs, dtype=np.int64)[along]
+    length = np.asarray(model.rest_lengths, dtype=np.float64)[along]
+    n = model.vertex_count
+    a = np.concatenate([ends[:, 0], ends[:, 1]])
+    b = np.concatenate([ends[:, 1], ends[:, 0]])
+    ab_length = np.concatenate([length, length])
+    by = np.argsort(a, kind="stable")
+    a, b, ab_length = a[by], b[by], ab_length[by]
+    first = np.searchsorted(a, np.arange(n + 1))
+    model_vertex = t.vertex[order]
+    group = t.group[order]
+    groups = int(group.max()) + 1 if group.size else 1
+    keys = model_vertex * groups + group  # record r's (vertex, group)
+    key_order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[key_order]
+    degree = first[model_vertex + 1] - first[model_vertex]
+    owner = np.repeat(np.arange(out.shape[0], dtype=np.int64), degree)
+    slot = np.arange(owner.shape[0], dtype=np.int64) - np.repeat(np.cumsum(degree) - degree, degree)
+    edge = first[model_vertex[owner]] + slot
+    wanted = b[edge] * groups + group[owner]
+    at = np.searchsorted(sorted_keys, wanted)
+    found = (at < sorted_keys.shape[0]) & (sorted_keys[np.minimum(at, sorted_keys.shape[0] - 1)] == wanted)
+    owner, edge = owner[found], edge[found]
+    links = key_order[at[found]].astype(np.int64)
+    offsets = np.searchsorted(owner, np.arange(out.shape[0] + 1)).astype(np.int64)
+    gaps = float(ratio) * float(slack) * ab_length[edge]
+    return TetherLinks(out, offsets, links, np.ascontiguousarray(gaps))
 
 
 class SweepSolver(LayoutCache):
@@ -163,9 +217,11 @@ class SweepSolver(LayoutCache):
         for `model`; returns the layout. Per-spring records are the subclass's."""
         lay = self.layout = self._layout_for(model, self.options.partitions)
         self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
-        self.tethers = kernel_tethers(
+        linked = linked_kernel_tethers(
             model, lay.vertex_rank, self.options.tethers, self.tether_kinds, self.tether_slack
         )
+        self.tethers = linked.records
+        self.tether_links = linked
         self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])

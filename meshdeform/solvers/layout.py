@@ -247,12 +247,14 @@ class Tethers:
     """Long range attachments (Kim, Tang, Mueller 2012): vertex -> pins along the mesh.
 
     vertex, pin: (T,) int64; limit: (T,) the rest geodesic distance (over structural springs)
-    times the allowed ratio; |x_vertex - x_pin| is kept at or below it.
+    times the allowed ratio; |x_vertex - x_pin| is kept at or below it; group: (T,) int64 the
+    pin group the pin belongs to (a vertex has at most one tether per group).
     """
 
     vertex: np.ndarray
     pin: np.ndarray
     limit: np.ndarray
+    group: np.ndarray
 
 
 def tethers(model: SpringModel, ratio: float, groups: int = 4, kinds: tuple[int, ...] = (0,)) -> Tethers:
@@ -274,7 +276,7 @@ def tethers(model: SpringModel, ratio: float, groups: int = 4, kinds: tuple[int,
     pins = np.flatnonzero(pinned)
     n = model.vertex_count
     if pins.size == 0 or n == 0:
-        return Tethers(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+        return Tethers(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64))
     structural = np.asarray(model.kinds) == SpringKind.STRUCTURAL
     pairs = np.asarray(model.springs)[structural]
     along = np.isin(np.asarray(model.kinds), np.asarray(kinds, dtype=np.int64))
@@ -304,4 +306,5 @@ def tethers(model: SpringModel, ratio: float, groups: int = 4, kinds: tuple[int,
         vertex=vertex.astype(np.int64),
         pin=sources[g_idx, vertex].astype(np.int64),
         limit=np.ascontiguousarray(dists[g_idx, vertex] * float(ratio)),
+        group=g_idx.astype(np.int64),
     )

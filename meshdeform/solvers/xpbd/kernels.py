@@ -12,6 +12,7 @@ from meshdeform.solvers.sweep_kernels import (
     load_vertices,
     predict_vertices,
     pull,
+    release_tethers,
     span,
     store_vertices,
 )
@@ -150,7 +151,7 @@ def _warm_range(X, P, lam, lo, hi, warm):  # pragma: no cover - compiled
 
 def xpbd_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, T, lam, offsets, parts, iterations, damped,
-    tethers, vchunks, tchunks, warm, planes, pushed, count,
+    tethers, vchunks, tchunks, warm, planes, pushed, base, links, release, count,
 ):  # pragma: no cover - compiled
     """`count` XPBD substeps: predict, tethers, `iterations` sweeps, tethers; then positions,
     previous positions and velocities back to the State.
@@ -170,6 +171,8 @@ def xpbd_substep(
     last = iterations - 1
     for p in nb.prange(parts):
         load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
+    if release:
+        release_tethers(X, base, tethers, links[0], links[1], links[2], links[3], links[4], links[5])
     for p in nb.prange(parts):
         apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
     cold = warm == 0.0

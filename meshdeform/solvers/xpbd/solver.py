@@ -36,6 +36,14 @@ contact then ends the substep on the obstacle (the colliders' pass after the sub
 guarantee, finds nothing to push), where the springs' pull sank it a quarter millimetre every
 substep and the colliders' push-back cycled on it, so a draped sheet never came to rest.
 
+Where a collider pushes the cloth further from its pins than the tethers allow (a plate
+punched through a cloth pinned at both sides), they give way around the push
+(`sweep_kernels.release_tethers`: a touched vertex keeps the distance it started the substep
+at, a neighbour of a released vertex that distance less the path between them, spreading one
+neighbour a substep; never in a cloth within its tethers); held, the vertices next to the pushed
+ones were kept back and the springs between took the whole difference, up to the divergence
+guard.
+
 Tethers (`options.tethers`, long range attachments to the pins) are applied before and after
 the sweeps. Their distances run along `TETHER_KINDS`, structural and shear springs (the octile
 distance on a grid: a vertex diagonal from a pin cannot stretch 41 % before its tether acts, as
@@ -83,10 +91,7 @@ class XPBDSolver(SweepSolver, Solver):
 
     name: ClassVar[str] = "xpbd"
     summary: ClassVar[str] = "compliant distance constraints in small steps (Macklin et al. 2016/2019)"
-    hint: ClassVar[str] = (
-        "use more substeps or check the forces for non-finite values; where a moving collider pushes "
-        "the cloth further from its pins than its rest distance, set [simulation.xpbd] tethers = 0"
-    )
+    hint: ClassVar[str] = "use more substeps or check the forces for non-finite values"
     options_class: ClassVar[type[XPBDOptions]] = XPBDOptions
     parallel_kernels: ClassVar[bool] = True
     default_substeps: ClassVar[int] = 22
@@ -105,6 +110,10 @@ class XPBDSolver(SweepSolver, Solver):
         self.lam = self._buffer("lam", lay.a.shape[0], np.float64)
         self.lam[:] = 0.0
         self._warm_state = None
+        # the tethers' limits in force (`sweep_kernels.release_tethers`), from the records' own
+        self.tether_work = self.tethers.copy()
+        self.tether_limits = np.empty(self.tethers.shape[0])
+        self.released = np.zeros(1, dtype=np.int64)
 
     def _coefficients(self, dt: float) -> None:
         """Per-spring constants (`kernels.XPBD_CONSTANTS`, indexed by the `kernels.XPBD_SPRING`
@@ -133,11 +142,29 @@ class XPBDSolver(SweepSolver, Solver):
             self.lam[:] = 0.0
             self._warm_state = weakref.ref(state)
         lay = self.layout
+        contact = self._touching(model, control)
+        release = contact.shape[0] > 0 or bool(self.released[0])
+        links = self.tether_links
         args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.constants,
             self.lam, self.offsets, lay.parts, self.iterations, self.damped,
-            self.tethers, self.chunks.vertices, self.chunks.tethers, float(self.options.warm_start),
-            *self._planes(control, dt),
+            self.tether_work, self.chunks.vertices, self.chunks.tethers, float(self.options.warm_start),
+            *self._planes(control, dt), self.tethers,
+            (links.offsets, links.links, links.gaps, contact, self.tether_limits, self.released), release,
         )
         self.substep(*args, count)
+
+    def _touching(self, model: SpringModel, control: Control) -> np.ndarray:
+        """(W,) uint8 in kernel numbering: the vertices a contact plane holds (`Control.planes`,
+        weight above 0), whose tethers give way to the collider; empty without planes or tethers."""
+        planes = control.planes
+        if planes is None or planes.offsets.shape[0] == 0 or self.tethers.shape[0] == 0:
+            return NO_CONTACT
+        contact = np.zeros(model.vertex_count, dtype=np.uint8)
+        contact[self.layout.vertex_rank[planes.vertices[planes.weights > 0.0]]] = 1
+        return contact
+
+
+#: no vertex touching a collider (`XPBDSolver._touching`)
+NO_CONTACT = np.zeros(0, dtype=np.uint8)
