@@ -146,48 +146,57 @@ def linked_kernel_tethers(
     slack: float = 1.0,
 ) -> TetherLinks:
     """`kernel_tethers` with their links (`TetherLinks`)."""
-    from meshdeform.solvers.layout import tethers
+    from meshdeform.solvers.layout import TETHER_PATH_KINDS, tethers
     from meshdeform.solvers.sweep_kernels import TETHER
 
     if ratio is None or ratio <= 0:
         return TetherLinks(np.zeros(0, dtype=TETHER), np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0))
-    t = tethers(model, ratio) if kinds is None else tethers(model, ratio, kinds=kinds)
+    kinds = TETHER_PATH_KINDS if kinds is None else kinds
+    t = tethers(model, ratio, kinds=kinds)
     vertex = rank[t.vertex]
     order = np.argsort(vertex, kind="stable")
     out = np.zeros(order.shape[0], dtype=TETHER)
     out["v"] = vertex[order]
     out["p"] = rank[t.pin][order]
     out["lim"] = t.limit[order] * float(slack)
-    # links: the neighbours along the tether paths (model numbering), each record's vertex's
-    kinds_used = (0,) if kinds is None else kinds
-    along = np.isin(np.asarray(model.kinds), np.asarray(kinds_used, dtype=np.int64))
+    offsets, links, gaps = _tether_links(model, kinds, t.vertex[order], t.group[order], float(ratio) * float(slack))
+    return TetherLinks(out, offsets, links, gaps)
+
+
+def _tether_links(
+    model: SpringModel, kinds: tuple[int, ...], vertex: np.ndarray, group: np.ndarray, scale: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For tether records r of model vertices vertex (R,) and pin groups group (R,): each record's
+    links, the records of the same group at the vertex's neighbours along springs of `kinds`,
+    as (offsets (R + 1,), links (K,) record indices, gaps (K,) m: scale times the spring's rest
+    length), in record order, then in the order of the vertex's springs. Vectorised: every
+    record's neighbours looked up at once among the (vertex, group) keys."""
+    along = np.isin(np.asarray(model.kinds), np.asarray(kinds, dtype=np.int64))
     ends = np.asarray(model.springs, dtype=np.int64)[along]
     length = np.asarray(model.rest_lengths, dtype=np.float64)[along]
-    n = model.vertex_count
+    # the springs both ways, by their first end: vertex v's neighbours are b[first[v]:first[v + 1]]
     a = np.concatenate([ends[:, 0], ends[:, 1]])
-    b = np.concatenate([ends[:, 1], ends[:, 0]])
-    ab_length = np.concatenate([length, length])
     by = np.argsort(a, kind="stable")
-    a, b, ab_length = a[by], b[by], ab_length[by]
-    first = np.searchsorted(a, np.arange(n + 1))
-    model_vertex = t.vertex[order]
-    group = t.group[order]
+    a = a[by]
+    b = np.concatenate([ends[:, 1], ends[:, 0]])[by]
+    both_lengths = np.concatenate([length, length])[by]
+    first = np.searchsorted(a, np.arange(model.vertex_count + 1))
     groups = int(group.max()) + 1 if group.size else 1
-    keys = model_vertex * groups + group  # record r's (vertex, group)
+    keys = vertex * groups + group
     key_order = np.argsort(keys, kind="stable")
     sorted_keys = keys[key_order]
-    degree = first[model_vertex + 1] - first[model_vertex]
-    owner = np.repeat(np.arange(out.shape[0], dtype=np.int64), degree)
+    # one slot per (record, neighbour of its vertex)
+    degree = first[vertex + 1] - first[vertex]
+    owner = np.repeat(np.arange(vertex.shape[0], dtype=np.int64), degree)
     slot = np.arange(owner.shape[0], dtype=np.int64) - np.repeat(np.cumsum(degree) - degree, degree)
-    edge = first[model_vertex[owner]] + slot
+    edge = first[vertex[owner]] + slot
     wanted = b[edge] * groups + group[owner]
-    at = np.searchsorted(sorted_keys, wanted)
-    found = (at < sorted_keys.shape[0]) & (sorted_keys[np.minimum(at, sorted_keys.shape[0] - 1)] == wanted)
+    at = np.minimum(np.searchsorted(sorted_keys, wanted), max(sorted_keys.shape[0] - 1, 0))
+    found = sorted_keys[at] == wanted if sorted_keys.size else np.zeros(wanted.shape[0], dtype=bool)
     owner, edge = owner[found], edge[found]
     links = key_order[at[found]].astype(np.int64)
-    offsets = np.searchsorted(owner, np.arange(out.shape[0] + 1)).astype(np.int64)
-    gaps = float(ratio) * float(slack) * ab_length[edge]
-    return TetherLinks(out, offsets, links, np.ascontiguousarray(gaps))
+    offsets = np.searchsorted(owner, np.arange(vertex.shape[0] + 1)).astype(np.int64)
+    return offsets, links, np.ascontiguousarray(scale * both_lengths[edge])
 
 
 class SweepSolver(LayoutCache):

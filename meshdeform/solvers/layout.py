@@ -257,7 +257,13 @@ class Tethers:
     group: np.ndarray
 
 
-def tethers(model: SpringModel, ratio: float, groups: int = 4, kinds: tuple[int, ...] = (0,)) -> Tethers:
+#: the spring kinds tether paths run along unless told (`tethers`): structural
+TETHER_PATH_KINDS = (0,)
+
+
+def tethers(
+    model: SpringModel, ratio: float, groups: int = 4, kinds: tuple[int, ...] = TETHER_PATH_KINDS
+) -> Tethers:
     """Tethers from every free vertex to the nearest pin of each of its `groups` nearest pin groups.
 
     A pin group is a connected set of pinned vertices (a pinned corner, a pinned edge), so a
