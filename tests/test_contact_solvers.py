@@ -253,28 +253,50 @@ def test_a_sheet_pushed_together_on_grippy_ground_folds_without_stretching(solve
     assert frames[-1].max_speed < 0.05
 
 
-def test_a_plate_punched_through_a_cloth_pinned_at_both_sides_runs_under_xpbd() -> None:
-    """A 30 x 30 sheet of 1 m pinned along two opposite edges, a 30 cm plate 1 cm thick punched
-    0.4 m down through it at 20 m/s, `xpbd` at its defaults (tethers 1.0), half a second through a
-    recipe: the run goes through and no spring ends stretched like the blow-up's. The tethers held
-    every vertex within its rest distance of the pinned edges, which the plate makes impossible:
-    the vertices next to those it carried were held back and the springs between took the whole
-    difference, 10.7x at frame 6, where the divergence guard stopped the run. Now the tethers give
-    way around the push (`sweep_kernels.release_tethers`); `implicit`, without tethers, stretches
-    the same scene 3.9x."""
-    grid = grid_mesh(30, 30, size=(1.0, 1.0), plane="xz")
+def punched_hammock(n: int, frames: int):
+    """An n x n sheet of 1 m pinned along two opposite edges, a 30 cm plate 1 cm thick punched
+    0.4 m down through it at 20 m/s from 0.05 s, `xpbd` at its defaults (tethers 1.0), 24 fps,
+    built from a recipe."""
+    grid = grid_mesh(n, n, size=(1.0, 1.0), plane="xz")
     mesh = replace(grid, positions=grid.positions + np.array([-0.5, 1.0, -0.5]))
     end = 0.05 + 0.6 / 20.0
     text = (
-        '[simulation]\nsolver = "xpbd"\nfps = 24\nframes = 12\n\n'
+        f'[simulation]\nsolver = "xpbd"\nfps = 24\nframes = {frames}\n\n'
         "[[pins]]\nselect = { any = [ { box = { min = [-0.51, 0.9, -0.6], max = [-0.49, 1.1, 0.6] } },\n"
         "                          { box = { min = [0.49, 0.9, -0.6], max = [0.51, 1.1, 0.6] } } ] }\n\n"
         "[[colliders]]\nbox = { min = [-0.15, 1.20, -0.15], max = [0.15, 1.21, 0.15] }\nfriction = 0.3\n"
         "animate = [ { time = 0.0, translate = [0, 0, 0] }, { time = 0.05, translate = [0, 0, 0] },\n"
         f"            {{ time = {end!r}, translate = [0, -0.6, 0] }} ]\n"
     )
-    built = build_simulation(parse_recipe(text), mesh)
+    return build_simulation(parse_recipe(text), mesh)
+
+
+def test_a_plate_punched_through_a_cloth_pinned_at_both_sides_runs_under_xpbd() -> None:
+    """The punched cloth of `punched_hammock` (30 x 30), half a second: the run goes through and
+    no spring ends stretched like the blow-up's. The tethers held every vertex within its rest
+    distance of the pinned edges, which the plate makes impossible: the vertices next to those it
+    carried were held back and the springs between took the whole difference, 10.7x at frame 6,
+    where the divergence guard stopped the run. Now the tethers give way around the push
+    (`sweep_kernels.release_tethers`); `implicit`, without tethers, stretches the same scene
+    3.9x."""
+    built = punched_hammock(30, 12)
     frames = list(simulate(built.model, built.scene, built.settings))
     assert len(frames) == 12
     assert frames[-1].welded_positions[:, 1].min() < 0.65  # the plate carried the cloth down
     assert max(f.max_stretch for f in frames) < 5.0
+
+
+def test_a_solver_whose_tethers_gave_way_starts_the_next_run_with_them_held() -> None:
+    """Two runs of the punched cloth (`punched_hammock`, 20 x 20, 6 frames: the plate still
+    presses at the end, its tethers released) with one xpbd solver give the bytes of a new
+    solver's run: the released limits belong to the run that released them."""
+    from meshdeform.solvers import make_solver
+
+    built = punched_hammock(20, 6)
+    fresh = [f.positions for f in simulate(built.model, built.scene, built.settings)]
+    solver = make_solver("xpbd")
+    first = [f.positions for f in simulate(built.model, built.scene, built.settings, solver=solver)]
+    assert solver.released[0] > 0  # the first run ended with tethers released
+    again = [f.positions for f in simulate(built.model, built.scene, built.settings, solver=solver)]
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(fresh, first, strict=True))
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(fresh, again, strict=True))

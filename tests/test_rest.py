@@ -248,6 +248,23 @@ def test_a_stiff_cube_dropped_on_the_ground_is_not_thrown_back_higher(solver: st
     assert heights[landed:].max() - heights[landed] < 0.1 * fall
 
 
+def drape_on_a_ball(
+    solver: str, n: int, height: float, radius: float, frames: int
+) -> tuple[BuiltSimulation, list[Frame]]:
+    """An n x n sheet of 1 m, flat, `height` (m) up, dropped through a recipe onto a ball of
+    `radius` lying on the ground (friction 0.3 each), `solver` at its defaults, 24 fps: the built
+    simulation and its frames."""
+    grid = grid_mesh(n, n, size=(1.0, 1.0), plane="xz")
+    mesh = replace(grid, positions=grid.positions + np.array([-0.5, height, -0.5]))
+    text = (
+        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {frames}\n\n'
+        f"[[colliders]]\nsphere = {{ center = [0, {radius!r}, 0], radius = {radius!r} }}\nfriction = 0.3\n\n"
+        "[[colliders]]\nground = { height = 0.0 }\nfriction = 0.3\n"
+    )
+    built = build_simulation(parse_recipe(text), mesh)
+    return built, list(simulate(built.model, built.scene, built.settings))
+
+
 def test_a_sheet_draped_on_a_big_ball_comes_to_rest_under_springs() -> None:
     """A 16 x 16 sheet of 1 m dropped from 1 m onto a ball of radius 0.45 m on the ground
     (friction 0.3), `springs` at its defaults, 8 s through a recipe: it drapes and comes to rest,
@@ -257,15 +274,7 @@ def test_a_sheet_draped_on_a_big_ball_comes_to_rest_under_springs() -> None:
     come in and left its planes at up to 0.27 m/s while it stood still, so the sheet never
     rested (0.14 m/s at 8 s). A held vertex now leaves its planes no faster than it did before
     them."""
-    grid = grid_mesh(16, 16, size=(1.0, 1.0), plane="xz")
-    mesh = replace(grid, positions=grid.positions + np.array([-0.5, 1.0, -0.5]))
-    text = (
-        '[simulation]\nsolver = "springs"\nfps = 24\nframes = 192\n\n'
-        "[[colliders]]\nsphere = { center = [0, 0.45, 0], radius = 0.45 }\nfriction = 0.3\n\n"
-        "[[colliders]]\nground = { height = 0.0 }\nfriction = 0.3\n"
-    )
-    built = build_simulation(parse_recipe(text), mesh)
-    frames = list(simulate(built.model, built.scene, built.settings))
+    built, frames = drape_on_a_ball("springs", n=16, height=1.0, radius=0.45, frames=192)
     assert frames[-1].welded_positions[:, 1].max() > 0.9  # it lies on the ball
     assert frames[-1].rest_frame is not None
     assert frames[-1].max_speed < built.settings.rest_speed
@@ -278,15 +287,7 @@ def test_a_sheet_draped_on_a_small_ball_comes_to_rest_on_it_under_xpbd() -> None
     ball every substep and the colliders pushed it back after the substep; that cycle slid the
     sheet off the ball (0.27 m/s at 12 s, resting on the ground only after about 26 s). The
     contact planes now hold it inside the substep (`sweep_kernels.hold_planes`)."""
-    grid = grid_mesh(20, 20, size=(1.0, 1.0), plane="xz")
-    mesh = replace(grid, positions=grid.positions + np.array([-0.5, 0.6, -0.5]))
-    text = (
-        '[simulation]\nsolver = "xpbd"\nfps = 24\nframes = 240\n\n'
-        "[[colliders]]\nsphere = { center = [0, 0.25, 0], radius = 0.25 }\nfriction = 0.3\n\n"
-        "[[colliders]]\nground = { height = 0.0 }\nfriction = 0.3\n"
-    )
-    built = build_simulation(parse_recipe(text), mesh)
-    frames = list(simulate(built.model, built.scene, built.settings))
+    built, frames = drape_on_a_ball("xpbd", n=20, height=0.6, radius=0.25, frames=240)
     assert frames[-1].welded_positions[:, 1].max() > 0.5  # it lies on the ball
     assert frames[-1].rest_frame is not None and frames[-1].rest_frame <= 216
     assert frames[-1].max_speed < built.settings.rest_speed

@@ -241,13 +241,12 @@ class SweepSolver(LayoutCache):
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         self.advance(model, state, dt, control, 1)
 
-    def _planes(self, control: Control, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def _planes(self, control: Control, dt: float) -> np.ndarray:
         """`control.planes` as `sweep_kernels.PLANE` records in kernel numbering, each plane's
-        level where its surface is at the end of a substep of dt (none: an empty array), and the
-        kernel's scratch for their pushes."""
+        level where its surface is at the end of a substep of dt (none: an empty array)."""
         planes = control.planes
         if planes is None or planes.offsets.shape[0] == 0:
-            return NO_PLANES, NO_PUSHES
+            return NO_PLANES
         rank = self.layout.vertex_rank
         out = np.empty(planes.offsets.shape[0], dtype=PLANE)
         for j in range(3):
@@ -257,9 +256,9 @@ class SweepSolver(LayoutCache):
         out["level"] = planes.offsets + np.einsum("ij,ij->i", planes.normals, planes.velocities) * dt
         out["ux"], out["uy"], out["uz"] = planes.velocities.T * dt
         out["mu"] = planes.friction
-        return out, np.empty(out.shape[0])
+        out["push"] = 0.0
+        return out
 
 
 #: no contact planes: the substep kernels' empty `PLANE` array
 NO_PLANES = np.zeros(0, dtype=PLANE)
-NO_PUSHES = np.zeros(0)

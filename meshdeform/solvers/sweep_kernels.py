@@ -40,11 +40,12 @@ TETHER = np.dtype([("v", "u4"), ("p", "u4"), ("lim", "f8")], align=True)
 #: a contact plane (`meshdeform.model.ContactPlanes` row) in kernel numbering: the cloth point
 #: p = w0 x[v0] + w1 x[v1] + w2 x[v2] keeps n . p >= level at the end of the substep (level: the
 #: plane's offset moved on with its surface over the substep), slides relative to the surface's
-#: move (ux, uy, uz) over the substep (m) under Coulomb friction mu
+#: move (ux, uy, uz) over the substep (m) under Coulomb friction mu; push: the kernel's scratch,
+#: how far `hold_planes` moved the point onto its plane (m)
 PLANE = np.dtype(
     [("v0", "u4"), ("v1", "u4"), ("v2", "u4"), ("w0", "f8"), ("w1", "f8"), ("w2", "f8"),
      ("nx", "f8"), ("ny", "f8"), ("nz", "f8"), ("level", "f8"), ("ux", "f8"), ("uy", "f8"), ("uz", "f8"),
-     ("mu", "f8")],
+     ("mu", "f8"), ("push", "f8")],
     align=True,
 )  # fmt: skip
 
@@ -187,23 +188,23 @@ def _shift(r, f, cx, cy, cz):  # pragma: no cover - compiled
 
 
 @nb.njit(**SWEEP)
-def hold_planes(X, planes, pushed):  # pragma: no cover - compiled
+def hold_planes(X, planes):  # pragma: no cover - compiled
     """The contact planes (`PLANE` records) at the end of a substep's sweeps: first each point
     behind its plane is moved onto it along the normal (Gauss-Seidel in row order; a point in
     front of its plane is left alone: a contact only pushes), then the way each pushed point slid
     along its plane over the substep (its move since the substep's start, less the surface's) is
     taken back by Coulomb friction, up to mu times the push (all of it within the cone: static
     friction); each correction spread over the point's vertices by weight and inverse mass, as
-    the colliders spread theirs (`collider_kernels`). pushed: (C,) scratch, each row's push.
+    the colliders spread theirs (`collider_kernels`). Each row's push is kept in its `push`.
 
     Held here, before the velocities are taken from the positions, the springs' pull on a resting
     contact ends the substep on the obstacle: left to the colliders after the substep, the pull
     sank it by a quarter millimetre a substep and their push-back of the surface (vertices, edges,
     faces) cycled on it, so a sheet draped on a ball never came to rest (docs/performance.md,
-    "Contact planes in the sweeps")."""
+    "xpbd: contact planes after the sweeps")."""
     for k in range(planes.shape[0]):
         c = planes[k]
-        pushed[k] = 0.0
+        c.push = 0.0
         a = X[c.v0]
         b = X[c.v1]
         d = X[c.v2]
@@ -220,16 +221,16 @@ def hold_planes(X, planes, pushed):  # pragma: no cover - compiled
                            + nz * (w0 * a.z + w1 * b.z + w2 * d.z))
         if not depth > 0.0:
             continue
-        pushed[k] = depth
+        c.push = depth
         s = depth / denom
         _shift(a, w0 * a.w * s, nx, ny, nz)
         _shift(b, w1 * b.w * s, nx, ny, nz)
         _shift(d, w2 * d.w * s, nx, ny, nz)
     for k in range(planes.shape[0]):
-        push = pushed[k]
+        c = planes[k]
+        push = c.push
         if not push > 0.0:
             continue
-        c = planes[k]
         a = X[c.v0]
         b = X[c.v1]
         d = X[c.v2]
@@ -257,6 +258,15 @@ def hold_planes(X, planes, pushed):  # pragma: no cover - compiled
 
 
 @nb.njit(**SWEEP)
+def _from_pin(v, pin):  # pragma: no cover - compiled
+    """|x_v - x_pin| (m) from where vertex record v started the substep (px) to where pin is now."""
+    dx = v.px - pin.x
+    dy = v.py - pin.y
+    dz = v.pz - pin.z
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@nb.njit(**SWEEP)
 def release_tethers(X, base, work, offsets, links, gaps, contact, limits, released):  # pragma: no cover - compiled
     """The tethers' limits for a substep (`work`, from the records `base` and the limits `work`
     held in the last one), where a collider pushes the cloth further from its pins than they
@@ -276,22 +286,12 @@ def release_tethers(X, base, work, offsets, links, gaps, contact, limits, releas
         te = base[r]
         lim = te.lim
         if touched and contact[te.v] != 0:
-            v = X[te.v]
-            pin = X[te.p]
-            dx = v.px - pin.x
-            dy = v.py - pin.y
-            dz = v.pz - pin.z
-            lim = max(lim, np.sqrt(dx * dx + dy * dy + dz * dz))
+            lim = max(lim, _from_pin(X[te.v], X[te.p]))
         for k in range(offsets[r], offsets[r + 1]):
             q = links[k]
             if work[q].lim > base[q].lim:
                 tq = base[q]
-                u = X[tq.v]
-                pin = X[tq.p]
-                dx = u.px - pin.x
-                dy = u.py - pin.y
-                dz = u.pz - pin.z
-                lim = max(lim, np.sqrt(dx * dx + dy * dy + dz * dz) - gaps[k])
+                lim = max(lim, _from_pin(X[tq.v], X[tq.p]) - gaps[k])
         limits[r] = lim
         if lim > te.lim:
             count += 1

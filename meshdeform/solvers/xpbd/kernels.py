@@ -151,7 +151,7 @@ def _warm_range(X, P, lam, lo, hi, warm):  # pragma: no cover - compiled
 
 def xpbd_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, T, lam, offsets, parts, iterations, damped,
-    tethers, vchunks, tchunks, warm, planes, pushed, base, links, release, count,
+    tethers, vchunks, tchunks, warm, planes, base, release_state, release, count,
 ):  # pragma: no cover - compiled
     """`count` XPBD substeps: predict, tethers, `iterations` sweeps, tethers; then positions,
     previous positions and velocities back to the State.
@@ -161,7 +161,11 @@ def xpbd_substep(
     the pins outward); the slabs, then the separator. rank / order: model vertex -> kernel vertex
     and back; P, T: the springs and their constants (`XPBD_SPRING`, `XPBD_CONSTANTS`); offsets:
     (parts + 2,) uint64 (see `SpringLayout`); vchunks, tchunks: the vertex
-    chunks and their tethers (`layout.KernelChunks`), one per slab.
+    chunks and their tethers (`layout.KernelChunks`), one per slab. planes: the contact planes
+    (`sweep_kernels.PLANE`, held after the sweeps: `hold_planes`). tethers: the limits in force,
+    base: the tethers' own records; release: whether to compute the limits in force first
+    (`release_tethers`, with release_state = (offsets, links, gaps, contact, limits scratch,
+    released count), as `XPBDSolver.advance` passes them).
 
     Every `prange` loop runs over slabs or chunks that share no vertex: the serial build
     (`xpbd_substep`) runs them in order, the parallel one (`xpbd_substep_parallel`) one thread
@@ -172,7 +176,7 @@ def xpbd_substep(
     for p in nb.prange(parts):
         load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
     if release:
-        release_tethers(X, base, tethers, links[0], links[1], links[2], links[3], links[4], links[5])
+        release_tethers(X, base, tethers, *release_state)
     for p in nb.prange(parts):
         apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
     cold = warm == 0.0
@@ -187,7 +191,7 @@ def xpbd_substep(
             for p in nb.prange(parts):
                 _xpbd_range(X, P, T, lam, offsets[p], offsets[p + 1], backward, damped, first, cold and it == last)
             _xpbd_range(X, P, T, lam, offsets[parts], offsets[parts + 1], backward, damped, first, cold and it == last)
-        hold_planes(X, planes, pushed)
+        hold_planes(X, planes)
         if step + 1 < count:
             for p in nb.prange(parts):
                 apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])

@@ -138,8 +138,10 @@ class XPBDSolver(SweepSolver, Solver):
                 self.lam *= (dt / self._dt) ** 2  # a multiplier is a force times dt^2
             self._coefficients(dt)
         held = self._warm_state() if self._warm_state is not None else None
-        if held is not state:  # another run: its multipliers start from zero
+        if held is not state:  # another run: its multipliers start from zero, its tethers held
             self.lam[:] = 0.0
+            self.tether_work["lim"] = self.tethers["lim"]
+            self.released[0] = 0
             self._warm_state = weakref.ref(state)
         lay = self.layout
         contact = self._touching(model, control)
@@ -150,7 +152,7 @@ class XPBDSolver(SweepSolver, Solver):
             self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.constants,
             self.lam, self.offsets, lay.parts, self.iterations, self.damped,
             self.tether_work, self.chunks.vertices, self.chunks.tethers, float(self.options.warm_start),
-            *self._planes(control, dt), self.tethers,
+            self._planes(control, dt), self.tethers,
             (links.offsets, links.links, links.gaps, contact, self.tether_limits, self.released), release,
         )
         self.substep(*args, count)
