@@ -79,6 +79,7 @@ from meshdeform.scene.colliders import (
     hold_contacts_still,
     largest_surface_speed,
     nearest_obstacle,
+    pushed_vertices,
     share_company,
     still_pushes,
 )
@@ -556,6 +557,8 @@ def simulate(
                 state.positions[pinned_idx] = pinned_rest
             if solver.reads_planes and constraints:  # from where the substep leaves the cloth
                 control.planes = contact_planes(constraints, model, state)
+            if solver.reads_pushes and constraints:
+                control.pushed = pushed_vertices(constraints, model.vertex_count)
             state.time = t1
             if tearing is not None:
                 event = tearing.after_substep(model, state, t1)

@@ -253,15 +253,15 @@ def test_a_sheet_pushed_together_on_grippy_ground_folds_without_stretching(solve
     assert frames[-1].max_speed < 0.05
 
 
-def punched_hammock(n: int, frames: int):
+def punched_hammock(n: int, frames: int, solver: str = "xpbd"):
     """An n x n sheet of 1 m pinned along two opposite edges, a 30 cm plate 1 cm thick punched
-    0.4 m down through it at 20 m/s from 0.05 s, `xpbd` at its defaults (tethers 1.0), 24 fps,
-    built from a recipe."""
+    0.4 m down through it at 20 m/s from 0.05 s, `solver` at its defaults (xpbd, verlet: tethers
+    1.0), 24 fps, built from a recipe."""
     grid = grid_mesh(n, n, size=(1.0, 1.0), plane="xz")
     mesh = replace(grid, positions=grid.positions + np.array([-0.5, 1.0, -0.5]))
     end = 0.05 + 0.6 / 20.0
     text = (
-        f'[simulation]\nsolver = "xpbd"\nfps = 24\nframes = {frames}\n\n'
+        f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {frames}\n\n'
         "[[pins]]\nselect = { any = [ { box = { min = [-0.51, 0.9, -0.6], max = [-0.49, 1.1, 0.6] } },\n"
         "                          { box = { min = [0.49, 0.9, -0.6], max = [0.51, 1.1, 0.6] } } ] }\n\n"
         "[[colliders]]\nbox = { min = [-0.15, 1.20, -0.15], max = [0.15, 1.21, 0.15] }\nfriction = 0.3\n"
@@ -271,30 +271,32 @@ def punched_hammock(n: int, frames: int):
     return build_simulation(parse_recipe(text), mesh)
 
 
-def test_a_plate_punched_through_a_cloth_pinned_at_both_sides_runs_under_xpbd() -> None:
+@pytest.mark.parametrize("solver", ["xpbd", "verlet"])
+def test_a_plate_punched_through_a_cloth_pinned_at_both_sides_runs_with_tethers(solver: str) -> None:
     """The punched cloth of `punched_hammock` (30 x 30), half a second: the run goes through and
     no spring ends stretched like the blow-up's. The tethers held every vertex within its rest
     distance of the pinned edges, which the plate makes impossible: the vertices next to those it
-    carried were held back and the springs between took the whole difference, 10.7x at frame 6,
-    where the divergence guard stopped the run. Now the tethers give way around the push
-    (`sweep_kernels.release_tethers`); `implicit`, without tethers, stretches the same scene
-    3.9x."""
-    built = punched_hammock(30, 12)
+    carried were held back and the springs between took the whole difference (xpbd 10.7x at frame
+    6, where the divergence guard stopped the run; verlet 7.9x). Now the tethers give way around
+    the push (`sweep_kernels.release_tethers`); `implicit`, without tethers, stretches the same
+    scene 3.9x."""
+    built = punched_hammock(30, 12, solver)
     frames = list(simulate(built.model, built.scene, built.settings))
     assert len(frames) == 12
     assert frames[-1].welded_positions[:, 1].min() < 0.65  # the plate carried the cloth down
     assert max(f.max_stretch for f in frames) < 5.0
 
 
-def test_a_solver_whose_tethers_gave_way_starts_the_next_run_with_them_held() -> None:
+@pytest.mark.parametrize("solver_name", ["xpbd", "verlet"])
+def test_a_solver_whose_tethers_gave_way_starts_the_next_run_with_them_held(solver_name: str) -> None:
     """Two runs of the punched cloth (`punched_hammock`, 20 x 20, 6 frames: the plate still
-    presses at the end, its tethers released) with one xpbd solver give the bytes of a new
-    solver's run: the released limits belong to the run that released them."""
+    presses at the end, its tethers released) with one solver give the bytes of a new solver's
+    run: the released limits belong to the run that released them."""
     from meshdeform.solvers import make_solver
 
-    built = punched_hammock(20, 6)
+    built = punched_hammock(20, 6, solver_name)
     fresh = [f.positions for f in simulate(built.model, built.scene, built.settings)]
-    solver = make_solver("xpbd")
+    solver = make_solver(solver_name)
     first = [f.positions for f in simulate(built.model, built.scene, built.settings, solver=solver)]
     assert solver.released[0] > 0  # the first run ended with tethers released
     again = [f.positions for f in simulate(built.model, built.scene, built.settings, solver=solver)]

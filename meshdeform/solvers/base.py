@@ -65,6 +65,11 @@ class Control:
     #: the colliders' contacts after the last substep as planes (set by `simulate` each substep for
     #: a solver that reads them, `Solver.reads_planes`; None before the first or after a tear)
     planes: ContactPlanes | None = None
+    #: (W,) bool or None: the vertices a collider moved after the last substep (set by `simulate`
+    #: each substep for a solver that reads them, `Solver.reads_pushes`; None before the first or
+    #: after a tear): verlet's tethers give way where a collider holds the cloth
+    #: (`sweep_kernels.release_tethers`)
+    pushed: np.ndarray | None = None
     #: (W, 3) or None: the part of `accelerations` from kicks this substep (impacts,
     #: `Force.kicks`; set by `simulate` each substep where the scene has any): a solver that starts
     #: a step history from the accelerations leaves it out (a kick had not been acting before)
@@ -110,6 +115,9 @@ class Solver(ABC):
     reads_planes: whether its step reads `Control.planes` (the explicit solvers, whose many
         steps between two collider passes keep the contacts on them; xpbd, whose sweeps would
         otherwise pull a resting contact into the obstacle every substep).
+    reads_pushes: whether its step reads `Control.pushed` (verlet, whose tethers give way to a
+        collider that pushes the cloth further from its pins than they allow; xpbd finds those
+        contacts in its planes).
 
     `state.time` is the caller's: `simulate` sets it after every `step` and after `advance`.
     """
@@ -126,6 +134,7 @@ class Solver(ABC):
     parallel_kernels: ClassVar[bool] = False
     holds_contacts: ClassVar[bool] = False
     reads_planes: ClassVar[bool] = False
+    reads_pushes: ClassVar[bool] = False
 
     def __init__(self, options: SolverOptions) -> None:
         self.options = options

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable
 from typing import ClassVar, NamedTuple
 
@@ -231,6 +232,11 @@ class SweepSolver(LayoutCache):
         )
         self.tethers = linked.records
         self.tether_links = linked
+        # the tethers' limits in force (`sweep_kernels.release_tethers`), from the records' own
+        self.tether_work = self.tethers.copy()
+        self.tether_limits = np.empty(self.tethers.shape[0])
+        self.released = np.zeros(1, dtype=np.int64)
+        self._run_state: weakref.ref[State] | None = None
         self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
         self.offsets = np.ascontiguousarray(lay.offsets, dtype=np.uint64)
         self.chunks = kernel_chunks(lay, self.tethers["v"])
@@ -240,6 +246,31 @@ class SweepSolver(LayoutCache):
 
     def step(self, model: SpringModel, state: State, dt: float, control: Control) -> None:
         self.advance(model, state, dt, control, 1)
+
+    def _starts_run(self, state: State) -> bool:
+        """Whether `state` is not the one this solver's last step advanced (a new run, or the
+        first step on a newly prepared model): then its tethers are held again (the limits a
+        run released are that run's)."""
+        held = self._run_state() if self._run_state is not None else None
+        if held is state:
+            return False
+        self._run_state = weakref.ref(state)
+        self.tether_work["lim"] = self.tethers["lim"]
+        self.released[0] = 0
+        return True
+
+    def _release(self, touched: np.ndarray | None) -> tuple[tuple[np.ndarray, ...], bool]:
+        """The substep kernel's tether release arguments (`sweep_kernels.release_tethers`:
+        offsets, links, gaps, contact mask, limits scratch, released count) and whether to run
+        it: where a collider touches a vertex with a tether, or a tether is still released.
+        touched: the model vertices a collider holds (indices), or None."""
+        contact = NO_CONTACT
+        if touched is not None and touched.shape[0] > 0 and self.tethers.shape[0] > 0:
+            contact = np.zeros(self.layout.vertex_rank.shape[0], dtype=np.uint8)
+            contact[self.layout.vertex_rank[touched]] = 1
+        links = self.tether_links
+        state = (links.offsets, links.links, links.gaps, contact, self.tether_limits, self.released)
+        return state, contact.shape[0] > 0 or bool(self.released[0])
 
     def _planes(self, control: Control, dt: float) -> np.ndarray:
         """`control.planes` as `sweep_kernels.PLANE` records in kernel numbering, each plane's
@@ -262,3 +293,5 @@ class SweepSolver(LayoutCache):
 
 #: no contact planes: the substep kernels' empty `PLANE` array
 NO_PLANES = np.zeros(0, dtype=PLANE)
+#: no vertex touching a collider: the tether release's empty contact mask (`SweepSolver._release`)
+NO_CONTACT = np.zeros(0, dtype=np.uint8)

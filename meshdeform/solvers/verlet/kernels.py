@@ -11,6 +11,7 @@ from meshdeform.solvers.sweep_kernels import (
     load_vertices,
     predict_vertices,
     pull,
+    release_tethers,
     span,
     store_vertices,
 )
@@ -53,16 +54,20 @@ def _relax_range(X, P, lo, hi, backward):  # pragma: no cover - compiled
 
 def verlet_substep(
     x, prev, v, inv_mass, accel, retention, dt, X, rank, order, P, offsets, parts, iterations, tethers,
-    vchunks, tchunks, count,
+    vchunks, tchunks, base, release_state, release, count,
 ):  # pragma: no cover - compiled
     """`count` Verlet substeps: predict, tethers, relaxation sweeps, tethers; then the State.
 
     Arguments, order of the work and the two builds (`verlet_substep`, `verlet_substep_parallel`)
-    as for `xpbd.kernels.xpbd_substep`.
+    as for `xpbd.kernels.xpbd_substep` (tethers: the limits in force, base: the tethers' own
+    records, release / release_state: `release_tethers` first, with the vertices the colliders
+    moved after the last substep as its contacts).
     """
     dt2 = dt * dt
     for p in nb.prange(parts):
         load_vertices(X, x, prev, inv_mass, accel, rank, retention, dt2, vchunks[p], vchunks[p + 1])
+    if release:
+        release_tethers(X, base, tethers, *release_state)
     for p in nb.prange(parts):
         apply_tethers(X, tethers, tchunks[p], tchunks[p + 1])
     for step in range(count):

@@ -23,6 +23,10 @@ paths and slack are xpbd's (`xpbd.solver.TETHER_KINDS`, `TETHER_SLACK`: structur
 springs, 3 %; a tether acts only past that stretch, so it does not stiffen the material below
 it). Structural paths only and no slack, as before verlet read the spring constant, clamp the
 stretch below the pins to zero and make the cloth stiffer than its material.
+Where a collider pushes the cloth further from its pins than the tethers allow (a plate punched
+through a cloth pinned at both sides), they give way around the vertices the colliders moved
+after the last substep (`Control.pushed`, `sweep_kernels.release_tethers`, as xpbd's around its
+contact planes); held, the springs at the edge of the push took the whole difference.
 
 A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
 bytes either way: `dispatch.SubstepPicker` runs the faster on the machine now), and
@@ -65,15 +69,13 @@ class VerletSolver(SweepSolver, Solver):
 
     name: ClassVar[str] = "verlet"
     summary: ClassVar[str] = "Verlet integration, springs relaxed as distance constraints (Jakobsen 2001)"
-    hint: ClassVar[str] = (
-        "keep stiffness within 0..1 or use more substeps; where a moving collider pushes the cloth "
-        "further from its pins than its rest distance, set [simulation.verlet] tethers = 0"
-    )
+    hint: ClassVar[str] = "keep stiffness within 0..1 or use more substeps"
     options_class: ClassVar[type[VerletOptions]] = VerletOptions
     parallel_kernels: ClassVar[bool] = True
     default_substeps: ClassVar[int] = 18
     fast_step_edges: ClassVar[float | None] = 1.0
     default_iterations: ClassVar[int] = 2
+    reads_pushes: ClassVar[bool] = True
     tether_kinds: ClassVar[tuple[int, ...]] = TETHER_KINDS
     tether_slack: ClassVar[float] = TETHER_SLACK
 
@@ -111,10 +113,14 @@ class VerletSolver(SweepSolver, Solver):
             self._prepare(model)
         if dt != self._dt:
             self._coefficients(dt)
+        self._starts_run(state)
         lay = self.layout
+        touched = None if control.pushed is None else np.flatnonzero(control.pushed)
+        release_state, release = self._release(touched)
         args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params,
-            self.offsets, lay.parts, self.iterations, self.tethers, self.chunks.vertices, self.chunks.tethers,
+            self.offsets, lay.parts, self.iterations, self.tether_work, self.chunks.vertices, self.chunks.tethers,
+            self.tethers, release_state, release,
         )
         self.substep(*args, count)

@@ -69,7 +69,6 @@ a substep writes the multipliers without reading them (they start at zero).
 
 from __future__ import annotations
 
-import weakref
 from typing import ClassVar
 
 import numpy as np
@@ -109,11 +108,6 @@ class XPBDSolver(SweepSolver, Solver):
         self.constants = self._buffer("constants", lay.a.shape[0], kernels.XPBD_CONSTANTS)
         self.lam = self._buffer("lam", lay.a.shape[0], np.float64)
         self.lam[:] = 0.0
-        self._warm_state = None
-        # the tethers' limits in force (`sweep_kernels.release_tethers`), from the records' own
-        self.tether_work = self.tethers.copy()
-        self.tether_limits = np.empty(self.tethers.shape[0])
-        self.released = np.zeros(1, dtype=np.int64)
 
     def _coefficients(self, dt: float) -> None:
         """Per-spring constants (`kernels.XPBD_CONSTANTS`, indexed by the `kernels.XPBD_SPRING`
@@ -137,36 +131,24 @@ class XPBDSolver(SweepSolver, Solver):
             if self._dt > 0.0:
                 self.lam *= (dt / self._dt) ** 2  # a multiplier is a force times dt^2
             self._coefficients(dt)
-        held = self._warm_state() if self._warm_state is not None else None
-        if held is not state:  # another run: its multipliers start from zero, its tethers held
+        if self._starts_run(state):  # another run: its multipliers start from zero
             self.lam[:] = 0.0
-            self.tether_work["lim"] = self.tethers["lim"]
-            self.released[0] = 0
-            self._warm_state = weakref.ref(state)
         lay = self.layout
-        contact = self._touching(model, control)
-        release = contact.shape[0] > 0 or bool(self.released[0])
-        links = self.tether_links
+        release_state, release = self._release(self._touching(control))
         args = (
             state.positions, state.previous, state.velocities, self.inv_mass, control.accelerations,
             self.retention, dt, self.scratch, lay.vertex_rank, lay.vertex_order, self.params, self.constants,
             self.lam, self.offsets, lay.parts, self.iterations, self.damped,
             self.tether_work, self.chunks.vertices, self.chunks.tethers, float(self.options.warm_start),
             self._planes(control, dt), self.tethers,
-            (links.offsets, links.links, links.gaps, contact, self.tether_limits, self.released), release,
+            release_state, release,
         )
         self.substep(*args, count)
 
-    def _touching(self, model: SpringModel, control: Control) -> np.ndarray:
-        """(W,) uint8 in kernel numbering: the vertices a contact plane holds (`Control.planes`,
-        weight above 0), whose tethers give way to the collider; empty without planes or tethers."""
+    def _touching(self, control: Control) -> np.ndarray | None:
+        """The model vertices a contact plane holds (`Control.planes`, weight above 0), whose
+        tethers give way to the collider; None without planes."""
         planes = control.planes
-        if planes is None or planes.offsets.shape[0] == 0 or self.tethers.shape[0] == 0:
-            return NO_CONTACT
-        contact = np.zeros(model.vertex_count, dtype=np.uint8)
-        contact[self.layout.vertex_rank[planes.vertices[planes.weights > 0.0]]] = 1
-        return contact
-
-
-#: no vertex touching a collider (`XPBDSolver._touching`)
-NO_CONTACT = np.zeros(0, dtype=np.uint8)
+        if planes is None or planes.offsets.shape[0] == 0:
+            return None
+        return planes.vertices[planes.weights > 0.0]
