@@ -45,6 +45,20 @@ def test_a_large_cloth_is_split_and_a_small_one_is_not(cloth) -> None:
     assert len(small.energy_parts) == 1 and small.coarse_space.second_half == 0
 
 
+def test_the_slabs_arrays_are_typed_as_a_whole_cloth_s(cloth) -> None:
+    """The energy kernel gets arrays of the same Numba types (dtype, layout, read-only) from a
+    split cloth's slabs as from a small cloth's whole: one build serves both, so a large run
+    loads the build `pipeline.compile_ahead`'s small stand-in compiled instead of compiling its
+    own (the slabs' copies were writable where the model's arrays are not)."""
+    from numba import typeof
+
+    large = _prepared(cloth.model, 2)
+    small = _prepared(grid_cloth(20, pins=TOP_CORNERS).model, 2)
+    whole = [typeof(array) for array in small.energy_parts[0]]
+    for part in large.energy_parts:
+        assert [typeof(array) for array in part] == whole
+
+
 def test_the_energy_in_two_slabs_is_the_whole_energy_and_gradient(cloth) -> None:
     """Against a direct NumPy sum over the model's springs (tension or compression stiffness by the
     sign of l - L), on positions where springs are stretched and compressed; and the same bytes on
