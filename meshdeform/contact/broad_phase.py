@@ -220,7 +220,8 @@ def build_grid(
         start[h + 1] += start[h]
     fill = start[:-1].copy()
     element = np.empty(total + long.shape[0], dtype=np.int64)
-    element[total:] = long
+    for j in range(long.shape[0]):  # a loop: a slice assignment's shape check compiles 2 s of string formatting
+        element[total + j] = long[j]
     cell = np.empty((0 if dense else total, 3), dtype=np.int64)
     for j in range(m):
         for ix in range(cells[j, 0], cells[j, 3] + 1):
