@@ -21,12 +21,13 @@ compiling behind, and with a warm cache the stand-in's steps are only a cost (`b
 Self-collision's kernels take a run with an empty cache longer than all the others together (about
 12 of the 24 s of one frame of a sheet dropped on a sphere), and a collider's contact build 6-10 s;
 a thread cannot share that work: Numba compiles under one lock. `start_compiler` starts a second
-process instead (`python -m pipeline.compile_ahead SOLVER [--self-collision]`), which steps a
-stand-in without colliders, with self-collision where the run has it, and so compiles the solver's
-kernels and then self-collision's into Numba's disk cache (NUMBA_CACHE_DIR, inherited) on the other
-core, while this process compiles the colliders' builds first (`compile_colliders`, before the run's
-first substep): when the run reaches the solver and self-collision it loads from the cache what the
-helper has compiled by then (its files are written whole and renamed into place). Only where that
+process instead (`python -m pipeline.compile_ahead SOLVER [--self-collision]`), which compiles
+self-collision's kernels where the run has it (`compile_self_collision`: the run reaches them
+last) and then steps a stand-in without colliders (the solver's kernels) into Numba's disk cache
+(NUMBA_CACHE_DIR, inherited) on the other core, while this process compiles the colliders' builds
+first (`compile_colliders`, before the run's first substep): when the run reaches the solver and
+self-collision it loads from the cache what the helper has compiled by then (its files are
+written whole and renamed into place) and compiles the rest itself. Only where that
 can help: self-collision or colliders whose kernels are in neither this process nor the cache, two
 cores and two Numba threads for this job (a batch of as many jobs as cores gives each one). The job
 stops the helper when it ends.
@@ -205,12 +206,42 @@ SELF_COLLISION_FLAG = "--self-collision"
 
 def _compile_in_process(arguments: list[str]) -> None:
     """The `start_compiler` process's work (arguments: the solver's name, then
-    `SELF_COLLISION_FLAG` or nothing): one frame of the stand-in without colliders, with
-    self-collision where the flag asks for it."""
+    `SELF_COLLISION_FLAG` or nothing): self-collision's kernels first where the flag asks for
+    them (`compile_self_collision`), then one frame of the stand-in without colliders, with
+    self-collision where the flag asks for it (the solver's kernels).
+
+    Self-collision first: a run with colliders compiles their contact build before it reaches its
+    solver (`compile_colliders`), and one without reaches its solver at once, so either way the
+    run reaches self-collision last, and compiled its solver's kernels itself where the helper
+    was still on them; in the other order the run reached self-collision while the helper was
+    compiling it and compiled the same kernels beside it (docs/performance.md, "Where a cold
+    start stands")."""
     solver, *flags = arguments
-    _step_stand_in(
-        Settings(solver=solver), calm_scene=True, self_collision=SELF_COLLISION_FLAG in flags, kinds=frozenset()
-    )
+    self_collision = SELF_COLLISION_FLAG in flags
+    if self_collision:
+        compile_self_collision()
+    _step_stand_in(Settings(solver=solver), calm_scene=True, self_collision=self_collision, kinds=frozenset())
+
+
+def compile_self_collision() -> None:
+    """Compiles (or loads) self-collision's kernels without a solver: `SelfCollision.project` over
+    `SELF_COLLISION_SUBSTEPS` substeps of a stand-in sheet falling freely: the calls a stand-in's
+    frame with self-collision makes (`tests/test_compile_ahead.py` checks that its frame then
+    compiles none of them anew; the partial searches of a few stray vertices are left to the run)."""
+    side = STAND_IN_SIDE
+    model = SpringModel.from_mesh(grid_mesh(side, side, plane="xz"))
+    state = State.at_rest(model)
+    collision = SelfCollision()
+    dt = 1.0 / 192.0
+    for k in range(1, SELF_COLLISION_SUBSTEPS + 1):
+        state.previous[:] = state.positions
+        state.velocities[:, 1] = -9.81 * k * dt
+        state.positions += state.velocities * dt
+        collision.project(model, state, k * dt, dt)
+
+
+#: substeps of `compile_self_collision`'s falling stand-in (a whole search, then the kept lists)
+SELF_COLLISION_SUBSTEPS = 4
 
 
 if __name__ == "__main__":

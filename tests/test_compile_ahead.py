@@ -188,3 +188,44 @@ def test_colliders_compiled_ahead_are_the_builds_the_run_calls() -> None:
         pass
     assert set(ck.contact_box.signatures) == compiled
     assert ck.contact_kernel(ck.PLANE, ground.company) is ck.contact_box
+
+
+_SELF_COLLISION_FIRST = """
+import importlib, json
+from numba.core.registry import CPUDispatcher
+from meshdeform.simulate import Settings
+from pipeline import compile_ahead
+
+def signatures():
+    out = {}
+    for name in ("meshdeform.contact.self_kernels", "meshdeform.contact.broad_phase"):
+        for key, kernel in vars(importlib.import_module(name)).items():
+            if isinstance(kernel, CPUDispatcher):
+                out[name + "." + key] = sorted(map(str, kernel.signatures))
+    return out
+
+compile_ahead.compile_self_collision()
+first = signatures()
+compile_ahead._step_stand_in(Settings(solver="implicit"), True, True, frozenset())
+print(json.dumps([first, signatures()]))
+"""
+
+
+def test_the_helper_s_self_collision_pass_compiles_what_a_stand_in_s_frame_runs() -> None:
+    """`compile_ahead.compile_self_collision` (the helper process's first work where a run has
+    self-collision) reaches every self-collision and broad-phase kernel, in the argument types,
+    that a stand-in's frame with self-collision then runs: the frame adds no signature. In a
+    fresh interpreter, whose dispatchers hold only what it ran (compiled or loaded from the
+    cache), not what earlier tests here did."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(compile_ahead.__file__).resolve().parents[1]
+    done = subprocess.run(
+        [sys.executable, "-c", _SELF_COLLISION_FIRST], cwd=root, capture_output=True, text=True, timeout=600, check=True
+    )
+    first, after = json.loads(done.stdout.strip().splitlines()[-1])
+    assert sum(map(len, first.values())) >= 10  # the search, proximity and continuous check ran
+    assert {name: sigs for name, sigs in after.items() if sigs != first.get(name, [])} == {}
