@@ -72,7 +72,7 @@ from meshdeform.solvers import solver_class
 from meshdeform.solvers.base import LargeKernels
 from meshdeform.solvers.dispatch import HOST, available
 
-__all__ = ["compile_colliders", "start", "start_compiler", "stop_compiler"]
+__all__ = ["compile_colliders", "compile_self_collision", "start", "start_compiler", "stop_compiler"]
 
 #: vertices along each side of the stand-in sheet (1 m square)
 STAND_IN_SIDE = 4
