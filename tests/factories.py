@@ -198,6 +198,23 @@ def twisted_strip(solver: str, degrees: float, seconds: float = 2.0) -> tuple[Me
     return mesh, recipe
 
 
+def pulled_banner(solver: str, frames: int = 18, extra: str = "") -> tuple[Mesh, str]:
+    """A 1 m x 0.5 m sheet (20 x 10 vertices, XY plane) gripped along its two short edges, the
+    grips pulled 0.15 m apart each from 0.1 s to 0.6 s: the cloth as a whole stretched 1.3x
+    along x. The mesh and a recipe of `solver` at its defaults (xpbd, verlet: tethers 1.0), 24
+    fps, with `extra` (TOML) appended."""
+    mesh = grid_mesh(20, 10, size=(1.0, 0.5), plane="xy")
+    grips = ""
+    for side, shift in ((0.0, -0.15), (1.0, 0.15)):
+        grips += (
+            "[[pins]]\nrelative = true\n"
+            f"select = {{ box = {{ min = [{side - 0.01}, 0, 0], max = [{side + 0.01}, 1, 1] }} }}\n"
+            f"animate = [ {{ time = 0.0, translate = [0, 0, 0] }}, {{ time = 0.1, translate = [0, 0, 0] }},\n"
+            f"            {{ time = 0.6, translate = [{shift}, 0, 0] }} ]\n\n"
+        )
+    return mesh, f'[simulation]\nsolver = "{solver}"\nfps = 24\nframes = {frames}\n\n' + grips + extra
+
+
 def bumpy_ground(n: int = 17, size: float = 1.6) -> tuple[np.ndarray, np.ndarray]:
     """An open n x n grid of height 0.2 + 0.15 sin(6 x) cos(5 z) (m) over size x size (m), centred on
     the Y axis: vertices (n^2, 3) and triangles (a, b, c), (a, c, d) per cell (2 (n - 1)^2, 3)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from factories import grid_cloth, grid_sheet
+from factories import grid_cloth, grid_sheet, pulled_banner
 
 from meshdeform.errors import RecipeError
 from meshdeform.material import KindMaterial, Material
@@ -168,3 +168,19 @@ def test_tether_anchor_is_the_nearest_pin_along_the_mesh() -> None:
     assert anchor[1] == 0 and anchor[3] == 4 and anchor[6] == 0 and anchor[8] == 4
     limit = dict(zip(tethers.vertices.tolist(), tethers.limit.tolist(), strict=True))
     assert limit[1] == pytest.approx(1.5) and limit[5] == pytest.approx(1.5)
+
+
+def test_material_tethers_let_grips_that_pull_a_cloth_apart_stretch_it_evenly() -> None:
+    """`[material.tethers]` on `pulled_banner` (grips pulled apart by 30 % of the width), under
+    the default solver: each vertex is tethered to its nearest grip, so each half followed its
+    grip within its limits and the springs between the halves took the whole stretch (9.6x on a
+    32 x 20 flag). Its limit now grows by what its own grip's and the other grip's separation
+    asks for (`NearestPinTethers.other`): the cloth stretches as it does without tethers."""
+    worst = {}
+    for tethers in ("", "[material.tethers]\nmax_stretch = 1.03\n"):
+        mesh, text = pulled_banner("implicit", extra=tethers)
+        built = build_simulation(parse_recipe(text), mesh)
+        worst[tethers] = max(f.max_stretch for f in simulate(built.model, built.scene, built.settings))
+    plain, tethered = worst.values()
+    assert plain < 1.5
+    assert tethered < plain + 0.05

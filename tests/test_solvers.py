@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from factories import TOP_CORNERS, grid_cloth
+from factories import TOP_CORNERS, grid_cloth, pulled_banner
 
 from meshdeform.errors import MeshdeformError
 from meshdeform.mesh import grid_mesh
@@ -252,3 +252,22 @@ def test_anchor_damping_decays_relative_velocity_exponentially(rate: float) -> N
     for _ in range(96):
         solver.step(model, state, 1.0 / 96, control)
     assert state.velocities[free, 1] == pytest.approx(0.3 * math.exp(-rate), rel=1e-6)
+
+
+@pytest.mark.parametrize("solver", ["xpbd", "verlet"])
+def test_tethers_let_grips_that_pull_a_cloth_apart_stretch_it_evenly(solver: str) -> None:
+    """The grips of `pulled_banner` move apart by 30 % of the cloth's width: no shape keeps every
+    vertex within its rest distance along the mesh of both grips, and the tethers held all but
+    the row next to one grip, whose springs took the whole stretch (9.4x on a 32 x 20 flag).
+    Each vertex's limits now grow by what its two grips' separation asks for
+    (`sweep_kernels.release_tethers`): the springs across the cloth share the 1.3x, as they do
+    under `implicit` (no tethers)."""
+    from pipeline.build import build_simulation
+    from pipeline.recipe import parse_recipe
+
+    mesh, text = pulled_banner(solver)
+    built = build_simulation(parse_recipe(text), mesh)
+    last = list(simulate(built.model, built.scene, built.settings))[-1]
+    x = last.welded_positions
+    assert x[:, 0].max() - x[:, 0].min() == pytest.approx(1.3, abs=0.01)  # the grips' own spread
+    assert last.max_stretch < 1.6

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from meshdeform.geometry import scatter_triangles, triangle_area_vectors
 from meshdeform.model import SpringModel, State
@@ -98,6 +98,10 @@ class Plasticity(Force, Constraint, Remappable):
         self.rest[rows] += d[rows] * (fraction * excess[rows] / length[rows])[:, None]
 
 
+#: the most anchor groups whose separation `NearestPinTethers` follows (a Dijkstra search each)
+MAX_ANCHOR_GROUPS = 16
+
+
 class NearestPinTethers(Constraint, Remappable):
     """Long-range attachments: each vertex within `max_stretch` x rest graph distance of its nearest anchor.
 
@@ -106,6 +110,15 @@ class NearestPinTethers(Constraint, Remappable):
     length. Vertices not connected to an anchor are free. Projected after each solver substep,
     with the velocity away from the anchor removed, so it holds with every solver and follows
     animated and soft pins (the anchors' current positions) and tears (`remap`).
+
+    Where the anchors form several groups (pieces of pinned cloth not joined by springs between
+    anchors: two grips), each vertex also knows the nearest anchor of another group and its
+    limit there (`other`, `other_limit`): grips that move further apart than the rest distances
+    to them together scale the vertex's limit by that ratio (its `max_stretch` kept on top).
+    Without it the anchored halves followed
+    their grips within their limits and the springs between them took the whole stretch (9.6x
+    where the cloth as a whole stretched 1.3x). More than `MAX_ANCHOR_GROUPS` groups (many
+    separate pins) keep the plain limits.
 
     Not the solvers' option `tethers` (`[simulation] tethers`, `solvers.layout.Tethers`): that
     one is on by default (ratio 1.0) for verlet and xpbd only, runs inside their kernels within
@@ -127,6 +140,8 @@ class NearestPinTethers(Constraint, Remappable):
         anchors = np.unique(np.asarray(anchors, dtype=np.int64))
         self.anchors = anchors
         n = model.vertex_count
+        self.other: np.ndarray | None = None
+        self.other_limit: np.ndarray | None = None
         if anchors.size == 0 or model.spring_count == 0:
             self.vertices = np.zeros(0, dtype=np.int64)
             self.anchor = np.zeros(0, dtype=np.int64)
@@ -140,6 +155,30 @@ class NearestPinTethers(Constraint, Remappable):
         self.vertices = np.flatnonzero(reach)
         self.anchor = source[self.vertices].astype(np.int64)
         self.limit = dist[self.vertices] * self.max_stretch
+        self._attach_other_groups(graph, anchors)
+
+    def _attach_other_groups(self, graph: coo_matrix, anchors: np.ndarray) -> None:
+        """`other` / `other_limit` (class docstring): for each tethered vertex the nearest anchor
+        of a group other than its own anchor's, and max_stretch x the rest distance to it (inf
+        where none is reachable); left None with one group or more than `MAX_ANCHOR_GROUPS`."""
+        among = graph[anchors][:, anchors]
+        count, group = connected_components(among, directed=False)
+        if count < 2 or count > MAX_ANCHOR_GROUPS:
+            return
+        far = np.full((count, self.vertices.shape[0]), np.inf)
+        near = np.zeros((count, self.vertices.shape[0]), dtype=np.int64)
+        for g in range(count):
+            dist, _, source = dijkstra(
+                graph, directed=False, indices=anchors[group == g], return_predecessors=True, min_only=True
+            )
+            far[g] = dist[self.vertices]
+            near[g] = source[self.vertices]
+        own = group[np.searchsorted(anchors, self.anchor)]
+        far[own, np.arange(own.shape[0])] = np.inf
+        pick = np.argmin(far, axis=0)
+        columns = np.arange(pick.shape[0])
+        self.other = np.where(np.isfinite(far[pick, columns]), near[pick, columns], self.anchor)
+        self.other_limit = far[pick, columns] * self.max_stretch
 
     def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
         if self.vertices.size == 0:
@@ -149,12 +188,16 @@ class NearestPinTethers(Constraint, Remappable):
         a = state.positions[self.anchor]
         d = x - a
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
-        over = (length > self.limit) & (model.inv_mass[vi] > 0)
+        limit = self.limit
+        if self.other is not None and self.other_limit is not None:  # grips pulled apart: limits scaled
+            apart = np.linalg.norm(state.positions[self.other] - a, axis=1)
+            limit = limit * np.maximum(apart * self.max_stretch / (limit + self.other_limit), 1.0)
+        over = (length > limit) & (model.inv_mass[vi] > 0)
         if not over.any():
             return
         rows = np.flatnonzero(over)
         u = d[rows] / length[rows, None]
-        new_x = a[rows] + u * self.limit[rows, None]
+        new_x = a[rows] + u * limit[rows, None]
         v = state.velocities[vi[rows]]
         outward = np.maximum(np.einsum("ij,ij->i", v, u), 0.0)
         v = v - outward[:, None] * u

@@ -235,6 +235,10 @@ class SweepSolver(LayoutCache):
         # the tethers' limits in force (`sweep_kernels.release_tethers`), from the records' own
         self.tether_work = self.tethers.copy()
         self.tether_limits = np.empty(self.tethers.shape[0])
+        self.tether_scaled = np.empty(self.tethers.shape[0])
+        # a vertex tethered to pins of two groups: their separation may scale its limits
+        vertices = self.tethers["v"]
+        self.tethers_to_groups = bool(vertices.shape[0] > 1 and (vertices[1:] == vertices[:-1]).any())
         self.released = np.zeros(1, dtype=np.int64)
         self._run_state: weakref.ref[State] | None = None
         self.scratch = self._buffer("scratch", model.vertex_count, VERTEX)
@@ -261,16 +265,19 @@ class SweepSolver(LayoutCache):
 
     def _release(self, touched: np.ndarray | None) -> tuple[tuple[np.ndarray, ...], bool]:
         """The substep kernel's tether release arguments (`sweep_kernels.release_tethers`:
-        offsets, links, gaps, contact mask, limits scratch, released count) and whether to run
-        it: where a collider touches a vertex with a tether, or a tether is still released.
-        touched: the model vertices a collider holds (indices), or None."""
+        offsets, links, gaps, contact mask, limits and scaled-limits scratch, released count) and
+        whether to run it: where a vertex is tethered to pins of two groups (their separation
+        scales its limits), a collider touches a vertex with a tether, or a tether is still
+        released. touched: the model vertices a collider holds (indices), or None."""
         contact = NO_CONTACT
         if touched is not None and touched.shape[0] > 0 and self.tethers.shape[0] > 0:
             contact = np.zeros(self.layout.vertex_rank.shape[0], dtype=np.uint8)
             contact[self.layout.vertex_rank[touched]] = 1
         links = self.tether_links
-        state = (links.offsets, links.links, links.gaps, contact, self.tether_limits, self.released)
-        return state, contact.shape[0] > 0 or bool(self.released[0])
+        state = (
+            links.offsets, links.links, links.gaps, contact, self.tether_limits, self.tether_scaled, self.released,
+        )
+        return state, self.tethers_to_groups or contact.shape[0] > 0 or bool(self.released[0])
 
     def _planes(self, control: Control, dt: float) -> np.ndarray:
         """`control.planes` as `sweep_kernels.PLANE` records in kernel numbering, each plane's

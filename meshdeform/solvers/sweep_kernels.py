@@ -267,34 +267,78 @@ def _from_pin(v, pin):  # pragma: no cover - compiled
 
 
 @nb.njit(**SWEEP)
-def release_tethers(X, base, work, offsets, links, gaps, contact, limits, released):  # pragma: no cover - compiled
-    """The tethers' limits for a substep (`work`, from the records `base` and the limits `work`
-    held in the last one), where a collider pushes the cloth further from its pins than they
-    allow: a vertex a collider touches (contact (W,) uint8 in kernel numbering, or empty) may stay
-    as far from its pin as it started the substep, and a vertex next to a released one (links,
-    gaps: `common.TetherLinks`) as far as that one less the gap between them. A tether never
-    releases in a cloth within its tethers (the gaps' triangle inequality), and a release spreads
-    one neighbour a substep and ends as the push does. Distances from where each vertex started
-    the substep (px) to where its pin is. released: (1,) int64, the count of released tethers.
+def _pin_gap(X, a, b):  # pragma: no cover - compiled
+    """|x_a - x_b| (m) between the vertex records a and b (two pins)."""
+    dx = X[a].x - X[b].x
+    dy = X[a].y - X[b].y
+    dz = X[a].z - X[b].z
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
 
-    Without it the tethers held the vertices next to those a plate punched 0.4 m through a
-    pinned cloth, whose spring between them took the whole difference (10.7-12.7x: the guard
-    stopped the run; docs/performance.md, "Tethers against a collider that forces stretch")."""
+
+@nb.njit(**SWEEP)
+def release_tethers(  # pragma: no cover - compiled
+    X, base, work, offsets, links, gaps, contact, limits, scaled, released
+):
+    """The tethers' limits for a substep (`work`, from the records `base` and the limits `work`
+    held in the last one), where the pins or a collider force the cloth further from its pins
+    than they allow.
+
+    Pins: a vertex tethered to pins of two groups (records sorted by vertex, so its records are
+    consecutive) can keep both limits only while those pins are no further apart than the two
+    limits together; grips that pull a cloth apart move them further, and the tethers then held
+    every vertex but the row next to a grip, whose springs took the whole stretch (9.4x where
+    the cloth as a whole stretched 1.3x). So each vertex's limits are scaled alike by the most
+    any pair of its pins asks for (the pins' distance over the pair's limits together, at least
+    1): `scaled` (R,) m. In a cloth whose pins are no further apart than the limits allow this
+    is 1 (the paths' triangle inequality). Scaled so, a vertex's limits to two grips meet where
+    the cloth between them stretches evenly: they hold it there as they hold an unstretched
+    cloth within them, against sweeps that do not carry a grip's pull across the cloth within a
+    substep (with the limits' slack kept on top, 1.79x instead of 1.55x on `pulled_banner`
+    under xpbd; the scene effect `NearestPinTethers` keeps it, for solvers that converge).
+
+    A collider: a vertex it touches (contact (W,) uint8 in kernel numbering, or empty) may stay
+    as far from its pin as it started the substep, and a vertex next to a released one (links,
+    gaps: `common.TetherLinks`) as far as that one less the gap between them. That never releases
+    a tether in a cloth within its (scaled) tethers (the gaps' triangle inequality), spreads one
+    neighbour a substep and ends as the push does. Distances from where each vertex started the
+    substep (px) to where its pin is. released: (1,) int64, the count of tethers released past
+    their scaled limit.
+
+    Held by a collider's push, the vertices next to those a plate punched 0.4 m through a pinned
+    cloth were kept back and the spring between took the whole difference (10.7-12.7x: the
+    guard stopped the run; docs/performance.md, "Tethers against a collider that forces
+    stretch")."""
     count = 0
+    n = base.shape[0]
+    first = 0
+    while first < n:
+        end = first + 1
+        while end < n and base[end].v == base[first].v:
+            end += 1
+        scale = 1.0
+        for a in range(first, end):
+            for b in range(a + 1, end):
+                room = base[a].lim + base[b].lim
+                apart = _pin_gap(X, base[a].p, base[b].p)
+                if apart > scale * room:
+                    scale = apart / room
+        for a in range(first, end):
+            scaled[a] = base[a].lim * scale
+        first = end
     touched = contact.shape[0] > 0
-    for r in range(base.shape[0]):
+    for r in range(n):
         te = base[r]
-        lim = te.lim
+        lim = scaled[r]
         if touched and contact[te.v] != 0:
             lim = max(lim, _from_pin(X[te.v], X[te.p]))
         for k in range(offsets[r], offsets[r + 1]):
             q = links[k]
-            if work[q].lim > base[q].lim:
+            if work[q].lim > scaled[q]:
                 tq = base[q]
                 lim = max(lim, _from_pin(X[tq.v], X[tq.p]) - gaps[k])
         limits[r] = lim
-        if lim > te.lim:
+        if lim > scaled[r]:
             count += 1
-    for r in range(base.shape[0]):
+    for r in range(n):
         work[r].lim = limits[r]
     released[0] = count

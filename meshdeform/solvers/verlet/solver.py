@@ -27,6 +27,7 @@ Where a collider pushes the cloth further from its pins than the tethers allow (
 through a cloth pinned at both sides), they give way around the vertices the colliders moved
 after the last substep (`Control.pushed`, `sweep_kernels.release_tethers`, as xpbd's around its
 contact planes); held, the springs at the edge of the push took the whole difference.
+Grips moved further apart than the tethers allow scale the limits alike (as xpbd's).
 
 A whole substep is one compiled call (`kernels.verlet_substep`, or its parallel build, the same
 bytes either way: `dispatch.SubstepPicker` runs the faster on the machine now), and

@@ -164,8 +164,8 @@ def xpbd_substep(
     chunks and their tethers (`layout.KernelChunks`), one per slab. planes: the contact planes
     (`sweep_kernels.PLANE`, held after the sweeps: `hold_planes`). tethers: the limits in force,
     base: the tethers' own records; release: whether to compute the limits in force first
-    (`release_tethers`, with release_state = (offsets, links, gaps, contact, limits scratch,
-    released count), as `XPBDSolver.advance` passes them).
+    (`release_tethers`, with release_state = (offsets, links, gaps, contact, limits and scaled
+    limits scratch, released count), as `SweepSolver._release` gives them).
 
     Every `prange` loop runs over slabs or chunks that share no vertex: the serial build
     (`xpbd_substep`) runs them in order, the parallel one (`xpbd_substep_parallel`) one thread
