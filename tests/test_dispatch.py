@@ -36,7 +36,7 @@ def test_tether_chunks_hold_the_tethers_of_their_vertex_chunk(parts: int) -> Non
     """The thread that predicts a kernel vertex range applies exactly those vertices' tethers."""
     model = cloth(24)
     layout = spring_layout(model, parts)
-    tethers = kernel_tethers(model, layout.vertex_rank, 1.0)
+    tethers = kernel_tethers(model, layout.vertex_rank, 1.0).records
     assert tethers.shape[0] > model.vertex_count  # two pins: up to two tethers per vertex
     chunks = kernel_chunks(layout, tethers["v"])
     vertices = chunks.vertices.astype(np.int64)

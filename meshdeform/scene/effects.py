@@ -15,7 +15,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from meshdeform.geometry import scatter_triangles, triangle_area_vectors
@@ -115,10 +115,9 @@ class NearestPinTethers(Constraint, Remappable):
     anchors: two grips), each vertex also knows the nearest anchor of another group and its
     limit there (`other`, `other_limit`): grips that move further apart than the rest distances
     to them together scale the vertex's limit by that ratio (its `max_stretch` kept on top).
-    Without it the anchored halves followed
-    their grips within their limits and the springs between them took the whole stretch (9.6x
-    where the cloth as a whole stretched 1.3x). More than `MAX_ANCHOR_GROUPS` groups (many
-    separate pins) keep the plain limits.
+    Without it the anchored halves followed their grips within their limits and the springs
+    between them took the whole stretch (9.6x where the cloth as a whole stretched 1.3x). More
+    than `MAX_ANCHOR_GROUPS` groups (many separate pins) keep the plain limits.
 
     Not the solvers' option `tethers` (`[simulation] tethers`, `solvers.layout.Tethers`): that
     one is on by default (ratio 1.0) for verlet and xpbd only, runs inside their kernels within
@@ -157,7 +156,7 @@ class NearestPinTethers(Constraint, Remappable):
         self.limit = dist[self.vertices] * self.max_stretch
         self._attach_other_groups(graph, anchors)
 
-    def _attach_other_groups(self, graph: coo_matrix, anchors: np.ndarray) -> None:
+    def _attach_other_groups(self, graph: csr_matrix, anchors: np.ndarray) -> None:
         """`other` / `other_limit` (class docstring): for each tethered vertex the nearest anchor
         of a group other than its own anchor's, and max_stretch x the rest distance to it (inf
         where none is reachable); left None with one group or more than `MAX_ANCHOR_GROUPS`."""

@@ -108,23 +108,6 @@ def aligned_zeros(shape: tuple[int, ...], dtype: type = np.float64, align: int =
     return raw[start : start + count * dt.itemsize].view(dt).reshape(shape)
 
 
-def kernel_tethers(
-    model: SpringModel,
-    rank: np.ndarray,
-    ratio: float | None,
-    kinds: tuple[int, ...] | None = None,
-    slack: float = 1.0,
-) -> np.ndarray:
-    """Tethers (see `layout.tethers`, paths over springs of `kinds`) as `sweep_kernels.TETHER` records.
-
-    In a layout's kernel numbering (rank: model vertex -> kernel vertex); limits times `slack`.
-
-    Sorted by kernel vertex (stably, so a vertex's tethers keep their order); empty when
-    `ratio` is None or not positive.
-    """
-    return linked_kernel_tethers(model, rank, ratio, kinds, slack).records
-
-
 class TetherLinks(NamedTuple):
     """Kernel tethers (`sweep_kernels.TETHER` records) and, per record r, the records of the
     same pin group at its vertex's neighbours along the tether paths: links[offsets[r]:
@@ -139,14 +122,20 @@ class TetherLinks(NamedTuple):
     gaps: np.ndarray
 
 
-def linked_kernel_tethers(
+def kernel_tethers(
     model: SpringModel,
     rank: np.ndarray,
     ratio: float | None,
     kinds: tuple[int, ...] | None = None,
     slack: float = 1.0,
 ) -> TetherLinks:
-    """`kernel_tethers` with their links (`TetherLinks`)."""
+    """Tethers (see `layout.tethers`, paths over springs of `kinds`) as `sweep_kernels.TETHER`
+    records with their links (`TetherLinks`).
+
+    In a layout's kernel numbering (rank: model vertex -> kernel vertex); limits times `slack`.
+    Sorted by kernel vertex (stably, so a vertex's tethers keep their order); empty when
+    `ratio` is None or not positive.
+    """
     from meshdeform.solvers.layout import TETHER_PATH_KINDS, tethers
     from meshdeform.solvers.sweep_kernels import TETHER
 
@@ -227,7 +216,7 @@ class SweepSolver(LayoutCache):
         for `model`; returns the layout. Per-spring records are the subclass's."""
         lay = self.layout = self._layout_for(model, self.options.partitions)
         self.inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
-        linked = linked_kernel_tethers(
+        linked = kernel_tethers(
             model, lay.vertex_rank, self.options.tethers, self.tether_kinds, self.tether_slack
         )
         self.tethers = linked.records

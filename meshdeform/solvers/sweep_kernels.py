@@ -276,39 +276,10 @@ def _pin_gap(X, a, b):  # pragma: no cover - compiled
 
 
 @nb.njit(**SWEEP)
-def release_tethers(  # pragma: no cover - compiled
-    X, base, work, offsets, links, gaps, contact, limits, scaled, released
-):
-    """The tethers' limits for a substep (`work`, from the records `base` and the limits `work`
-    held in the last one), where the pins or a collider force the cloth further from its pins
-    than they allow.
-
-    Pins: a vertex tethered to pins of two groups (records sorted by vertex, so its records are
-    consecutive) can keep both limits only while those pins are no further apart than the two
-    limits together; grips that pull a cloth apart move them further, and the tethers then held
-    every vertex but the row next to a grip, whose springs took the whole stretch (9.4x where
-    the cloth as a whole stretched 1.3x). So each vertex's limits are scaled alike by the most
-    any pair of its pins asks for (the pins' distance over the pair's limits together, at least
-    1): `scaled` (R,) m. In a cloth whose pins are no further apart than the limits allow this
-    is 1 (the paths' triangle inequality). Scaled so, a vertex's limits to two grips meet where
-    the cloth between them stretches evenly: they hold it there as they hold an unstretched
-    cloth within them, against sweeps that do not carry a grip's pull across the cloth within a
-    substep (with the limits' slack kept on top, 1.79x instead of 1.55x on `pulled_banner`
-    under xpbd; the scene effect `NearestPinTethers` keeps it, for solvers that converge).
-
-    A collider: a vertex it touches (contact (W,) uint8 in kernel numbering, or empty) may stay
-    as far from its pin as it started the substep, and a vertex next to a released one (links,
-    gaps: `common.TetherLinks`) as far as that one less the gap between them. That never releases
-    a tether in a cloth within its (scaled) tethers (the gaps' triangle inequality), spreads one
-    neighbour a substep and ends as the push does. Distances from where each vertex started the
-    substep (px) to where its pin is. released: (1,) int64, the count of tethers released past
-    their scaled limit.
-
-    Held by a collider's push, the vertices next to those a plate punched 0.4 m through a pinned
-    cloth were kept back and the spring between took the whole difference (10.7-12.7x: the
-    guard stopped the run; docs/performance.md, "Tethers against a collider that forces
-    stretch")."""
-    count = 0
+def _scale_by_pins(X, base, scaled):  # pragma: no cover - compiled
+    """scaled (R,) m: each tether record's limit times the most any pair of its vertex's pins
+    asks for (their distance over the pair's limits together, at least 1; a vertex's records
+    are consecutive: sorted by vertex), `release_tethers`' pins."""
     n = base.shape[0]
     first = 0
     while first < n:
@@ -325,6 +296,44 @@ def release_tethers(  # pragma: no cover - compiled
         for a in range(first, end):
             scaled[a] = base[a].lim * scale
         first = end
+
+
+@nb.njit(**SWEEP)
+def release_tethers(  # pragma: no cover - compiled
+    X, base, work, offsets, links, gaps, contact, limits, scaled, released
+):
+    """The tethers' limits for a substep (`work`, from the records `base` and the limits `work`
+    held in the last one), where the pins or a collider force the cloth further from its pins
+    than they allow.
+
+    Pins: a vertex tethered to pins of two groups (records sorted by vertex, so its records are
+    consecutive) can keep both limits only while those pins are no further apart than the two
+    limits together; grips that pull a cloth apart move them further, and the tethers then held
+    every vertex but the row next to a grip, whose springs took the whole stretch (9.4x where
+    the cloth as a whole stretched 1.3x). So each vertex's limits are scaled alike by the most
+    any pair of its pins asks for (`_scale_by_pins`): `scaled` (R,) m. In a cloth whose pins are
+    no further apart than the limits allow this is 1 (the paths' triangle inequality). Scaled
+    so, a vertex's limits to two grips meet where the cloth between them stretches evenly: they
+    hold it there as they hold an unstretched cloth within them, against sweeps that do not
+    carry a grip's pull across the cloth within a substep (with the limits' slack kept on top,
+    1.79x instead of 1.55x on `pulled_banner` under xpbd; the scene effect `NearestPinTethers`
+    keeps it, for solvers that converge).
+
+    A collider: a vertex it touches (contact (W,) uint8 in kernel numbering, or empty) may stay
+    as far from its pin as it started the substep, and a vertex next to a released one (links,
+    gaps: `common.TetherLinks`) as far as that one less the gap between them. That never releases
+    a tether in a cloth within its (scaled) tethers (the gaps' triangle inequality), spreads one
+    neighbour a substep and ends as the push does. Distances from where each vertex started the
+    substep (px) to where its pin is. released: (1,) int64, the count of tethers released past
+    their scaled limit.
+
+    Held by a collider's push, the vertices next to those a plate punched 0.4 m through a pinned
+    cloth were kept back and the spring between took the whole difference (10.7-12.7x: the
+    guard stopped the run; docs/performance.md, "Tethers against a collider that forces
+    stretch")."""
+    _scale_by_pins(X, base, scaled)
+    count = 0
+    n = base.shape[0]
     touched = contact.shape[0] > 0
     for r in range(n):
         te = base[r]
