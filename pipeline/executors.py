@@ -170,11 +170,13 @@ def set_numba_threads(threads: int) -> None:
 
 
 def one_line(exc: BaseException) -> tuple[str, str]:
-    """(error line, type name): our typed errors keep their message, others get `Type: message`."""
-    from meshdeform.errors import MeshdeformError
+    """(error line, type name): our typed errors keep their message, others get `Type: message`.
+    A recipe's error is named RecipeError whichever of its kinds it is (the manifest's documented
+    `error_type`; `LocatedError` is how the recipe reader words it, not a kind of its own)."""
+    from meshdeform.errors import MeshdeformError, RecipeError
 
     text = " ".join(str(exc).split()) or "(no message)"
-    name = type(exc).__name__
+    name = RecipeError.__name__ if isinstance(exc, RecipeError) else type(exc).__name__
     return (text if isinstance(exc, MeshdeformError) else f"{name}: {text}"), name
 
 

@@ -130,7 +130,6 @@ def _run_job(
     started = time.perf_counter()
     mesh_path = Path(mesh_path)
     check_output_folder(out_dir, overwrite=overwrite, protect={"input": mesh_path, "recipe": recipe.source})
-    recipe.check_fixed_topology_formats()  # before anything is read, run or written
     mesh = mesh if mesh is not None else load(mesh_path)
     built = build_simulation(recipe, mesh)
     model, settings = built.model, built.settings

@@ -198,6 +198,7 @@ def test_batch_manifest_overrides_and_isolated_failures(folder: Path, recipe: Pa
     assert got["export.obj"]["error"] == "pc2: cannot write frame 2: No space left on device"
     assert got["bug.obj"]["error"] == "ZeroDivisionError: division by zero"
     assert "badside.toml" in got["badside.obj"]["error"] and "simulation.frames" in got["badside.obj"]["error"]
+    assert got["badside.obj"]["error_type"] == "RecipeError"  # the documented kind, however the reader words it
     assert all("\n" not in (e["error"] or "") for e in got.values())
     # outputs: OUT/<relative path without suffix>/, suffix kept on the clash
     assert (out / "props" / "chair one" / "frames" / "frame_0002.obj").is_file()

@@ -320,6 +320,23 @@ def test_check_json_gives_ok_errors_and_the_estimate(tmp_path: Path) -> None:
     assert result.stderr.startswith(f"error: {bad}: simulation.frames")
 
 
+def test_check_simulate_and_batch_refuse_a_tearing_recipe_with_a_point_cache_alike(tmp_path: Path) -> None:
+    mesh = write_grid(tmp_path / "assets" / "flag.obj", 6, 4)
+    recipe = tmp_path / "tear.toml"
+    recipe.write_text('[simulation]\nframes = 2\n[[tears]]\nmax_stretch = 1.3\n[output]\nformats = ["obj", "npz"]\n')
+    expected = f"error: {recipe}: output.formats[1] (line 6): npz needs a fixed vertex count"
+    for args in (
+        ("check", recipe),
+        ("simulate", mesh, "-r", recipe, "-o", tmp_path / "one"),
+        ("batch", mesh.parent, "-r", recipe, "-o", tmp_path / "many", "--jobs", "0"),
+    ):
+        result = run(*args)
+        assert result.exit_code == 2, (args[0], result.output)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(expected), (args[0], result.stderr)
+    assert not (tmp_path / "one").exists() and not (tmp_path / "many").exists()
+
+
 def test_simulate_stdout_has_no_stray_blank_line(tmp_path: Path) -> None:
     mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
     quiet = run("simulate", mesh_path, "-o", tmp_path / "quiet", "--frames", "2", "-q")

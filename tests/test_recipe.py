@@ -72,7 +72,7 @@ select = { indices = [1, 2] }
 max_stretch = 1.6
 
 [output]
-formats = ["obj", "pc2"]
+formats = ["obj", "usd"]
 preview = { every = 12, video = "mp4", color = "strain" }
 """
 
@@ -98,7 +98,7 @@ def test_full_recipe_parses_into_typed_sections() -> None:
     assert r.wind is not None and r.wind.turbulence == 0.3
     assert r.colliders[0].kind == "sphere"
     assert r.tears[0].max_stretch == 1.6
-    assert r.output.formats == ("obj", "pc2")
+    assert r.output.formats == ("obj", "usd")
     assert r.output.preview_options == {"every": 12, "video": "mp4", "color": "strain"}
     with pytest.raises(Exception):  # noqa: B017 - frozen
         r.simulation.frames = 3  # type: ignore[misc]
@@ -202,15 +202,22 @@ def test_a_recipe_that_tears_is_refused_the_formats_that_need_a_fixed_vertex_cou
     tears = "[[tears]]\nmax_stretch = 1.5\n[output]\nformats = [{}]\n"
     following = [name for name, cls in EXPORTERS.items() if cls.supports_topology_change]
     for name, cls in EXPORTERS.items():
-        recipe = parse_recipe(tears.format(f'"{name}"'), "t.toml")
         if cls.supports_topology_change:
-            recipe.check_fixed_topology_formats()
+            assert parse_recipe(tears.format(f'"{name}"'), "t.toml").output.formats == (name,)
             continue
         with pytest.raises(RecipeError) as info:
-            recipe.check_fixed_topology_formats()
+            parse_recipe(tears.format(f'"obj", "{name}"'), "t.toml")
         message = str(info.value)
-        assert message.startswith(f"t.toml: output.formats[0] (line 4): {name} needs a fixed vertex count"), message
+        assert message.startswith(f"t.toml: output.formats[1] (line 4): {name} needs a fixed vertex count"), message
         assert f"write {', '.join(following[:-1])} or {following[-1]} instead" in message
+
+
+def test_an_assets_rule_that_adds_tearing_to_a_point_cache_recipe_is_refused_at_its_line() -> None:
+    text = '[output]\nformats = ["pc2"]\n[[assets]]\nglob = "*"\n[[assets.tears]]\nmax_stretch = 1.5\n'
+    with pytest.raises(RecipeError) as info:
+        parse_recipe(text, "t.toml")
+    assert str(info.value).startswith("t.toml: assets[0].output.formats[0]"), str(info.value)
+    assert "pc2 needs a fixed vertex count" in str(info.value)
 
 
 def test_load_recipe_errors_name_the_file(tmp_path: Path) -> None:

@@ -117,19 +117,21 @@ class Recipe(Table):
         """Whether the mesh may open during the run ([[tears]] or [[cuts]])."""
         return bool(self.tears or self.cuts)
 
-    def check_fixed_topology_formats(self) -> None:
-        """RecipeError naming output.formats when a recipe that tears or cuts asks for a format that
-        needs a fixed vertex count (an exporter without `supports_topology_change`: point caches)."""
+    def fixed_topology_complaint(self) -> tuple[KeyPath, str] | None:
+        """(key path, complaint) when a recipe that tears or cuts asks for a format that needs a
+        fixed vertex count (an exporter without `supports_topology_change`: point caches); None
+        otherwise. Part of the recipe's validation (`pipeline.recipe.load.validate`), so `check`,
+        `simulate` and `batch` refuse such a recipe alike, before anything is read or run."""
         if not self.changes_topology:
-            return
+            return None
         for i, name in enumerate(self.output.formats):
             if not EXPORTERS[name].supports_topology_change:
                 what = "[[tears]]" if self.tears else "[[cuts]]"
-                raise self.error(
-                    ("output", "formats", i),
+                return ("output", "formats", i), (
                     f"{name} needs a fixed vertex count, but this recipe opens the mesh ({what}) and adds "
-                    f"vertices where it tears; write {topology_following()} instead, or remove the tearing",
+                    f"vertices where it tears; write {topology_following()} instead, or remove the tearing"
                 )
+        return None
 
     @property
     def asset_rules(self) -> tuple[AssetRule, ...]:
