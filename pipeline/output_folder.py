@@ -24,6 +24,7 @@ from pathlib import Path, PurePosixPath
 from meshdeform.atomic import write_text_atomic
 from meshdeform.errors import MeshdeformError
 from pipeline import __version__
+from pipeline.hashing import file_sha256
 from pipeline.interrupts import note_unwritten, note_written, publishing
 
 #: the job's report in every result folder (a marker of its own for results older than MARKER_NAME)
@@ -105,33 +106,47 @@ def _files_under(folder: Path) -> list[str]:
     return sorted(found)
 
 
-def file_sizes(root: Path, files: Sequence[str]) -> dict[str, int]:
-    """Byte sizes of the `files` (relative POSIX) that exist under `root`."""
-    sizes: dict[str, int] = {}
+@dataclass(frozen=True)
+class FileRecord:
+    """What a marker vouches for one file meshdeform wrote: its size in bytes and the hex sha256 of
+    its bytes (None in markers written before digests were kept: the size alone then)."""
+
+    size: int
+    sha256: str | None
+
+
+def file_records(root: Path, files: Sequence[str]) -> dict[str, FileRecord]:
+    """Size and sha256 of the `files` (relative POSIX) that are plain files under `root`."""
+    records: dict[str, FileRecord] = {}
     for name in files:
         with contextlib.suppress(OSError):
-            sizes[name] = os.stat(root / name).st_size
-    return sizes
+            info = os.lstat(root / name)
+            if stat.S_ISREG(info.st_mode):
+                records[name] = FileRecord(info.st_size, file_sha256(root / name))
+    return records
 
 
-def write_marker(folder: Path, files: Sequence[str], sizes: Mapping[str, int] | None = None) -> None:
-    """Write MARKER_NAME: tool, version, the files meshdeform wrote into `folder` and their sizes in bytes
-    (`sizes`, else read from `folder`), so a listed file the user changed since is not taken for
-    meshdeform's. Deterministic: the same outputs give the same bytes (no times)."""
+def write_marker(folder: Path, files: Sequence[str], records: Mapping[str, FileRecord] | None = None) -> None:
+    """Write MARKER_NAME: tool, version, the files meshdeform wrote into `folder`, their sizes in bytes and
+    the sha256 of their bytes (`records`, else read from `folder`), so a listed file the user changed
+    since, even to the same size, is not taken for meshdeform's. Deterministic: the same outputs give
+    the same bytes (no times)."""
     listed = sorted(set(files) - {MARKER_NAME})
-    sizes = file_sizes(folder, listed) if sizes is None else sizes
+    records = file_records(folder, listed) if records is None else records
+    # (not report.json's: its timings change it from run to run, and the marker stays the same bytes)
+    vouched = [name for name in listed if name in records and name != REPORT_NAME]
     stamp = {
         "tool": "meshdeform",
         "version": __version__,
         "files": listed,
-        # (not report.json's: its timings change its length from run to run, and the marker stays the same bytes)
-        "sizes": {name: sizes[name] for name in listed if name in sizes and name != REPORT_NAME},
+        "sizes": {name: records[name].size for name in vouched},
+        "sha256": {name: records[name].sha256 for name in vouched if records[name].sha256 is not None},
     }
     write_text_atomic(folder / MARKER_NAME, json.dumps(stamp, indent=2) + "\n")
 
 
-def marker_sizes(folder: Path) -> dict[str, int]:
-    """The sizes `write_marker` recorded in `folder`'s marker ({} for none, or for an older marker)."""
+def marker_records(folder: Path) -> dict[str, FileRecord]:
+    """What `write_marker` recorded in `folder`'s marker ({} for none, or for a marker without sizes)."""
     try:
         data = json.loads((folder / MARKER_NAME).read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -139,17 +154,34 @@ def marker_sizes(folder: Path) -> dict[str, int]:
     sizes = data.get("sizes") if isinstance(data, dict) else None
     if not isinstance(sizes, dict):
         return {}
-    return {k: v for k, v in sizes.items() if isinstance(k, str) and isinstance(v, int) and _is_safe_relative(k)}
+    digests = data.get("sha256")
+    digests = digests if isinstance(digests, dict) else {}
+    return {
+        name: FileRecord(size, digest if isinstance(digest := digests.get(name), str) else None)
+        for name, size in sizes.items()
+        if isinstance(name, str) and isinstance(size, int) and _is_safe_relative(name)
+    }
+
+
+def _still_as_written(path: Path, record: FileRecord) -> bool:
+    """Is the file at `path` (present) still a plain file of the recorded size and bytes?"""
+    try:
+        info = os.lstat(path)
+        if not stat.S_ISREG(info.st_mode) or info.st_size != record.size:
+            return False
+        return record.sha256 is None or file_sha256(path) == record.sha256
+    except OSError:  # unreadable: not vouched for
+        return False
 
 
 def _changed_since_written(folder: Path) -> list[str]:
-    """Listed files whose size is no longer the one the marker recorded: the user changed them."""
-    changed = []
-    for name, size in marker_sizes(folder).items():
-        with contextlib.suppress(OSError):
-            if os.lstat(folder / name).st_size != size:
-                changed.append(name)
-    return sorted(changed)
+    """Listed files that are no longer what the marker recorded (another size, other bytes, no longer
+    a plain file): the user changed them, and they are the user's now. Files gone are not listed."""
+    return sorted(
+        name
+        for name, record in marker_records(folder).items()
+        if os.path.lexists(folder / name) and not _still_as_written(folder / name, record)
+    )
 
 
 # -- what is at a path -------------------------------------------------------------------------
@@ -393,22 +425,37 @@ def _remove_own_file(target: Path, relative: str) -> None:
 
 
 def _merge(stage: Path, target: Path, previous: frozenset[str], label: str) -> None:
-    """--overwrite: move the staged files into `target` one by one (os.replace), replacing same-named
-    files; remove files of the previous result that were not written again; keep everything else.
+    """--overwrite: move the staged files into `target` one by one (os.replace), replacing the previous
+    result's files of the same names; remove files of the previous result that were not written again;
+    keep everything else.
 
-    Checked before anything moves: a file whose place is taken by a folder, or under a file or a symlink,
-    refuses the whole merge. The merged list is stamped first and the old report removed first, so a
-    merge cut short is never taken for a finished result.
+    Checked before anything moves, each refusing the whole merge: a file whose place is taken by a
+    folder, or under a file or a symlink; a file whose name is taken by a file or symlink meshdeform did
+    not write, or by one of its files the user changed since (`_changed_since_written`): a user's file is
+    never replaced. The merged list is stamped first and the old report removed first, so a merge cut
+    short is never taken for a finished result.
     """
     new = _files_under(stage)
+    changed = set(_changed_since_written(target))  # listed files the user changed since: theirs now, kept
     for relative in new:
         if (problem := _blocked(target, relative)) is not None:
             raise OutputFolderError(
                 f"{label}: cannot write {relative!r} there: {problem!r} is in the way and meshdeform did not "
                 "write it; the folder was left as it was"
             )
-    changed = set(_changed_since_written(target))  # listed files the user changed since: theirs now, kept
-    write_marker(target, [*previous, *new], {**marker_sizes(target), **file_sizes(stage, new)})
+        if relative == MARKER_NAME or not os.path.lexists(target / relative):
+            continue
+        if relative not in previous or os.path.islink(target / relative):
+            whose = "meshdeform did not write it"
+        elif relative in changed:
+            whose = "it was changed since meshdeform wrote it"
+        else:
+            continue
+        raise OutputFolderError(
+            f"{label}: will not replace {relative!r}: {whose}; move it away or choose another --out "
+            "(the folder was left as it was)"
+        )
+    write_marker(target, [*previous, *new], {**marker_records(target), **file_records(stage, new)})
     if REPORT_NAME in previous:
         _remove_own_file(target, REPORT_NAME)
     last = (REPORT_NAME, MARKER_NAME)

@@ -203,8 +203,16 @@ def test_a_previous_result_holding_a_users_file_is_refused(user: dict[str, Path]
 def test_overwrite_writes_beside_the_users_files_and_keeps_them(user: dict[str, Path]) -> None:
     docs = user["docs"]
     put(docs / "frames" / "mine.txt", "mine\n")  # a user file where the frames go
-    put(docs / "report.json", '{"mine": true}\n')  # a same-named file: replaced, as --help says
-    keep = {k: v for k, v in snapshot(docs).items() if k != "report.json"}
+    put(docs / "report.json", '{"mine": true}\n')  # a file with an output's name: never replaced
+    before = snapshot(user["root"])
+    line = one_error_line(cli("simulate", user["mesh"], "-o", docs, "-q", "--frames", "3", "--overwrite"))
+    assert line == (
+        f"error: {docs}: will not replace 'report.json': meshdeform did not write it; move it away or choose"
+        " another --out (the folder was left as it was)"
+    )
+    assert snapshot(user["root"]) == before
+    (docs / "report.json").unlink()
+    keep = snapshot(docs)
     result = cli("simulate", user["mesh"], "-o", docs, "-q", "--frames", "3", "--overwrite")
     assert result.exit_code == 0, result.output
     now = snapshot(docs)
@@ -221,6 +229,38 @@ def test_overwrite_writes_beside_the_users_files_and_keeps_them(user: dict[str, 
     # without --overwrite the folder is still refused: it holds the user's files
     line = one_error_line(cli("simulate", user["mesh"], "-o", docs, "-q", "--frames", "2"))
     assert "3 entries meshdeform did not write (e.g. 'a.txt')" in line
+
+
+def test_a_result_file_the_user_edited_to_the_same_size_is_theirs(user: dict[str, Path]) -> None:
+    out = user["root"] / "out" / "cloth"
+    assert cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2").exit_code == 0
+    frame = out / "frames" / "frame_0003.obj"  # the rest pose is frame 1
+    text = frame.read_text()
+    edited = text.replace("v ", "v  ", 1)[:-1]  # other bytes, the same length
+    assert len(edited) == len(text) and edited != text
+    frame.write_text(edited)
+    before = snapshot(user["root"])
+    line = one_error_line(cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2"))
+    assert "1 entry meshdeform did not write (e.g. 'frames/frame_0003.obj')" in line
+    line = one_error_line(cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "2", "--overwrite"))
+    assert "will not replace 'frames/frame_0003.obj': it was changed since meshdeform wrote it" in line
+    assert snapshot(user["root"]) == before
+    # a shorter run under --overwrite leaves the edited frame where it is, the user's now
+    result = cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "1", "--overwrite")
+    assert result.exit_code == 0, result.output
+    assert frame.read_text() == edited
+
+
+def test_overwrite_never_replaces_a_symlink_with_an_output_s_name(user: dict[str, Path]) -> None:
+    docs = user["docs"]
+    target = user["root"] / "elsewhere.obj"
+    put(target, "the user's file\n")
+    (docs / "frames").mkdir()
+    (docs / "frames" / "frame_0001.obj").symlink_to(target)
+    before = snapshot(user["root"])
+    line = one_error_line(cli("simulate", user["mesh"], "-o", docs, "-q", "--frames", "2", "--overwrite"))
+    assert "will not replace 'frames/frame_0001.obj': meshdeform did not write it" in line
+    assert snapshot(user["root"]) == before and (docs / "frames" / "frame_0001.obj").is_symlink()
 
 
 def test_overwrite_never_deletes_a_file_in_the_way(user: dict[str, Path]) -> None:

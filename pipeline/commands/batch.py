@@ -191,8 +191,9 @@ def register(app: typer.Typer) -> None:
             False,
             "--overwrite",
             help="Write into an OUT or asset folders holding files meshdeform did not write: new outputs replace"
-            " same-named files, files of a previous result not written again are removed, all else is kept"
-            " (without it such an asset folder fails that asset alone).",
+            " a previous result's files of the same names, its files not written again are removed, all else is"
+            " kept (without it such an asset folder fails that asset alone; a user's file with an output's name"
+            " fails it with it).",
         ),
         quiet: bool = typer.Option(
             False, "--quiet", "-q", help="No progress display and no summary; failed assets still go to stderr."

@@ -71,12 +71,12 @@ def refuse_foreign_previews(folder: Path) -> None:
 def record_previews(folder: Path, files: list[Path]) -> None:
     """Add the preview files just written to `folder`'s marker (made if it has none), so a later
     preview or run knows them as meshdeform's."""
-    from pipeline.output_folder import file_sizes, marker_sizes, read_marker, write_marker
+    from pipeline.output_folder import file_records, marker_records, read_marker, write_marker
 
     real = Path(os.path.realpath(folder))
     written = [Path(os.path.realpath(f)).relative_to(real).as_posix() for f in files]
-    # the sizes of earlier files stay as recorded: a preview never vouches for a file it did not write
-    write_marker(real, [*(read_marker(real) or ()), *written], {**marker_sizes(real), **file_sizes(real, written)})
+    # the records of earlier files stay as they were: a preview never vouches for a file it did not write
+    write_marker(real, [*(read_marker(real) or ()), *written], {**marker_records(real), **file_records(real, written)})
 
 
 def run_colliders(result_dir: Path, report: dict[str, Any]) -> tuple[list[Collider], Mesh | None, str | None]:

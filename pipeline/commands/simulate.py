@@ -94,8 +94,9 @@ def register(app: typer.Typer) -> None:
             False,
             "--overwrite",
             help="Write into an existing folder that holds files meshdeform did not write: the new outputs are"
-            " moved in file by file, replacing same-named files; files of a previous result that are not written"
-            " again are removed; every other file is kept.",
+            " moved in file by file, replacing a previous result's files of the same names; files of a previous"
+            " result that are not written again are removed; every other file is kept (a user's file with an"
+            " output's name refuses the run).",
         ),
     ) -> None:
         """Simulate MESH with a recipe and write frames/frame_0001.obj ... and report.json into --out."""
