@@ -47,6 +47,7 @@ from pipeline.output_folder import (
     entry_count,
     exclusive_lock,
     holds_folder_of,
+    linked_part,
 )
 
 if TYPE_CHECKING:
@@ -462,6 +463,14 @@ def _plan(batch: _Batch, manifest: Manifest, log: logging.Logger) -> list[AssetT
         entry = manifest.add(new_entry(asset.key, asset.output, version=__version__, overrides=layers, note=asset.note))
         sha = recipe_hash(recipe)
         entry["recipe_sha256"] = sha
+        linked = linked_part(batch.out, asset.output)
+        if linked is not None:  # outputs would land outside OUT, or replace a result elsewhere
+            link_error = OutputFolderError(
+                f"{out_dir}: {linked!r} in {batch.out} is a symbolic link; a batch writes only inside its --out"
+                " folder: remove the link or choose another --out"
+            )
+            _fail_before_running(entry, asset, link_error, log)
+            continue
         report = None if batch.force else read_report(out_dir)
         if report is not None and up_to_date(report, out_dir, asset.path, sha):
             entry.update(

@@ -20,7 +20,6 @@ import importlib
 import multiprocessing
 import os
 import queue as queue_module
-import shutil
 import signal
 import threading
 import time
@@ -37,6 +36,7 @@ from pipeline.diagnostics import collecting_warnings, quiet_worker
 from pipeline.hashing import file_sha256
 from pipeline.interrupts import noting_unwritten, watch_parent, worker_job
 from pipeline.memory import MALLOC_ENVIRONMENT, tune_malloc
+from pipeline.output_folder import remove_stale_stages
 
 #: a job: (mesh path, recipe, output folder, on_frame=callback) -> an object with a `report` dict
 JobFunction = Callable[..., Any]
@@ -178,18 +178,6 @@ def one_line(exc: BaseException) -> tuple[str, str]:
     text = " ".join(str(exc).split()) or "(no message)"
     name = RecipeError.__name__ if isinstance(exc, RecipeError) else type(exc).__name__
     return (text if isinstance(exc, MeshdeformError) else f"{name}: {text}"), name
-
-
-def remove_stale_stages(out_dir: Path) -> None:
-    """Delete the staging folders a killed job left beside `out_dir` (`pipeline.output_folder.is_stage_of`)."""
-    from pipeline.output_folder import is_stage_of
-
-    parent = out_dir.parent
-    if not parent.is_dir():
-        return
-    for name in os.listdir(parent):
-        if is_stage_of(name, out_dir.name):
-            shutil.rmtree(parent / name, ignore_errors=True)
 
 
 def _input_hash(path: str) -> str | None:

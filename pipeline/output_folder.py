@@ -261,6 +261,17 @@ def holds_folder_of(real: Path, what: str, path: Path | str) -> str | None:
     return None
 
 
+def linked_part(base: Path, relative: str) -> str | None:
+    """The first part of `relative` (a POSIX path inside the folder `base`) that is a symbolic link,
+    as a relative POSIX path; None when none is (parts that do not exist yet are none). A batch writes
+    its asset folders only inside its OUT: a link there would take the outputs elsewhere."""
+    parts = PurePosixPath(relative).parts
+    for depth in range(1, len(parts) + 1):
+        if os.path.islink(base.joinpath(*parts[:depth])):
+            return "/".join(parts[:depth])
+    return None
+
+
 def refusal(label: str, state: FolderState, overwrite: bool) -> str | None:
     """Why meshdeform will not write `state` (None: it may), as one line starting with `label`."""
     if state.kind == "not_dir":
@@ -367,14 +378,27 @@ def exclusive_lock(path: Path, label: str, busy: str, error: type[MeshdeformErro
         lock.release()
 
 
+def remove_stale_stages(target: Path) -> None:
+    """Delete the staging and set-aside folders killed runs left beside the output folder `target`
+    (`is_stage_of`: names no person picks). Only safe while no run writes `target`: under
+    `output_lock`, or in a batch's job under the batch's lock."""
+    parent = target.parent
+    if not parent.is_dir():
+        return
+    for name in os.listdir(parent):
+        if is_stage_of(name, target.name):
+            shutil.rmtree(parent / name, ignore_errors=True)
+
+
 @contextlib.contextmanager
 def output_lock(target: Path, label: str | None = None) -> Iterator[None]:
     """Hold `<parent>/.<name>.meshdeform.lock` while one run writes `target` (`exclusive_lock`).
 
     A second run on the same folder is refused at once (OutputFolderError). The lock sits beside the
     target because the target itself is replaced; it is deleted while still held, so nothing stays
-    behind (filelock >= 4.3 retries when the file it locked was unlinked meanwhile). Missing parent
-    folders are created, and removed again when the run leaves them empty.
+    behind (filelock >= 4.3 retries when the file it locked was unlinked meanwhile). Once it is held,
+    the staging folders of killed runs on the target are removed (`remove_stale_stages`). Missing
+    parent folders are created, and removed again when the run leaves them empty.
     """
     label = label or str(target)
     real = _resolved(target, label)
@@ -382,6 +406,7 @@ def output_lock(target: Path, label: str | None = None) -> Iterator[None]:
     path = real.parent / f".{real.name}{LOCK_SUFFIX}"
     try:
         with exclusive_lock(path, label, "another meshdeform run is writing this folder", OutputFolderError):
+            remove_stale_stages(real)
             try:
                 yield
             finally:

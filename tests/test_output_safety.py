@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -272,6 +273,21 @@ def test_overwrite_never_deletes_a_file_in_the_way(user: dict[str, Path]) -> Non
     assert snapshot(user["root"]) == before
 
 
+def test_simulate_removes_what_killed_runs_on_its_folder_left_and_nothing_else(user: dict[str, Path]) -> None:
+    out = user["root"] / "out" / "cloth"
+    killed = put(out.parent / f".cloth.partial-meshdeform-{'ab' * 16}" / "frames" / "frame_0001.obj", "v 0 0 0\n")
+    set_aside = put(out.parent / f".cloth.old-meshdeform-{'cd' * 16}" / "report.json", "{}\n")
+    others = [
+        put(out.parent / f".other.partial-meshdeform-{'ef' * 16}" / "x.obj", "another folder's\n"),
+        put(out.parent / ".cloth.partial-mine" / "notes.txt", "a name a person picked\n"),
+        put(out.parent / "cloth.partial-meshdeform-backup" / "notes.txt", "mine\n"),
+    ]
+    result = cli("simulate", user["mesh"], "-o", out, "-q", "--frames", "1")
+    assert result.exit_code == 0, result.output
+    assert not killed.parent.parent.exists() and not set_aside.parent.exists()
+    assert all(path.is_file() for path in others)
+
+
 def test_a_second_run_on_a_locked_folder_is_refused_at_once(user: dict[str, Path]) -> None:
     out = user["root"] / "out" / "cloth"
     before = snapshot(user["root"])
@@ -434,6 +450,26 @@ def test_batch_asset_folder_holding_a_users_file_fails_alone(batch: dict[str, Pa
     assert third.exit_code == 0, third.output
     assert manifest(out)["a.obj"]["status"] == "ok" and mine.read_text() == "mine\n"
     assert json.loads((out / "a" / "report.json").read_text())["vertices"] == 25
+
+
+def test_batch_never_writes_through_a_symlink_inside_its_out(batch: dict[str, Path]) -> None:
+    out = batch["root"] / "out"
+    assert cli("batch", batch["assets"], "-r", batch["recipe"], "-o", out, "--jobs", 0, "-q").exit_code == 0
+    elsewhere = batch["root"] / "elsewhere"
+    shutil.move(out / "a", elsewhere)  # a meshdeform result of its own, outside OUT
+    (out / "a").symlink_to(elsewhere, target_is_directory=True)
+    (out / "sub").rename(batch["root"] / "sub-elsewhere")
+    (out / "sub").symlink_to(batch["root"] / "sub-elsewhere", target_is_directory=True)
+    before = snapshot(batch["root"] / "elsewhere"), snapshot(batch["root"] / "sub-elsewhere")
+    for flags in ((), ("--overwrite",)):
+        result = cli("batch", batch["assets"], "-r", batch["recipe"], "-o", out, "--jobs", 0, "-q", "--force", *flags)
+        assert result.exit_code == 1, result.output
+        entries = manifest(out)
+        for key, link in (("a.obj", "a"), ("sub/b.obj", "sub")):
+            assert entries[key]["status"] == "failed" and entries[key]["error_type"] == "OutputFolderError"
+            assert f"{link!r} in {out} is a symbolic link" in entries[key]["error"], entries[key]["error"]
+        assert entries["inner.obj"]["status"] == "ok"
+        assert (snapshot(batch["root"] / "elsewhere"), snapshot(batch["root"] / "sub-elsewhere")) == before
 
 
 def test_batch_overwrite_writes_into_someones_folder_and_keeps_their_files(batch: dict[str, Path]) -> None:
