@@ -222,6 +222,11 @@ def test_a_uv_seam_splits_the_gltf_vertex_and_both_copies_point_at_its_texel(tmp
     assert glb["POSITION"].shape == (8, 3)  # vertices 1 and 4 twice, once per UV island
     source = cKDTree(positions).query(glb["POSITION"])[1]
     np.testing.assert_array_equal(np.bincount(source), [1, 2, 1, 1, 2, 1])
+    # as scene.glb: the input's vertices first, in its order, then the copies, each's input vertex listed
+    np.testing.assert_array_equal(source[:6], np.arange(6))
+    data = (tmp_path / "vat" / info["mesh_gltf"]).read_bytes()
+    document = json.loads(data[20 : 20 + struct.unpack("<I", data[12:16])[0]])
+    assert document["meshes"][0]["extras"]["seamSource"] == source[6:].tolist()
     np.testing.assert_allclose(glb["TEXCOORD_1"][:, 0] * info["width"] - 0.5, source, atol=1e-3)
     expected = sorted((u, 1 - v) for u, v in uvs)
     np.testing.assert_allclose(sorted(map(tuple, glb["TEXCOORD_0"].astype(np.float64))), expected, atol=1e-7)

@@ -21,8 +21,9 @@ mesh carries a second UV set pointing each vertex at its texel. Written into `va
   polygons); the UVs are also `uv2` in `vat.json`.
 - `mesh.glb`: the same mesh as binary glTF 2.0 (fan-triangulated), the one format here with a second
   UV set: TEXCOORD_0 the input's UVs, TEXCOORD_1 the VAT UVs, in glTF's top-left UV convention
-  (v_gltf = 1 - v; importers flip it back). A seam vertex becomes one glTF vertex per input UV, each
-  with the vertex's VAT UV (`glb_bytes`).
+  (v_gltf = 1 - v; importers flip it back), its vertices laid out as `scene.glb`'s: the input's in
+  their order, then a copy per further UV of a seam vertex, each with the vertex's VAT UV, listed in
+  `meshes[0].extras.seamSource` (`glb_bytes`).
 - `vat.json`: everything a decoder needs (`frames`, `vertices`, `width`, `height`,
   `rows_per_frame`, `bounds_min`, `bounds_max`, the texture and mesh file names, `fps`,
   `start_frame`, the encodings and conventions in words, `uv2`).
@@ -55,6 +56,7 @@ import numpy as np
 
 from meshdeform.atomic import atomic_open
 from meshdeform.export.base import BaseExporter, ExportContext, FrameData
+from meshdeform.export.gltf import fan_triangles, gltf_vertices
 from meshdeform.geometry import vertex_normals
 from meshdeform.mesh import Mesh
 
@@ -113,38 +115,23 @@ class _Png16Writer:
         self.handle.write(_chunk(b"IEND", b""))
 
 
-def fan_triangles(mesh: Mesh) -> np.ndarray:
-    """(T, 3) corner indices (into `mesh.face_indices`) of the polygons fan-triangulated, polygon after polygon;
-    polygons of fewer than 3 corners give none."""
-    offsets = np.asarray(mesh.face_offsets, dtype=np.int64)
-    counts = np.maximum(np.diff(offsets) - 2, 0)
-    face = np.repeat(np.arange(counts.shape[0]), counts)
-    first = np.repeat(np.cumsum(counts) - counts, counts)
-    step = np.arange(face.shape[0]) - first + 1
-    start = offsets[face]
-    return np.column_stack([start, start + step, start + step + 1])
-
-
 def glb_bytes(mesh: Mesh, vat_uv: np.ndarray) -> bytes:
     """A binary glTF 2.0 of the rest-pose mesh, fan-triangulated, with TEXCOORD_0 the input's UVs (when it has
     them) and TEXCOORD_1 the VAT UVs, both in glTF's convention (origin top-left: v_gltf = 1 - v).
 
-    glTF has one UV per vertex, so a vertex with several input UVs (a seam) becomes one glTF vertex per UV,
-    each with the vertex's VAT UV; glTF vertices are sorted by (input vertex, input UV index)."""
-    corners = fan_triangles(mesh).ravel()
-    vertex = np.asarray(mesh.face_indices, dtype=np.int64)[corners]
-    has_uv = mesh.uvs is not None and mesh.face_uv_indices is not None
-    uv_index = np.asarray(mesh.face_uv_indices, dtype=np.int64)[corners] if has_uv else np.zeros_like(vertex)
-    keys, inverse = np.unique(np.column_stack([vertex, uv_index]), axis=0, return_inverse=True)
-    source = keys[:, 0]
+    The vertex layout is `scene.glb`'s (`gltf.gltf_vertices`): glTF vertices 0..V-1 are the input vertices in
+    their order; glTF has one UV per vertex, so a vertex with several input UVs (a seam) is copied, the copies
+    follow as vertices V.. with the vertex's VAT UV, and `meshes[0].extras.seamSource` lists the input vertex
+    of each (glTF vertex V + j is input vertex seamSource[j])."""
+    source, corner_vertex, uv = gltf_vertices(mesh)
+    indices = corner_vertex[fan_triangles(mesh).ravel()]
     position = np.asarray(mesh.positions, dtype=np.float32)[source]
     flip = np.array([0.0, 1.0])
     columns = {"POSITION": position, "TEXCOORD_1": (flip - vat_uv[source] * [-1.0, 1.0]).astype(np.float32)}
-    if has_uv:
-        uv = np.asarray(mesh.uvs, dtype=np.float64)[keys[:, 1], :2]
+    if uv is not None:
         columns["TEXCOORD_0"] = (flip - uv * [-1.0, 1.0]).astype(np.float32)
     blob, views, accessors, attributes = b"", [], [], {}
-    for name, data in [*columns.items(), ("indices", inverse.reshape(-1).astype(np.uint32))]:
+    for name, data in [*columns.items(), ("indices", indices.astype(np.uint32))]:
         raw = np.ascontiguousarray(data).astype(data.dtype.newbyteorder("<")).tobytes()
         views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(raw)})
         views[-1]["target"] = 34963 if name == "indices" else 34962
@@ -161,12 +148,16 @@ def glb_bytes(mesh: Mesh, vat_uv: np.ndarray) -> bytes:
         if name != "indices":
             attributes[name] = len(accessors) - 1
         blob += raw + b"\0" * (-len(raw) % 4)
+    primitive = {"attributes": attributes, "indices": len(accessors) - 1, "mode": 4}
+    glb_mesh: dict[str, object] = {"primitives": [primitive]}
+    if source.size > mesh.vertex_count:
+        glb_mesh["extras"] = {"seamSource": source[mesh.vertex_count :].tolist()}
     document = {
         "asset": {"version": "2.0", "generator": "meshdeform vat"},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": "vat_mesh"}],
-        "meshes": [{"primitives": [{"attributes": attributes, "indices": len(accessors) - 1, "mode": 4}]}],
+        "meshes": [glb_mesh],
         "buffers": [{"byteLength": len(blob)}],
         "bufferViews": views,
         "accessors": accessors,
