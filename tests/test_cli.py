@@ -337,6 +337,18 @@ def test_check_simulate_and_batch_refuse_a_tearing_recipe_with_a_point_cache_ali
     assert not (tmp_path / "one").exists() and not (tmp_path / "many").exists()
 
 
+def test_simulate_says_on_stderr_what_it_repaired_in_the_input(tmp_path: Path) -> None:
+    mesh = tmp_path / "quad.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nvn 0 1 0\nf 1//1 2//2 3//3 4//4\n")
+    result = run("simulate", mesh, "-o", tmp_path / "out", "--frames", "1")
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert len(report["warnings"]) == 1 and "normal" in report["warnings"][0]
+    assert result.stderr.splitlines() == [f"warning: {mesh}: {report['warnings'][0]}"]
+    quiet = run("simulate", mesh, "-o", tmp_path / "quiet", "--frames", "1", "-q")
+    assert quiet.exit_code == 0 and quiet.stderr == ""
+
+
 def test_simulate_stdout_has_no_stray_blank_line(tmp_path: Path) -> None:
     mesh_path = write_grid(tmp_path / "cloth.obj", 4, 4, plane="xz")
     quiet = run("simulate", mesh_path, "-o", tmp_path / "quiet", "--frames", "2", "-q")

@@ -150,5 +150,8 @@ def register(app: typer.Typer) -> None:
                 f"({report['frames_per_second'] or 0:.1f} frames/s), max stretch {max(report['max_stretch']):.3f}"
                 f" -> {out}"
             )
+            for warning in report["warnings"]:  # what was repaired or ignored in the input, and the like
+                if not warning.startswith("not converged"):
+                    typer.echo(f"warning: {mesh}: {warning}", err=True)
             if report["converged"] is False:  # the report's warning, on the summary's stream
                 typer.echo(f"  {next(w for w in report['warnings'] if w.startswith('not converged'))}")
