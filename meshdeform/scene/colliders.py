@@ -717,11 +717,19 @@ class Collider(Constraint, Remappable):
         hint[n:] = np.sign(self._side[prims[n:]].sum(axis=1))
         return hint
 
-    def project(self, model: SpringModel, state: State, time: float, dt: float) -> None:
+    def project(
+        self, model: SpringModel, state: State, time: float, dt: float, start: np.ndarray | None = None
+    ) -> None:
         """Keep the cloth's surface `thickness` out of the shape after a substep (module
         docstring): state.previous and state.positions are the substep's start and end (time
         - dt, time); corrected positions, velocities and previous positions are written back
-        for the vertices that changed only, so the others keep their bytes."""
+        for the vertices that changed only, so the others keep their bytes.
+
+        start (V, 3), world positions: where the paths start instead, with the shape where it is
+        at `time` (a pass after another constraint moved the cloth within the substep: the
+        positions this collider left clear before that move). state.previous is what the velocities
+        imply (self-collision's `_settle`), which need not be clear of the shape, and a contact the
+        corrections cannot free goes back to its start."""
         shape = self._shape_at(time)
         prims = self._primitives(model)
         n = state.positions.shape[0]
@@ -730,7 +738,10 @@ class Collider(Constraint, Remappable):
         h, gap = self._gaps(scale)
         floor = h - FAIL_FRACTION * h
         x1 = np.array(self._to_local(state.positions, time), dtype=np.float64, order="C")
-        x0 = np.ascontiguousarray(self._start_positions(state, x1, h, time, dt), dtype=np.float64)
+        x0 = np.ascontiguousarray(
+            self._start_positions(state, x1, h, time, dt) if start is None else self._to_local(start, time),
+            dtype=np.float64,
+        )
         lo, hi = self._bounds(shape)
         inv_mass = np.ascontiguousarray(model.inv_mass, dtype=np.float64)
         hint = self._hints(prims, n, sheet)
