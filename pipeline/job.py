@@ -363,7 +363,8 @@ def stretch_warning(max_stretch: list[float]) -> str | None:
     return (
         f"stretched: in {len(frames)} frame(s) ({listed}) structural springs were longer than "
         f"{STRETCH_WARNING:g}x their rest length, {max_stretch[worst - 1]:.3g}x in frame {worst}; the cloth looks "
-        "rubbery or torn there: more substeps or iterations, or a stiffer material, hold it"
+        "rubbery or torn there: more substeps or iterations, or a stiffer material, hold it (where it wraps a "
+        "collider narrower than its edges, a finer mesh does)"
     )
 
 
