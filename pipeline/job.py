@@ -15,7 +15,7 @@ import json
 import subprocess
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -32,7 +32,10 @@ from pipeline.output_folder import REPORT_NAME, check_output_folder, staged_dire
 from pipeline.recipe import Recipe, recipe_hash, resolve_path
 
 if TYPE_CHECKING:
+    from meshdeform.model import SpringModel
     from meshdeform.preview.live import RunPreview
+    from meshdeform.scene.colliders import Collider
+    from meshdeform.simulate import Frame
 
 #: report keys that hold wall-clock timings (the only ones allowed to differ between identical runs)
 TIMING_KEYS = ("seconds", "setup_seconds", "export_seconds", "preview_seconds", "total_seconds", "frames_per_second")
@@ -121,7 +124,7 @@ def _run_job(
     from meshdeform.preview.colliders import scene_colliders
     from meshdeform.preview.live import RunPreview
     from meshdeform.scene.colliders import ContactStats
-    from meshdeform.simulate import Frame, converged, convergence_warning, initial_frame, simulate, steps_vary
+    from meshdeform.simulate import converged, convergence_warning, initial_frame, simulate, steps_vary
     from meshdeform.strain import VertexStrain
     from pipeline import compile_ahead
     from pipeline.build import build_simulation
@@ -166,6 +169,8 @@ def _run_job(
     colliders = scene_colliders(built.scene)
     collider_seen = ContactStats()
     collider_contact: dict[str, list[int]] = {}  # the colliders' ContactStats summed, frame by frame
+    collider_clearance: list[float | None] = []  # mm, frame by frame: the free vertices' least (`frame_clearance`)
+    contact_failed: list[int] = []  # frames a free vertex ended within a collider's thickness (`contact_warning`)
     extra_work: list[int] = []  # frames whose contact needed more than one pass or more steps (docs/recipes.md)
     first_tear_frame: int | None = None
     output_vertices = mesh.vertex_count
@@ -246,6 +251,10 @@ def _run_job(
                         if key != "substeps":
                             collider_contact.setdefault(key, []).append(int(value))
                     extra = extra or done.swept > 0 or done.rounds > 0 or done.reverted > 0
+                    clearance, failed = frame_clearance(colliders, frame, model)
+                    collider_clearance.append(clearance)
+                    if failed:
+                        contact_failed.append(frame.index)
                 extra = extra or frame.substeps > settings.substeps  # a fast frame's extra steps
                 if extra:
                     extra_work.append(frame.index)
@@ -268,6 +277,7 @@ def _run_job(
             for warning in (
                 convergence_warning(last_frame, built.scene) if last_frame is not None else None,
                 unresolved_contact_warning(contact.get("unresolved", [])),
+                contact_warning(contact_failed, collider_clearance),
                 stretch_warning(max_stretch),
             )
             if warning is not None
@@ -322,7 +332,11 @@ def _run_job(
                 if built.scene.self_collision is not None
                 else {}
             ),
-            **({"collider_contact": collider_contact} if colliders else {}),
+            **(
+                {"collider_contact": collider_contact, "collider_clearance_mm": collider_clearance}
+                if colliders
+                else {}
+            ),
             **({"contact_extra_work_frames": extra_work} if colliders or built.scene.self_collision else {}),
             "formats": formats,
             "outputs": [*relative, REPORT_NAME],
@@ -365,6 +379,40 @@ def stretch_warning(max_stretch: list[float]) -> str | None:
         f"{STRETCH_WARNING:g}x their rest length, {max_stretch[worst - 1]:.3g}x in frame {worst}; the cloth looks "
         "rubbery or torn there: more substeps or iterations, or a stiffer material, hold it (where it wraps a "
         "collider narrower than its edges, a finer mesh does)"
+    )
+
+
+def frame_clearance(colliders: Sequence[Collider], frame: Frame, model: SpringModel) -> tuple[float | None, bool]:
+    """(the least `Collider.clearance` (mm, rounded to the micron) of the frame's free vertices
+    over `colliders`, None without free vertices; whether one lies nearer than the collider's
+    own fail-safe floor, `FAIL_FRACTION` of its thickness within it: its contact did not hold).
+    Pinned vertices are left out (a pin may hold the cloth on a body's surface). `model`: the
+    run's model, where the frame carries none (no tearing)."""
+    from meshdeform.scene.colliders import FAIL_FRACTION
+
+    in_force = frame.model if frame.model is not None else model
+    points = frame.welded_positions[np.asarray(in_force.inv_mass) > 0.0]
+    if not points.shape[0]:
+        return None, False
+    nearest, failed = np.inf, False
+    for collider in colliders:
+        clearance = float(collider.clearance(points, frame.time).min())
+        nearest = min(nearest, clearance)
+        failed = failed or clearance < -FAIL_FRACTION * collider.thickness - 1e-9
+    return round(nearest * 1000.0, 3), failed
+
+
+def contact_warning(failed: list[int], clearance: list[float | None]) -> str | None:
+    """The report's sentence where a free vertex ended a frame within a collider's thickness beyond
+    the colliders' fail-safe floor (`failed`: those frames; `clearance`: the report's
+    `collider_clearance_mm`, per frame from frame 1), else None."""
+    if not failed:
+        return None
+    worst = min(failed, key=lambda index: clearance[index - 1] or 0.0)
+    return (
+        f"contact: in {len(failed)} frame(s) ({_listed_frames(failed)}) a vertex ended within a collider's "
+        f"thickness, {-(clearance[worst - 1] or 0.0):.3g} mm in frame {worst}: the contact did not hold there "
+        "(the cloth squeezed between colliders or pulled in by pins; more substeps may help)"
     )
 
 

@@ -507,3 +507,61 @@ def test_contacts_sharing_a_vertex_stop_it_without_throwing_it_off(shape: str) -
     # every approach stopped and nothing thrown off, up to the tilt of a face's normal from a vertex's
     assert outward.min() > -0.01 * speed
     assert outward.max() < 0.01 * speed
+
+
+# -- the report's clearance and its warning ---------------------------------------------------------
+
+
+def test_the_report_gives_a_falling_sheet_s_clearance_by_free_fall_and_zero_once_it_lies(tmp_path) -> None:
+    """A flat sheet 0.5 m above the ground (thickness 10 mm), no air damping, implicit: its report's
+    `collider_clearance_mm` is the free fall's, 500 - 10 - g t^2 / 2 (mm) at frame k (t = k / 24 s), until
+    it lands; from then on about 0 (it lies at the thickness); no contact warning."""
+    import json
+
+    from factories import write_grid
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    mesh = write_grid(tmp_path / "sheet.obj", 6, plane="xz")
+    recipe = tmp_path / "r.toml"
+    recipe.write_text(
+        '[simulation]\nsolver = "implicit"\nfps = 24\nframes = 24\ndamping = 0.0\n'
+        "[[colliders]]\nplane = { point = [0, -0.5, 0], normal = [0, 1, 0] }\nthickness = 0.01\n"
+    )
+    result = CliRunner().invoke(app, ["simulate", str(mesh), "-r", str(recipe), "-o", str(tmp_path / "out"), "-q"])
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    clearance = np.array(report["collider_clearance_mm"])
+    assert clearance.shape == (24,)
+    for k in range(1, 7):  # 0.5 m falls in 0.32 s, 7.6 frames
+        t = k / 24.0
+        assert clearance[k - 1] == pytest.approx(500.0 - 10.0 - 0.5 * 9.81 * t * t * 1000.0, abs=0.01), k
+    assert np.abs(clearance[-6:]).max() < 0.05
+    assert not [w for w in report["warnings"] if w.startswith("contact:")]
+
+
+def test_a_frame_whose_free_vertex_ended_inside_a_collider_is_named_by_a_warning() -> None:
+    """`frame_clearance` against an independent reading: a vertex 3 mm under a ground that keeps 10 mm
+    is 13 mm within it, past the fail-safe floor (1 mm of it); a pinned vertex deeper still is left
+    out (a pin may hold the cloth on a body); `contact_warning` names the frame and the depth."""
+    from factories import grid_sheet
+
+    from pipeline.job import contact_warning, frame_clearance
+
+    mesh = grid_sheet(3, 3, plane="xz")
+    model = SpringModel.from_mesh(mesh)
+    positions = np.array(model.rest_positions, dtype=np.float64) + [0.0, 1.0, 0.0]
+    ground = Collider(Plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), 0.3, 0.01)
+    frame = Frame(index=3, time=0.1, positions=positions, welded_positions=positions, max_stretch=1.0, max_speed=0.0)
+    assert frame_clearance([ground], frame, model) == (pytest.approx(990.0, abs=1e-3), False)
+    positions[4, 1] = -0.003
+    clearance, failed = frame_clearance([ground], frame, model)
+    assert clearance == pytest.approx(-13.0, abs=1e-3) and failed
+    warning = contact_warning([3], [None, None, clearance])
+    assert warning is not None and warning.startswith("contact: in 1 frame(s) (3) a vertex ended within a collider's")
+    assert "13 mm in frame 3" in warning
+    mask = np.zeros(mesh.vertex_count, dtype=bool)
+    mask[4] = True
+    pinned = SpringModel.from_mesh(mesh, pinned_input=mask)
+    assert frame_clearance([ground], frame, pinned) == (pytest.approx(990.0, abs=1e-3), False)

@@ -596,6 +596,16 @@ class Collider(Constraint, Remappable):
             normal = normal @ self.keys.rotation(time).T
         return dist, normal
 
+    def clearance(self, points: np.ndarray, time: float) -> np.ndarray:
+        """(N,) m: how far each of `points` (N, 3) lies outside the thickness this collider keeps at
+        `time`: its distance from the surface less the thickness (negative: within it, or inside
+        a solid). An open mesh is two-sided: its distance on either side."""
+        distance, _ = self.signed_distance(points, time)
+        arrays = self._shape_at(time)
+        if arrays.kind == ck.MESH and not arrays.closed:
+            distance = np.abs(distance)
+        return distance - self.thickness
+
     def planes(
         self, model: SpringModel, positions: np.ndarray, velocities: np.ndarray | None = None
     ) -> ContactPlanes | None:
