@@ -29,7 +29,8 @@ from pipeline import __version__
 from pipeline.hashing import file_sha256
 from pipeline.interrupts import raise_if_lost, unwritten_on_failure
 from pipeline.output_folder import REPORT_NAME, check_output_folder, staged_directory
-from pipeline.recipe import Recipe, recipe_hash, resolve_path
+from pipeline.recipe import Recipe, recipe_hash
+from pipeline.recipe.digest import add_collider_files
 
 if TYPE_CHECKING:
     from meshdeform.model import SpringModel
@@ -433,15 +434,13 @@ def unresolved_contact_warning(unresolved: list[int]) -> str | None:
 
 def colliders_hash(recipe: Recipe) -> str:
     """sha256 of what a run's colliders are built from: the recipe's [[colliders]] tables (normalised),
-    its up axis (the ground's) and the collider mesh files' contents. Command-line overrides do not
+    its up axis (the ground's) and the contents of the collider mesh files and their point caches
+    (`pipeline.recipe.digest.add_collider_files`). Command-line overrides do not
     reach them, so `meshdeform preview` rebuilds a run's colliders from its recipe file while this matches
     the report's `colliders_sha256` (the input mesh, which relative colliders need, is checked apart)."""
     content = {"colliders": [c.model_dump(mode="json") for c in recipe.colliders], "up": recipe.simulation.up}
     digest = hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode("utf-8"))
-    for collider in recipe.colliders:
-        if collider.mesh is not None:
-            path = resolve_path(recipe, collider.mesh.path)
-            digest.update(file_sha256(path).encode("ascii") if path.is_file() else b"missing")
+    add_collider_files(digest, recipe)
     return digest.hexdigest()
 
 

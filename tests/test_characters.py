@@ -8,6 +8,7 @@ force over the body's triangles at that frame's pose). Malformed caches fail in 
 
 from __future__ import annotations
 
+import json
 import struct
 from pathlib import Path
 
@@ -221,3 +222,42 @@ def test_soft_pins_drag_a_stiff_cloth_without_being_held_as_contacts(modulus: fl
         assert (lengths < 1.5 * built.model.rest_lengths[structural]).all(), frame.index
     gap = np.linalg.norm(frame.welded_positions[pin.indices] - pin.targets(frame.time), axis=1).max()
     assert gap < 0.02
+
+
+def test_a_batch_redoes_an_asset_whose_body_cache_alone_changed(tmp_path: Path) -> None:
+    """The result of a run with a deforming body is up to date only while the body's point cache is
+    the same: the body moved 1 m in its cache (recipe, body mesh and cape unchanged) makes the batch
+    run the asset again, where it was skipped as up to date, and the report's `colliders_sha256`
+    (which `meshdeform preview` checks before drawing the body) changes with it. A folder of frame
+    files counts by each file's name and contents."""
+    from pipeline.recipe import load_recipe, recipe_hash
+
+    assets = tmp_path / "assets"
+    assets.mkdir()
+    write_body(tmp_path, FRAMES + 2)
+    write_cape(assets)
+    recipe = tmp_path / "cape.toml"
+    recipe.write_text(RECIPE.replace(f"frames = {FRAMES}", "frames = 3"))
+    out = tmp_path / "out"
+
+    def batch() -> dict:
+        done = runner.invoke(app, ["batch", str(assets), "-r", str(recipe), "-o", str(out), "--jobs", "0", "-q"])
+        assert done.exit_code == 0, done.output
+        return json.loads((out / "manifest.json").read_text())["assets"][0]
+
+    assert batch()["status"] == "ok"
+    first = json.loads((out / "cape" / "report.json").read_text())["colliders_sha256"]
+    assert batch()["status"] == "skipped"
+    samples = np.array([np.asarray(capsule().vertices) + [1.0, 0.0, 0.0]] * (FRAMES + 2))
+    (tmp_path / "body.pc2").write_bytes(pc2_bytes(samples))
+    assert batch()["status"] == "ok"
+    assert json.loads((out / "cape" / "report.json").read_text())["colliders_sha256"] != first
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for index in range(3):
+        (frames / f"body_{index:03d}.obj").write_text(obj_text(samples[index], np.asarray(capsule().faces)))
+    recipe.write_text(RECIPE.replace('cache = "body.pc2"', 'cache = "frames"'))
+    before = recipe_hash(load_recipe(recipe))
+    (frames / "body_002.obj").write_text(obj_text(samples[2] + 0.01, np.asarray(capsule().faces)))
+    assert recipe_hash(load_recipe(recipe)) != before

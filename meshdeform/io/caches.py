@@ -249,6 +249,27 @@ def read_point_cache(spec: str, base: Path, vertex_count: int) -> PointCache:
     return _read_usd(path, vertex_count)
 
 
+def cache_files(spec: str, base: Path) -> list[Path]:
+    """The files the cache `spec` (relative to the folder `base`) is read from, in a fixed order: the
+    file itself, or the .obj/.ply files a glob or a folder names, sorted by name; only those inside
+    `base` (what `read_point_cache` reads, without reading them). For deciding whether a result made
+    with the cache is still up to date: a changed cache is another run."""
+    base = Path(base)
+    if not spec or Path(spec).is_absolute():
+        return []
+    root = base.resolve()
+    if _GLOB_CHARACTERS.intersection(spec):
+        try:
+            found = sorted(base.glob(spec))
+        except (ValueError, NotImplementedError):
+            return []
+    elif (base / spec).is_dir() and (base / spec).suffix.lower() not in CACHE_SUFFIXES:
+        found = sorted(f for f in (base / spec).iterdir() if f.suffix.lower() in MESH_SUFFIXES)
+    else:
+        found = [base / spec]
+    return [path for path in found if path.is_file() and path.resolve().is_relative_to(root)]
+
+
 def _check_inside(path: Path, base: Path, spec: str) -> None:
     """Refuse a path that resolves (`..`, symlinks) outside `base`."""
     root = base.resolve()

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+from pathlib import Path
 
+from meshdeform.io.caches import cache_files
 from pipeline.recipe.document import Recipe, resolve_path
 from pipeline.recipe.schema import UsdOutputSpec
 from pipeline.recipe.solver_options import all_options, flat_options
@@ -31,11 +33,31 @@ def recipe_hash(recipe: Recipe) -> str:
             solver = rule["simulation"].get("solver", recipe.simulation.solver)
             rule["simulation"] = flat_options(rule["simulation"], solver)
     digest = hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode("utf-8"))
-    for collider in recipe.colliders:
-        if collider.mesh is not None:
-            path = resolve_path(recipe, collider.mesh.path)
-            try:
-                digest.update(hashlib.sha256(path.read_bytes()).digest())
-            except OSError:
-                digest.update(b"missing:" + collider.mesh.path.encode("utf-8"))
+    add_collider_files(digest, recipe)
     return digest.hexdigest()
+
+
+def add_collider_files(digest: hashlib._Hash, recipe: Recipe) -> None:
+    """Feed `digest` the contents of the files the recipe's colliders are built from: each mesh
+    collider's mesh and, for a deforming body, every file of its point cache (`cache_files`, by name
+    and contents), so a result made with other files is not taken for up to date. A file that cannot
+    be read counts by its path."""
+    base = recipe.source.parent if recipe.source is not None else Path.cwd()
+    for collider in recipe.colliders:
+        if collider.mesh is None:
+            continue
+        path = resolve_path(recipe, collider.mesh.path)
+        try:
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+        except OSError:
+            digest.update(b"missing:" + collider.mesh.path.encode("utf-8"))
+        if collider.mesh.cache is None:
+            continue
+        files = cache_files(collider.mesh.cache, base)
+        if not files:
+            digest.update(b"missing cache:" + collider.mesh.cache.encode("utf-8"))
+        for file in files:
+            try:
+                digest.update(file.name.encode("utf-8") + hashlib.sha256(file.read_bytes()).digest())
+            except OSError:
+                digest.update(b"missing:" + file.name.encode("utf-8"))
