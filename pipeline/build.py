@@ -152,7 +152,7 @@ def _per_vertex_maps(
     return stiffness, vertex_mass
 
 
-def _collider(spec: ColliderSpec, i: int, recipe: Recipe, res: _Resolver) -> col.Collider:
+def _collider(spec: ColliderSpec, i: int, recipe: Recipe, res: _Resolver, warnings: list[str]) -> col.Collider:
     rel = spec.relative
     path = ("colliders", i, spec.kind)
     shape: col.Shape
@@ -187,7 +187,7 @@ def _collider(spec: ColliderSpec, i: int, recipe: Recipe, res: _Resolver) -> col
         if other.triangles.shape[0] == 0:
             raise recipe.error(path, f"collider mesh {file} has no faces")
         if spec.mesh.cache is not None:
-            return _deforming_collider(spec, i, recipe, other.positions, other.triangles)
+            return _deforming_collider(spec, i, recipe, other.positions, other.triangles, warnings)
         shape = col.TriangleMesh(other.positions, other.triangles)
     pivot = res.point(spec.pivot, rel) if spec.pivot is not None else shape.center
     thickness = spec.thickness if spec.thickness is not None else recipe.material.thickness
@@ -203,10 +203,12 @@ def _attachment(collider: col.Collider) -> Motion | None:
 
 
 def _deforming_collider(
-    spec: ColliderSpec, i: int, recipe: Recipe, rest: np.ndarray, triangles: np.ndarray
+    spec: ColliderSpec, i: int, recipe: Recipe, rest: np.ndarray, triangles: np.ndarray, warnings: list[str]
 ) -> DeformingCollider:
     """A mesh collider driven by its cache (`meshdeform.io.caches`), read and checked against the
-    rest mesh and the run's length here, before anything runs."""
+    rest mesh and the run's length here, before anything runs. A warning where the cache at the
+    run's start puts the body farther from the mesh's own pose than its thickness: the cloth was
+    made around that pose, so it starts inside the body or apart from it."""
     assert spec.mesh is not None and spec.mesh.cache is not None
     sim = recipe.simulation
     base = recipe.source.parent if recipe.source is not None else Path.cwd()
@@ -221,6 +223,13 @@ def _deforming_collider(
         return sample(cache, timing, time)
 
     thickness = spec.thickness if spec.thickness is not None else recipe.material.thickness
+    offset = float(np.linalg.norm(track(0.0) - rest, axis=1).max(initial=0.0))
+    if offset > thickness:
+        warnings.append(
+            f"colliders[{i}].mesh.cache: at the run's start the body lies up to {offset * 1000:.3g} mm from the pose "
+            f"of its mesh {spec.mesh.path}, which the cloth is made around: the cloth starts inside the body or "
+            "apart from it; make the cache's first frame the mesh's pose"
+        )
     return DeformingCollider(DeformingMesh(rest, triangles, track), spec.friction, thickness)
 
 
@@ -340,7 +349,7 @@ def build_simulation(recipe: Recipe, mesh: Mesh) -> BuiltSimulation:
         )
 
     # -- colliders first: pins attach to them (they run last, see below) ---------------------------
-    colliders = [_collider(c, i, recipe, res) for i, c in enumerate(recipe.colliders)]
+    colliders = [_collider(c, i, recipe, res, warnings) for i, c in enumerate(recipe.colliders)]
     named = {spec.name: collider for spec, collider in zip(recipe.colliders, colliders, strict=True) if spec.name}
 
     # -- pins (input layout first: the hard ones go into the model) -------------------------------

@@ -412,8 +412,9 @@ def contact_warning(failed: list[int], clearance: list[float | None]) -> str | N
     worst = min(failed, key=lambda index: clearance[index - 1] or 0.0)
     return (
         f"contact: in {len(failed)} frame(s) ({_listed_frames(failed)}) a vertex ended within a collider's "
-        f"thickness, {-(clearance[worst - 1] or 0.0):.3g} mm in frame {worst}: the contact did not hold there "
-        "(the cloth squeezed between colliders or pulled in by pins; more substeps may help)"
+        f"thickness, {-(clearance[worst - 1] or 0.0):.3g} mm deep in frame {worst}: the contact did not hold "
+        "there (the cloth squeezed between colliders, pulled in by pins, or started inside a body; more "
+        "substeps may help)"
     )
 
 

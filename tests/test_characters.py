@@ -261,3 +261,21 @@ def test_a_batch_redoes_an_asset_whose_body_cache_alone_changed(tmp_path: Path) 
     before = recipe_hash(load_recipe(recipe))
     (frames / "body_002.obj").write_text(obj_text(samples[2] + 0.01, np.asarray(capsule().faces)))
     assert recipe_hash(load_recipe(recipe)) != before
+
+
+def test_a_body_whose_cache_starts_away_from_its_mesh_s_pose_is_warned_about(tmp_path: Path) -> None:
+    """The cloth is made around the body mesh's pose; a cache whose start puts the body 6 cm from it
+    (the first sample not the rest pose) starts the cloth inside the body: the built simulation says
+    so, naming the collider's cache and the distance; a cache that starts at the pose says nothing."""
+    from meshdeform.io import load
+    from pipeline.recipe import load_recipe
+
+    write_body(tmp_path, FRAMES + 2)
+    write_cape(tmp_path)
+    (tmp_path / "cape.toml").write_text(RECIPE)
+    cape = load(tmp_path / "cape.obj")
+    assert not build_simulation(load_recipe(tmp_path / "cape.toml"), cape).warnings
+    samples = np.array([np.asarray(capsule().vertices) + [0.0, 0.0, 0.06]] * (FRAMES + 2))
+    (tmp_path / "body.pc2").write_bytes(pc2_bytes(samples))
+    (warning,) = build_simulation(load_recipe(tmp_path / "cape.toml"), cape).warnings
+    assert warning.startswith("colliders[0].mesh.cache: at the run's start the body lies up to 60 mm from")

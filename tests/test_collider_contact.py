@@ -560,7 +560,7 @@ def test_a_frame_whose_free_vertex_ended_inside_a_collider_is_named_by_a_warning
     assert clearance == pytest.approx(-13.0, abs=1e-3) and failed
     warning = contact_warning([3], [None, None, clearance])
     assert warning is not None and warning.startswith("contact: in 1 frame(s) (3) a vertex ended within a collider's")
-    assert "13 mm in frame 3" in warning
+    assert "13 mm deep in frame 3" in warning
     mask = np.zeros(mesh.vertex_count, dtype=bool)
     mask[4] = True
     pinned = SpringModel.from_mesh(mesh, pinned_input=mask)

@@ -222,7 +222,9 @@ def read_point_cache(spec: str, base: Path, vertex_count: int) -> PointCache:
     if not spec:
         raise MeshLoadError(f"{base}: the point cache's path is empty")
     if Path(spec).is_absolute():
-        raise MeshLoadError(f"{spec}: an absolute path; a point cache is named relative to the recipe's folder {base}")
+        raise MeshLoadError(
+            f"{spec}: an absolute path; a point cache is named relative to the recipe's folder {base.resolve()}"
+        )
     if _GLOB_CHARACTERS.intersection(spec):
         return _read_sequence(spec, base, vertex_count)
     path = base / spec
