@@ -599,3 +599,13 @@ def test_iterations_given_to_a_solver_without_them_are_reported_as_none_with_a_w
     assert all(a.tobytes() == b.tobytes() for a, b in zip(ran, same, strict=True))
     sweeping = build_simulation(parse_recipe('[simulation]\nsolver = "xpbd"\nframes = 2\niterations = 10\n'), mesh)
     assert sweeping.settings.iterations == 10 and not sweeping.warnings
+
+
+def test_a_pin_attached_to_no_collider_is_refused_at_its_line() -> None:
+    text = (
+        '[[colliders]]\nname = "pole"\nsphere = { center = [0, 0, 0], radius = 0.1 }\n'
+        '[[pins]]\nselect = { indices = [0] }\nattach = "pol"\n'
+    )
+    with pytest.raises(RecipeError) as info:
+        parse_recipe(text, "t.toml")
+    assert str(info.value) == "t.toml: pins[0].attach (line 6): 'pol' names no collider (named colliders: pole)"

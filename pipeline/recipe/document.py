@@ -80,14 +80,6 @@ class Recipe(Table):
                 )
         return self
 
-    @model_validator(mode="after")
-    def _attached_to_a_collider(self) -> Recipe:
-        names = {c.name for c in self.colliders if c.name is not None}
-        for pin in self.pins:
-            if pin.attach is not None and pin.attach not in names:
-                known = ", ".join(sorted(names)) or "none has a name"
-                raise ValueError(f"pins: attach = {pin.attach!r} names no collider (named colliders: {known})")
-        return self
 
     @property
     def label(self) -> str:
@@ -116,6 +108,17 @@ class Recipe(Table):
     def changes_topology(self) -> bool:
         """Whether the mesh may open during the run ([[tears]] or [[cuts]])."""
         return bool(self.tears or self.cuts)
+
+    def attach_complaint(self) -> tuple[KeyPath, str] | None:
+        """(key path, complaint) for the first pin whose `attach` names no collider of the recipe;
+        None when every one does. Part of the recipe's validation (`pipeline.recipe.load.validate`),
+        where the complaint gets the pin's line."""
+        names = {c.name for c in self.colliders if c.name is not None}
+        for i, pin in enumerate(self.pins):
+            if pin.attach is not None and pin.attach not in names:
+                known = ", ".join(sorted(names)) or "none has a name"
+                return ("pins", i, "attach"), f"{pin.attach!r} names no collider (named colliders: {known})"
+        return None
 
     def fixed_topology_complaint(self) -> tuple[KeyPath, str] | None:
         """(key path, complaint) when a recipe that tears or cuts asks for a format that needs a

@@ -76,11 +76,11 @@ def validate(
         loc = (*path_prefix, *path)
         line = line_at(lines, loc) if error_lines else None
         raise LocatedError(label, loc, line, detail, [(*path_prefix, *r) for r in related])
-    topology = recipe.fixed_topology_complaint()
-    if topology is not None:
-        path, detail = topology
-        loc = (*path_prefix, *path)
-        raise LocatedError(label, loc, line_at(lines, loc) if error_lines else None, detail)
+    for complaint in (recipe.attach_complaint(), recipe.fixed_topology_complaint()):
+        if complaint is not None:
+            path, detail = complaint
+            loc = (*path_prefix, *path)
+            raise LocatedError(label, loc, line_at(lines, loc) if error_lines else None, detail)
     recipe = recipe.model_copy(update={"source": source})
     recipe._raw = copy.deepcopy(data)
     recipe._lines = dict(lines)
