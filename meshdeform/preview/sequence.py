@@ -55,6 +55,13 @@ def _one_render_at_a_time(function: Callable[..., Any]) -> Callable[..., Any]:
     return locked
 
 
+def not_in_sequence(numbers: Sequence[int]) -> str:
+    """The refusal of a preview none of whose requested frames the sequence holds, naming the frames
+    it does hold (their first and last numbers)."""
+    held = f"frames {min(numbers)} to {max(numbers)}" if numbers else "no frames"
+    return f"preview: none of the requested frames is in the sequence, which holds {held}"
+
+
 class SequencePreview:
     """The previews of one sequence in their two passes, so camera and colours are fixed before the first image.
 
@@ -140,7 +147,7 @@ class SequencePreview:
     def check_wanted(self) -> None:
         """ExportError when no frame measured is one to render."""
         if not any(self.wants(n) for n in self.numbers):
-            raise ExportError("preview: none of the requested frames is in the sequence")
+            raise ExportError(not_in_sequence(self.numbers))
 
     def clim(self) -> tuple[float, float] | None:
         """The colour range of every image: the option, else from every frame measured: strain from 1 (no
@@ -275,7 +282,7 @@ def render_previews(
         start_frame=start_frame,
     )
     if not any(preview.wants(n) for n in numbers):
-        raise ExportError("preview: none of the requested frames is in the sequence")
+        raise ExportError(not_in_sequence(numbers))
     for k in range(count):  # pass 1: bounds of every frame and the colour range
         preview.measure(numbers[k], positions_by_frame[k])
     wanted = (k for k in range(count) if preview.wants(numbers[k]))
