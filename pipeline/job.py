@@ -383,10 +383,18 @@ def stretch_warning(max_stretch: list[float]) -> str | None:
     )
 
 
+#: m: a vertex this deep within a collider's thickness (or its fail-safe floor, where deeper) at a
+#: frame's end is a contact that did not hold (`frame_clearance`): what the contact checks allow
+#: (issue 15: no cloth point nearer a collider than its thickness less 1 mm); steps after the
+#: colliders (a tear's parting, self-collision's last zones) may leave a vertex a little within it
+CONTACT_SLACK = 0.001
+
+
 def frame_clearance(colliders: Sequence[Collider], frame: Frame, model: SpringModel) -> tuple[float | None, bool]:
     """(the least `Collider.clearance` (mm, rounded to the micron) of the frame's free vertices
-    over `colliders`, None without free vertices; whether one lies nearer than the collider's
-    own fail-safe floor, `FAIL_FRACTION` of its thickness within it: its contact did not hold).
+    over `colliders`, None without free vertices; whether one lies deeper within a collider's
+    thickness than its own fail-safe floor, `FAIL_FRACTION` of the thickness, and than
+    `CONTACT_SLACK`: its contact did not hold).
     Pinned vertices are left out (a pin may hold the cloth on a body's surface). `model`: the
     run's model, where the frame carries none (no tearing)."""
     from meshdeform.scene.colliders import FAIL_FRACTION
@@ -399,7 +407,7 @@ def frame_clearance(colliders: Sequence[Collider], frame: Frame, model: SpringMo
     for collider in colliders:
         clearance = float(collider.clearance(points, frame.time).min())
         nearest = min(nearest, clearance)
-        failed = failed or clearance < -FAIL_FRACTION * collider.thickness - 1e-9
+        failed = failed or clearance < -max(FAIL_FRACTION * collider.thickness, CONTACT_SLACK) - 1e-9
     return round(nearest * 1000.0, 3), failed
 
 
