@@ -239,22 +239,32 @@ def converged(frame: Frame, scene: Scene) -> bool | None:
     """Whether a run that ended with `frame` settled on a converged shape: True or False when the
     cloth is at rest and nothing but springs and forces holds it (no constraints, self-collision
     or pin animation, whose forces the residual does not count: `Frame.force_residual`), by
-    `CONVERGED_RESIDUAL`; None otherwise (still moving, or held by what the figure cannot see)."""
+    `CONVERGED_RESIDUAL`; None otherwise (still moving, or held by what the figure cannot see).
+    A solver's own tethers are counted as its sweeps' work: their hold shows in the figure."""
     held = bool(scene.constraints) or scene.self_collision is not None or scene.pin_motion is not None
     if not frame.at_rest or held:
         return None
     return frame.force_residual <= CONVERGED_RESIDUAL
 
 
-def convergence_warning(frame: Frame, scene: Scene) -> str | None:
-    """The report's sentence when a run settled unconverged (`converged` is False), else None."""
+def convergence_warning(frame: Frame, scene: Scene, options: SolverOptions | None = None) -> str | None:
+    """The report's sentence when a run settled unconverged (`converged` is False), else None. With
+    the solver's tethers on (`options`, `SolverOptions.holds_beyond_springs`) the imbalance may be
+    theirs: holding the cloth within its rest distances to the pins, they keep a soft cloth higher
+    than its material would hang, and more iterations change nothing there."""
     if converged(frame, scene) is not False:
         return None
-    return (
+    balance = (
         f"not converged: at rest the cloth is out of force balance by {frame.force_residual:.3g} times "
-        f"its weight (tolerance {CONVERGED_RESIDUAL:g}), so it hangs softer than its material; "
-        "raise iterations or substeps"
+        f"its weight (tolerance {CONVERGED_RESIDUAL:g})"
     )
+    if options is not None and options.holds_beyond_springs:
+        return (
+            f"{balance}: the sweeps did not reach its material's equilibrium (it hangs softer: raise iterations or "
+            "substeps), or the solver's tethers hold it above it (a soft cloth: set tethers = 0 in the solver's "
+            "table to hang by its springs alone)"
+        )
+    return f"{balance}, so it hangs softer than its material; raise iterations or substeps"
 
 
 def rest_frame(frames: Iterable[Frame]) -> int | None:

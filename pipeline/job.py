@@ -276,7 +276,7 @@ def _run_job(
         run_warnings = [
             warning
             for warning in (
-                convergence_warning(last_frame, built.scene) if last_frame is not None else None,
+                convergence_warning(last_frame, built.scene, settings.options) if last_frame is not None else None,
                 unresolved_contact_warning(contact.get("unresolved", [])),
                 contact_warning(contact_failed, collider_clearance),
                 stretch_warning(max_stretch),

@@ -44,6 +44,13 @@ class SolverOptions:
     iterations: Annotated[int, Ge(1)] | None = None
     damping: Annotated[float, Interval(ge=0, lt=1)] = 0.9
 
+    @property
+    def holds_beyond_springs(self) -> bool:
+        """Whether the solver holds the cloth by more than its springs and the forces (its own
+        tethers): a shape at rest out of balance may then be theirs, not unconverged sweeps'
+        (`meshdeform.simulate.convergence_warning`)."""
+        return False
+
     def iterations_for(self, solver: type | object) -> int:
         """The iteration count in force for a solver class or instance: 0 for one without
         iterations (`default_iterations` 0: springs, anchor) whatever `iterations` says."""
@@ -71,6 +78,11 @@ class SweepOptions(SolverOptions):
 
     partitions: Annotated[int, Ge(0)] = 0
     tethers: Annotated[float, Ge(0)] | None = 1.0
+
+    @property
+    def holds_beyond_springs(self) -> bool:
+        """Tethers on: they hold the cloth within its rest distances to the pins."""
+        return bool(self.tethers)
 
 
 @dataclass(frozen=True)
