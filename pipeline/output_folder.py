@@ -11,6 +11,7 @@ runs off one folder. docs/batch.md, "Output folders".
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import re
@@ -115,6 +116,20 @@ class FileRecord:
     sha256: str | None
 
 
+@functools.lru_cache(maxsize=1 << 16)
+def _sha256_of(path: str, identity: tuple[int, int, int, int]) -> str:
+    """sha256 of the file at `path` whose stat is `identity` (device, inode, size, mtime in ns): one
+    run checks a previous result up to five times (the command, the job, the staging, the commit,
+    the merge) and stamps the files it staged twice; each file is read once while it stays as it was
+    (an edit in place changes its mtime, a replacement its inode)."""
+    return file_sha256(path)
+
+
+def _sha256(path: Path, info: os.stat_result) -> str:
+    """sha256 of the plain file at `path`, whose lstat is `info` (`_sha256_of`)."""
+    return _sha256_of(str(path), (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns))
+
+
 def file_records(root: Path, files: Sequence[str]) -> dict[str, FileRecord]:
     """Size and sha256 of the `files` (relative POSIX) that are plain files under `root`."""
     records: dict[str, FileRecord] = {}
@@ -122,7 +137,7 @@ def file_records(root: Path, files: Sequence[str]) -> dict[str, FileRecord]:
         with contextlib.suppress(OSError):
             info = os.lstat(root / name)
             if stat.S_ISREG(info.st_mode):
-                records[name] = FileRecord(info.st_size, file_sha256(root / name))
+                records[name] = FileRecord(info.st_size, _sha256(root / name, info))
     return records
 
 
@@ -169,7 +184,7 @@ def _still_as_written(path: Path, record: FileRecord) -> bool:
         info = os.lstat(path)
         if not stat.S_ISREG(info.st_mode) or info.st_size != record.size:
             return False
-        return record.sha256 is None or file_sha256(path) == record.sha256
+        return record.sha256 is None or _sha256(path, info) == record.sha256
     except OSError:  # unreadable: not vouched for
         return False
 
